@@ -1,0 +1,3 @@
+from nerfpipe.cli.main import main
+
+main()

@@ -1,0 +1,1 @@
+"""The `nerfpipe` command line: a thin typer layer over ``nerfpipe.pipeline``."""

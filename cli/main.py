@@ -1,0 +1,183 @@
+"""`nerfpipe` commands. Parsing and formatting only: every action is a ``Pipeline`` call."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import sys
+from pathlib import Path
+from typing import Callable, Iterator, List, Optional
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from nerfpipe.pipeline import NerfpipeError, Pipeline, param_specs, parse_assignments
+from nerfpipe.pipeline.lock import RunLock
+from nerfpipe.stages import default_stages
+
+app = typer.Typer(
+    name="nerfpipe",
+    help="Photos in, a Neural Radiance Field and its exports out. Each stage is cached in the run directory.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+out_console = Console()
+err_console = Console(stderr=True)
+
+STATE_STYLE = {"fresh": "green", "stale": "yellow", "missing": "red"}
+
+DebugOption = typer.Option(False, "--debug", help="Show tracebacks and debug logs.")
+PresetOption = typer.Option(None, "--preset", "-p", help="Named preset applied to every stage that has it.")
+SetOption = typer.Option([], "--set", "-s", help="Override one parameter: STAGE.PARAM=VALUE (repeatable).")
+
+
+class _ConsoleHandler(logging.Handler):
+    """Concise terminal logs: plain info lines, labelled warnings; the run's log file has everything."""
+
+    PREFIX = {logging.DEBUG: "[dim]debug:[/] ", logging.WARNING: "[yellow]warning:[/] ", logging.ERROR: "[red]error:[/] "}
+
+    def emit(self, record: logging.LogRecord) -> None:
+        prefix = self.PREFIX.get(record.levelno, "")
+        err_console.print(prefix + escape(self.format(record)), highlight=False, soft_wrap=True)
+
+
+def _setup_logging(debug: bool) -> None:
+    handler = _ConsoleHandler()
+    handler.setLevel(logging.DEBUG if debug else logging.INFO)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    root = logging.getLogger("nerfpipe")
+    root.handlers[:] = [handler]
+    root.setLevel(logging.DEBUG if debug else logging.INFO)
+    root.propagate = False
+
+
+@contextlib.contextmanager
+def _user_errors(debug: bool) -> Iterator[None]:
+    """User errors become one line and a non-zero exit; ``--debug`` shows the traceback as well."""
+    try:
+        yield
+    except NerfpipeError as err:
+        if debug:
+            err_console.print_exception()
+        err_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False, soft_wrap=True)
+        raise typer.Exit(err.exit_code) from None
+    except KeyboardInterrupt:
+        err_console.print("[bold red]interrupted[/]: the stage that was running was not committed", highlight=False)
+        raise typer.Exit(130) from None
+
+
+def _progress_factory() -> Callable:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    @contextlib.contextmanager
+    def progress(total: int, description: str) -> Iterator[Callable[[int], None]]:
+        if not err_console.is_terminal:
+            yield lambda n=1: None
+            return
+        columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
+        with Progress(*columns, console=err_console, transient=True) as bar:
+            task = bar.add_task(description, total=total)
+            yield lambda n=1: bar.advance(task, n)
+
+    return progress
+
+
+@app.command()
+def run(
+    photos_dir: Path = typer.Argument(..., help="Folder of photos (or a capture folder with images/)."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Run directory [default: runs/<photos folder name>]."),
+    preset: Optional[str] = PresetOption,
+    set_: List[str] = SetOption,
+    until: Optional[str] = typer.Option(None, "--until", help="Run the stages up to and including this one."),
+    only: Optional[str] = typer.Option(None, "--only", help="Run only this stage; its upstream must be fresh."),
+    force: List[str] = typer.Option([], "--force", help="Rerun this stage and its downstream even if cached."),
+    skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip unreadable or duplicate photos with a warning."),
+    debug: bool = DebugOption,
+) -> None:
+    """Run the pipeline on a folder of photos, recomputing only what changed."""
+    _setup_logging(debug)
+    with _user_errors(debug):
+        overrides = parse_assignments(set_)
+        if skip_bad:
+            overrides.setdefault("ingest", {})["skip_bad"] = "true"
+        run_dir = out if out is not None else Path("runs") / photos_dir.resolve().name
+        pipe = Pipeline(default_stages(), photos_dir, run_dir, preset, overrides, progress=_progress_factory(), debug=debug)
+        outcomes = pipe.run(until=until, only=only, force=force)
+    table = Table(title=f"nerfpipe run -> {run_dir}", title_justify="left")
+    for column in ("stage", "result", "time"):
+        table.add_column(column)
+    table.add_column("output", overflow="fold")
+    for o in outcomes:
+        table.add_row(o.name, o.action, f"{o.seconds:.1f} s", str(o.path))
+    out_console.print(table)
+
+
+@app.command()
+def status(
+    run_dir: Path = typer.Argument(..., help="Run directory of an earlier `nerfpipe run`."),
+    preset: Optional[str] = PresetOption,
+    set_: List[str] = SetOption,
+    debug: bool = DebugOption,
+) -> None:
+    """Each stage fresh / stale / missing, with the reason. --preset/--set ask "what if"."""
+    _setup_logging(debug)
+    with _user_errors(debug):
+        pipe = Pipeline.from_run_dir(default_stages(), run_dir, preset, parse_assignments(set_))
+        statuses = pipe.status()
+    table = Table(title=f"{run_dir} (photos: {pipe.source})", title_justify="left")
+    for column in ("stage", "state", "reason", "key"):
+        table.add_column(column)
+    for s in statuses:
+        table.add_row(s.name, f"[{STATE_STYLE[s.state]}]{s.state}[/]", "; ".join(s.reasons), s.key[:12])
+    out_console.print(table)
+
+
+@app.command()
+def stages() -> None:
+    """The stage graph, with each stage's parameters, defaults and presets."""
+    pipe_stages = default_stages()
+    from nerfpipe.pipeline import Dag
+
+    dag = Dag(pipe_stages)
+    out_console.print("[bold]" + " -> ".join(dag.order) + "[/]\n")
+    for name in dag.order:
+        stage = dag.stages[name]
+        out_console.print(f"[bold]{name}[/] (version {stage.version}): {stage.summary()}")
+        if dag.upstream[name]:
+            out_console.print(f"  needs: {', '.join(stage.requires)} (from {', '.join(dag.upstream[name])})")
+        out_console.print(f"  provides: {', '.join(f'{a} ({p})' for a, p in stage.provides.items())}")
+        for spec in param_specs(stage.Params):
+            out_console.print(f"  [cyan]{name}.{spec.name}[/] = {spec.default}  [dim]({spec.type_name})[/]  {spec.help}",
+                              highlight=False, soft_wrap=True)
+        for preset_name, values in stage.presets.items():
+            shown = ", ".join(f"{k}={v}" for k, v in values.items())
+            out_console.print(f"  preset [green]{preset_name}[/]: {shown}", highlight=False)
+        out_console.print()
+
+
+@app.command()
+def clean(
+    run_dir: Path = typer.Argument(..., help="Run directory to prune."),
+    debug: bool = DebugOption,
+) -> None:
+    """Delete cached results other than each stage's latest, and unfinished work folders."""
+    _setup_logging(debug)
+    from nerfpipe.pipeline import ArtifactStore, InputError
+
+    with _user_errors(debug):
+        if not (run_dir / "run.json").is_file():
+            raise InputError(run_dir, "is not a nerfpipe run directory (no run.json)", "pass the --out folder of a run")
+        with RunLock(run_dir):
+            removed, freed = ArtifactStore(run_dir).clean()
+    out_console.print(f"removed {removed} folders, freed {freed / 1e6:.1f} MB")
+
+
+def main() -> None:
+    app(prog_name="nerfpipe")
+
+
+if __name__ == "__main__":
+    main()

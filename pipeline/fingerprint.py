@@ -1,0 +1,67 @@
+"""Fingerprints of input files: mtime + size first, content hash when those changed.
+
+A rerun with nothing changed only stats the files. A file whose mtime or size moved is hashed again,
+so touching a photo without changing its bytes does not invalidate anything downstream.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from nerfpipe.pipeline.hashing import sha256_file
+
+
+@dataclass(frozen=True)
+class Fingerprint:
+    """What the cache key records about one input file. ``relpath`` is relative to its root folder."""
+
+    relpath: str
+    size: int
+    mtime_ns: int
+    sha256: str
+
+
+class FingerprintCache:
+    """Remembers (size, mtime_ns) -> sha256 per absolute path, in one JSON file of the run directory."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._entries: dict[str, list] = {}
+        self._dirty = False
+        if path.exists():
+            try:
+                self._entries = json.loads(path.read_text())
+            except (OSError, ValueError):
+                self._entries = {}  # a damaged cache only costs rehashing
+
+    def fingerprint(self, file: Path, root: Path) -> Fingerprint:
+        st = file.stat()
+        key = str(file.resolve())
+        cached = self._entries.get(key)
+        if cached is not None and cached[0] == st.st_size and cached[1] == st.st_mtime_ns:
+            digest = cached[2]
+        else:
+            digest = sha256_file(file)
+            self._entries[key] = [st.st_size, st.st_mtime_ns, digest]
+            self._dirty = True
+        return Fingerprint(file.relative_to(root).as_posix(), st.st_size, st.st_mtime_ns, digest)
+
+    def save(self) -> None:
+        if not self._dirty:
+            return
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.path.with_name(f"{self.path.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(self._entries))
+        os.replace(tmp, self.path)
+        self._dirty = False
+
+
+def diff_inputs(old: dict[str, str], new: dict[str, str]) -> tuple[list[str], list[str], list[str]]:
+    """Compare {relpath: sha256} maps; returns (added, removed, modified) relpaths, sorted."""
+    added = sorted(set(new) - set(old))
+    removed = sorted(set(old) - set(new))
+    modified = sorted(p for p in set(old) & set(new) if old[p] != new[p])
+    return added, removed, modified

@@ -1,0 +1,306 @@
+"""Plan, inspect and run a pipeline of stages over one capture folder and one run directory.
+
+Every cache key is computed before anything runs: a stage's key hashes its name, version, parameters,
+the keys of its upstream stages and the fingerprints of the capture files it reads. So ``status`` can
+say what would rerun, and why, without running anything, and a rerun with nothing changed only stats
+the input files.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.metadata
+import json
+import logging
+import platform
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator, Literal, Mapping, Sequence
+
+from nerfpipe.pipeline.dag import Dag
+from nerfpipe.pipeline.errors import InputError, ParamError, StageError, UpstreamNotReadyError
+from nerfpipe.pipeline.fingerprint import Fingerprint, FingerprintCache, diff_inputs
+from nerfpipe.pipeline.hashing import cache_key
+from nerfpipe.pipeline.lock import RunLock
+from nerfpipe.pipeline.params import build_params, describe_changes, params_to_dict
+from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress
+from nerfpipe.pipeline.store import ArtifactStore, Committed, write_json_atomic
+
+log = logging.getLogger("nerfpipe")
+
+RUN_CONFIG = "run.json"
+
+
+@dataclass(frozen=True)
+class PlannedStage:
+    """A stage with its resolved parameters, fingerprinted inputs and cache key."""
+
+    stage: Stage
+    params: Any
+    files: tuple[Fingerprint, ...]
+    material: dict[str, Any]
+    key: str
+
+    @property
+    def name(self) -> str:
+        return self.stage.name
+
+
+@dataclass(frozen=True)
+class StageStatus:
+    name: str
+    state: Literal["fresh", "stale", "missing"]
+    reasons: tuple[str, ...]
+    key: str
+    result: Committed | None  # the result for ``key`` when fresh, else the latest one, if any
+
+
+@dataclass(frozen=True)
+class StageOutcome:
+    name: str
+    action: Literal["cached", "restored", "ran"]
+    key: str
+    path: Path
+    seconds: float
+    reasons: tuple[str, ...] = ()
+    summary: Mapping[str, Any] = field(default_factory=dict)
+
+
+def stale_reasons(planned: PlannedStage, previous: Mapping[str, Any], inputs_label: str) -> list[str]:
+    """Why ``planned`` differs from the ``previous`` manifest, e.g. ``params changed: ingest.max_size 1600 -> 800``."""
+    reasons = []
+    if previous.get("version") != planned.material["version"]:
+        reasons.append(f"code changed: {planned.name} version {previous.get('version')} -> {planned.material['version']}")
+    changes = describe_changes(planned.name, previous.get("params", {}), planned.material["params"])
+    if changes:
+        reasons.append("params changed: " + ", ".join(changes))
+    old_up, new_up = previous.get("upstream", {}), planned.material["upstream"]
+    for up in sorted(set(old_up) | set(new_up)):
+        if old_up.get(up) != new_up.get(up):
+            reasons.append(f"upstream {up} changed")
+    old_inputs = {rel: meta["sha256"] for rel, meta in previous.get("inputs", {}).items()}
+    added, removed, modified = diff_inputs(old_inputs, planned.material["inputs"])
+    if added or removed or modified:
+        parts = [f"{len(v)} {word}" for v, word in ((added, "added"), (modified, "modified"), (removed, "removed")) if v]
+        reasons.append(f"{inputs_label} changed: " + ", ".join(parts))
+    return reasons or ["cache key changed"]
+
+
+def library_versions(names: Sequence[str]) -> dict[str, str]:
+    versions = {"python": platform.python_version()}
+    for name in ("nerfpipe", *names):
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            versions[name] = "not installed"
+    return versions
+
+
+class Pipeline:
+    """A DAG of stages bound to a capture folder (``source``) and a run directory.
+
+    ``overrides`` maps stage name -> {param: value}; values may be text (from ``--set``) or Python values.
+    """
+
+    def __init__(
+        self,
+        stages: Sequence[Stage],
+        source: Path,
+        run_dir: Path,
+        preset: str | None = None,
+        overrides: Mapping[str, Mapping[str, Any]] | None = None,
+        progress: ProgressFactory = _no_progress,
+        debug: bool = False,
+    ) -> None:
+        self.dag = Dag(stages)
+        self.source = Path(source)
+        self.run_dir = Path(run_dir)
+        self.preset = preset
+        self.overrides = {k: dict(v) for k, v in (overrides or {}).items()}
+        self.progress = progress
+        self.debug = debug
+        self.store = ArtifactStore(self.run_dir)
+        for stage_name in self.overrides:
+            self.dag.check_name(stage_name)
+        if preset is not None and not any(preset in s.presets for s in stages):
+            known = sorted({p for s in stages for p in s.presets})
+            raise ParamError(f"unknown preset {preset!r}; presets are: {', '.join(known)}")
+        self._plan: dict[str, PlannedStage] | None = None
+
+    @classmethod
+    def from_run_dir(
+        cls,
+        stages: Sequence[Stage],
+        run_dir: Path,
+        preset: str | None = None,
+        overrides: Mapping[str, Mapping[str, Any]] | None = None,
+        **kwargs: Any,
+    ) -> "Pipeline":
+        """The pipeline as the last ``run`` in ``run_dir`` configured it, with optional changes on top."""
+        config_path = Path(run_dir) / RUN_CONFIG
+        try:
+            config = json.loads(config_path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise InputError(run_dir, "is not a nerfpipe run directory (no run.json)", "pass the --out folder of a `nerfpipe run`") from None
+        except ValueError:
+            raise InputError(config_path, "is damaged", "rerun `nerfpipe run PHOTOS_DIR --out` on this folder") from None
+        merged = {k: dict(v) for k, v in config.get("overrides", {}).items()}
+        for stage_name, values in (overrides or {}).items():
+            merged.setdefault(stage_name, {}).update(values)
+        return cls(stages, Path(config["source"]), run_dir, preset or config.get("preset"), merged, **kwargs)
+
+    # -- planning ------------------------------------------------------------------------------
+    def plan(self) -> dict[str, PlannedStage]:
+        if self._plan is not None:
+            return self._plan
+        if not self.source.is_dir():
+            what = "does not exist" if not self.source.exists() else "is not a folder"
+            raise InputError(self.source, f"capture folder {what}", "pass a folder of photos")
+        fingerprints = FingerprintCache(self.run_dir / ".cache" / "fingerprints.json")
+        planned: dict[str, PlannedStage] = {}
+        for name in self.dag.order:
+            stage = self.dag.stages[name]
+            params = build_params(name, stage.Params, stage.presets, self.preset, self.overrides.get(name, {}))
+            files = tuple(fingerprints.fingerprint(p, self.source) for p in stage.input_files(self.source, params))
+            material = {
+                "stage": name,
+                "version": stage.version,
+                "params": params_to_dict(params),
+                "upstream": {up: planned[up].key for up in self.dag.upstream[name]},
+                "inputs": {fp.relpath: fp.sha256 for fp in files},
+            }
+            planned[name] = PlannedStage(stage, params, files, material, cache_key(material))
+        if self.run_dir.exists():
+            fingerprints.save()
+        self._plan = planned
+        return planned
+
+    def status(self) -> list[StageStatus]:
+        statuses = []
+        for name, planned in self.plan().items():
+            hit = self.store.get(name, planned.key)
+            latest = self.store.latest(name)
+            if hit is not None:
+                reasons = () if latest is not None and latest.key == planned.key else ("cached by an earlier run",)
+                statuses.append(StageStatus(name, "fresh", reasons, planned.key, hit))
+            elif latest is not None:
+                why = stale_reasons(planned, latest.manifest, planned.stage.inputs_label)
+                statuses.append(StageStatus(name, "stale", tuple(why), planned.key, latest))
+            else:
+                statuses.append(StageStatus(name, "missing", ("not run yet",), planned.key, None))
+        return statuses
+
+    def result(self, stage: str) -> Committed | None:
+        """The committed result of ``stage`` for the current settings, if there is one."""
+        return self.store.get(stage, self.plan()[self.dag.check_name(stage)].key)
+
+    # -- running -------------------------------------------------------------------------------
+    def run(
+        self,
+        until: str | None = None,
+        only: str | None = None,
+        force: Sequence[str] = (),
+    ) -> list[StageOutcome]:
+        """Run what is not fresh among the selected stages. ``force`` reruns a stage and its downstream."""
+        selected = self.dag.select(until=until, only=only)
+        forced: set[str] = set()
+        for name in force:
+            forced |= {self.dag.check_name(name)} | self.dag.descendants(name)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        with RunLock(self.run_dir), self._log_to_file():
+            planned = self.plan()
+            self._save_config()
+            outcomes = []
+            for name in selected:
+                outcomes.append(self._run_one(planned[name], forced=name in forced, only=only is not None))
+            return outcomes
+
+    def _run_one(self, planned: PlannedStage, forced: bool, only: bool) -> StageOutcome:
+        name, key = planned.name, planned.key
+        hit = self.store.get(name, key)
+        if hit is not None and not forced:
+            latest = self.store.latest(name)
+            if latest is not None and latest.key == key:
+                log.info("%s: fresh, nothing to do", name)
+                return StageOutcome(name, "cached", key, hit.path, 0.0)
+            self.store.set_latest(name, key)
+            log.info("%s: restored the result of an earlier run with these settings", name)
+            return StageOutcome(name, "restored", key, hit.path, 0.0)
+
+        artifacts: dict[str, Path] = {}
+        for up in self.dag.upstream[name]:
+            up_result = self.store.get(up, self.plan()[up].key)
+            if up_result is None:  # only reachable with --only: otherwise upstream ran just before
+                status = next(s for s in self.status() if s.name == up)
+                raise UpstreamNotReadyError(
+                    f"--only {name}: upstream stage {up} is {status.state} ({'; '.join(status.reasons)}); "
+                    f"run it first, e.g. with --until {up}"
+                )
+            self.store.set_latest(up, up_result.key)
+            for artifact in planned.stage.requires:
+                if self.dag.provider[artifact] == up:
+                    artifacts[artifact] = up_result.path / self.dag.stages[up].provides[artifact]
+
+        latest = self.store.latest(name)
+        if forced:
+            reasons = ["forced"]
+        elif latest is None:
+            reasons = ["not run yet"]
+        else:
+            reasons = stale_reasons(planned, latest.manifest, planned.stage.inputs_label)
+        log.info("%s: running (%s)", name, "; ".join(reasons))
+
+        work = self.store.begin(name, key)
+        started = time.time()
+        ctx = StageContext(log=logging.getLogger(f"nerfpipe.stages.{name}"), progress=self.progress, debug=self.debug)
+        inputs = StageInputs(artifacts, self.source, planned.files)
+        try:
+            summary = dict(planned.stage.run(inputs, work, planned.params, ctx) or {})
+            missing = [rel for rel in planned.stage.provides.values() if not (work / rel).exists()]
+            if missing:
+                raise RuntimeError(f"stage {name} did not write its declared artifacts {missing}")
+        except BaseException:
+            self.store.abandon(work)
+            raise
+        finished = time.time()
+        manifest = {
+            **planned.material,
+            "key": key,
+            "inputs": {fp.relpath: {"size": fp.size, "sha256": fp.sha256} for fp in planned.files},
+            "timings": {"started": started, "finished": finished, "seconds": round(finished - started, 4)},
+            "libraries": library_versions(planned.stage.libraries),
+            "summary": summary,
+        }
+        committed = self.store.commit(name, key, work, manifest, replace=forced)
+        log.info("%s: done in %.1f s -> %s", name, finished - started, committed.path)
+        return StageOutcome(name, "ran", key, committed.path, finished - started, tuple(reasons), summary)
+
+    def _save_config(self) -> None:
+        write_json_atomic(
+            self.run_dir / RUN_CONFIG,
+            {"source": str(self.source.resolve()), "preset": self.preset, "overrides": self.overrides},
+        )
+
+    @contextlib.contextmanager
+    def _log_to_file(self) -> Iterator[Path]:
+        logs = self.run_dir / "logs"
+        logs.mkdir(parents=True, exist_ok=True)
+        path = logs / f"run-{time.strftime('%Y%m%d-%H%M%S')}-{int(time.time() * 1000) % 1000:03d}.log"
+        handler = logging.FileHandler(path, encoding="utf-8")
+        handler.setLevel(logging.DEBUG)
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)-7s %(name)s: %(message)s"))
+        root = logging.getLogger("nerfpipe")
+        previous_level = root.level
+        root.setLevel(logging.DEBUG)
+        root.addHandler(handler)
+        log.debug("run of %s into %s (preset %s, overrides %s)", self.source, self.run_dir, self.preset, self.overrides)
+        try:
+            yield path
+        except BaseException as err:
+            log.debug("run ended by %s", type(err).__name__, exc_info=True)
+            raise
+        finally:
+            root.removeHandler(handler)
+            root.setLevel(previous_level)
+            handler.close()

@@ -1,0 +1,76 @@
+"""The stage contract.
+
+A stage is a class with a name, a version, a frozen-dataclass ``Params`` with named ``presets``, the
+artifacts it ``requires`` from upstream stages and the artifacts it ``provides`` (name -> path inside its
+own output folder). ``run`` reads only the artifacts it declared and the capture files it listed in
+``input_files``, and writes only inside ``out``. Bump ``version`` whenever the stage's output for the
+same inputs and parameters changes: the version is part of the cache key.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, ClassVar, Iterator, Mapping
+
+from nerfpipe.pipeline.fingerprint import Fingerprint
+
+
+@dataclass(frozen=True)
+class StageInputs:
+    """What a stage may read: upstream artifacts by name, and the fingerprinted capture files."""
+
+    artifacts: Mapping[str, Path]
+    source: Path
+    files: tuple[Fingerprint, ...] = ()
+
+    def __getitem__(self, artifact: str) -> Path:
+        return self.artifacts[artifact]
+
+    def path(self, fp: Fingerprint) -> Path:
+        return self.source / fp.relpath
+
+
+ProgressFactory = Callable[[int, str], contextlib.AbstractContextManager[Callable[[int], None]]]
+
+
+@contextlib.contextmanager
+def _no_progress(total: int, description: str) -> Iterator[Callable[[int], None]]:
+    yield lambda n=1: None
+
+
+@dataclass
+class StageContext:
+    """Services the runner gives a running stage: a logger and progress bars."""
+
+    log: logging.Logger
+    progress: ProgressFactory = _no_progress
+    debug: bool = False
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class Stage:
+    """Base class of every stage. Subclasses set the class attributes and implement ``run``."""
+
+    name: ClassVar[str]
+    version: ClassVar[int]
+    Params: ClassVar[type]
+    presets: ClassVar[Mapping[str, Mapping[str, Any]]] = {}
+    requires: ClassVar[tuple[str, ...]] = ()
+    provides: ClassVar[Mapping[str, str]] = {}
+    libraries: ClassVar[tuple[str, ...]] = ()
+    inputs_label: ClassVar[str] = "input files"
+
+    @classmethod
+    def summary(cls) -> str:
+        return (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
+
+    def input_files(self, source: Path, params: Any) -> list[Path]:
+        """Files of the capture folder this stage reads; their fingerprints enter the cache key."""
+        return []
+
+    def run(self, inputs: StageInputs, out: Path, params: Any, ctx: StageContext) -> Mapping[str, Any] | None:
+        """Produce every artifact in ``provides`` inside ``out``; return a JSON-able summary for the manifest."""
+        raise NotImplementedError

@@ -1,0 +1,14 @@
+"""The stages of nerfpipe, one module each, and the default pipeline that chains them."""
+
+from __future__ import annotations
+
+from nerfpipe.pipeline.stage import Stage
+from nerfpipe.stages.ingest import IngestParams, IngestStage
+
+
+def default_stages() -> list[Stage]:
+    """The stages `nerfpipe run` chains, in declaration order."""
+    return [IngestStage()]
+
+
+__all__ = ["IngestParams", "IngestStage", "default_stages"]

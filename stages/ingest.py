@@ -1,0 +1,257 @@
+"""ingest: the capture's photos as upright, downscaled PNGs plus ``images.json``.
+
+Reads JPEG, PNG, TIFF and camera RAW (through rawpy/LibRaw), applies EXIF orientation, keeps alpha,
+downscales with area resampling, and records EXIF priors (focal length, make, model, exposure) for SfM.
+The photos themselves are only ever read.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from nerfpipe.pipeline.errors import BadPhotoError, InputError
+from nerfpipe.pipeline.fingerprint import Fingerprint
+from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
+from nerfpipe.pipeline.store import write_json_atomic
+
+PHOTO_SUBFOLDER = "images"  # LLFF and COLMAP captures keep their photos here
+
+
+@dataclass(frozen=True)
+class IngestParams:
+    max_size: int = field(default=1600, metadata={"help": "longest side in pixels after downscaling; 0 keeps full size"})
+    bit_depth: Literal["auto", "8", "16"] = field(
+        default="auto", metadata={"help": "PNG bit depth; auto = 16 for RAW and 16-bit sources, else 8"}
+    )
+    alpha: Literal["channel", "mask"] = field(
+        default="channel", metadata={"help": "keep an alpha channel as RGBA PNGs, or as separate masks/*.png"}
+    )
+    raw_linear: bool = field(default=False, metadata={"help": "RAW: linear (gamma 1) output for HDR use"})
+    raw_highlight_mode: Literal["clip", "ignore", "blend", "reconstruct"] = field(
+        default="clip", metadata={"help": "RAW: LibRaw highlight mode"}
+    )
+    raw_white_balance: Literal["camera", "auto", "daylight"] = field(
+        default="camera", metadata={"help": "RAW: white balance (as shot by the camera, auto, or daylight)"}
+    )
+    skip_bad: bool = field(default=False, metadata={"help": "skip unreadable or duplicate photos with a warning"})
+    workers: int = field(default=0, metadata={"help": "decoding threads; 0 = one per CPU core"})
+
+    def __post_init__(self) -> None:
+        if self.max_size < 0:
+            raise ValueError(f"max_size must be 0 (no downscaling) or a positive size, got {self.max_size}")
+        if self.max_size and self.max_size < 16:
+            raise ValueError(f"max_size {self.max_size} is too small for SfM; use at least 16 (or 0 for full size)")
+        if self.raw_linear and self.bit_depth == "8":
+            raise ValueError("raw_linear needs 16-bit output; set ingest.bit_depth=16 or auto")
+        if self.workers < 0:
+            raise ValueError(f"workers must be >= 0, got {self.workers}")
+
+
+def discover_photos(source: Path) -> list[Path]:
+    """Photo-like files of a capture folder, sorted by name; raises ``InputError`` when there are none.
+
+    Files directly in ``source`` count; when it holds none, ``source/images`` is used (the LLFF and
+    COLMAP layout). Known side-car files (poses, notes, XMP) are ignored; any other file is returned,
+    so that ingest names it and says what to do instead of silently dropping a photo.
+    """
+    from nerfpipe.imaging import SIDECAR_EXTENSIONS
+
+    def candidates(folder: Path) -> tuple[list[Path], list[Path]]:
+        files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+        photos = [p for p in files if p.suffix.lower() not in SIDECAR_EXTENSIONS]
+        return files, photos
+
+    files, photos = candidates(source)
+    if not photos and (source / PHOTO_SUBFOLDER).is_dir():
+        files, photos = candidates(source / PHOTO_SUBFOLDER)
+    if photos:
+        return photos
+    if not files:
+        raise InputError(source, "the capture folder is empty", "put the photos (JPEG, PNG, TIFF or camera RAW) in it")
+    shown = ", ".join(p.name for p in files[:3]) + (", ..." if len(files) > 3 else "")
+    raise InputError(
+        source,
+        f"no photos found among its {len(files)} files ({shown})",
+        "nerfpipe reads JPEG, PNG, TIFF and camera RAW files",
+    )
+
+
+def output_names(relpaths: list[str]) -> dict[str, str]:
+    """``a.jpg`` -> ``a.png``; when two photos share a stem (``a.jpg``, ``a.tif``) both keep their extension."""
+    stems: dict[str, int] = {}
+    for rel in relpaths:
+        stem = Path(rel).stem
+        stems[stem] = stems.get(stem, 0) + 1
+    names = {}
+    for rel in relpaths:
+        p = Path(rel)
+        names[rel] = f"{p.stem}.png" if stems[p.stem] == 1 else f"{p.stem}_{p.suffix.lstrip('.').lower()}.png"
+    return names
+
+
+def target_size(width: int, height: int, max_size: int) -> tuple[int, int]:
+    """Size after fitting the longest side into ``max_size`` (never upscales); 0 means no limit."""
+    longest = max(width, height)
+    if max_size == 0 or longest <= max_size:
+        return width, height
+    scale = max_size / longest
+    return max(1, round(width * scale)), max(1, round(height * scale))
+
+
+def to_bit_depth(pixels: np.ndarray, bits: int) -> np.ndarray:
+    if bits == 16 and pixels.dtype == np.uint8:
+        return pixels.astype(np.uint16) * 257
+    if bits == 8 and pixels.dtype == np.uint16:
+        return ((pixels.astype(np.uint32) + 128) // 257).astype(np.uint8)
+    return pixels
+
+
+def write_png(path: Path, rgb: np.ndarray) -> None:
+    """Write RGB(A) or single-channel pixels as PNG; goes through bytes so any path name works."""
+    import cv2
+
+    if rgb.ndim == 3:
+        rgb = cv2.cvtColor(rgb, cv2.COLOR_RGBA2BGRA if rgb.shape[2] == 4 else cv2.COLOR_RGB2BGR)
+    ok, buf = cv2.imencode(".png", rgb, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise RuntimeError(f"PNG encoding failed for {path}")
+    path.write_bytes(buf.tobytes())
+
+
+class IngestStage(Stage):
+    """Decode photos (JPEG, PNG, TIFF, camera RAW), apply EXIF orientation, downscale, write PNGs + images.json."""
+
+    name = "ingest"
+    version = 1
+    Params = IngestParams
+    presets = {
+        "draft": {"max_size": 400},
+        "fast": {"max_size": 800},
+        "balanced": {"max_size": 1600},
+        # Section 6.1: the paper trains its real forward-facing scenes on 1008x756 images.
+        "paper": {"max_size": 1008},
+        "full": {"max_size": 0},
+        "hdr": {"raw_linear": True, "bit_depth": "16"},
+    }
+    provides = {"images": "images", "images_json": "images.json"}
+    libraries = ("numpy", "opencv-contrib-python-headless", "rawpy")
+    inputs_label = "photos"
+
+    def input_files(self, source: Path, params: IngestParams) -> list[Path]:
+        return discover_photos(source)
+
+    def run(self, inputs: StageInputs, out: Path, params: IngestParams, ctx: StageContext) -> dict[str, Any]:
+        from nerfpipe.imaging import RawOptions
+
+        raw = RawOptions(params.raw_linear, params.raw_highlight_mode, params.raw_white_balance)
+        (out / "images").mkdir()
+        if params.alpha == "mask":
+            (out / "masks").mkdir()
+        names = output_names([fp.relpath for fp in inputs.files])
+        first_of: dict[str, str] = {}
+        duplicate_of: dict[str, str] = {}
+        for fp in inputs.files:
+            if fp.size > 0:  # empty files are reported as empty, not as duplicates of each other
+                duplicate_of[fp.relpath] = first_of.setdefault(fp.sha256, fp.relpath)
+
+        def convert(fp: Fingerprint) -> dict[str, Any] | BadPhotoError:
+            try:
+                return self._convert(inputs, fp, names[fp.relpath], duplicate_of.get(fp.relpath), out, params, raw)
+            except BadPhotoError as err:
+                return err
+
+        records, skipped = [], []
+        workers = params.workers or os.cpu_count() or 1
+        with ctx.progress(len(inputs.files), "ingest") as advance, ThreadPoolExecutor(workers) as pool:
+            for fp, result in zip(inputs.files, pool.map(convert, inputs.files)):
+                advance(1)
+                if isinstance(result, BadPhotoError):
+                    if not params.skip_bad:
+                        raise result
+                    ctx.log.warning("skipped %s", result)
+                    skipped.append({"source": fp.relpath, "reason": result.problem})
+                else:
+                    records.append(result)
+        if not records:
+            raise InputError(inputs.source, "none of the photos could be used", "see the warnings above for each file")
+
+        write_json_atomic(out / "images.json", {"images": records, "skipped": skipped})
+        megapixels = sum(r["source_width"] * r["source_height"] for r in records) / 1e6
+        ctx.log.info(
+            "ingest: %d photos (%.1f MP) -> %s%s",
+            len(records),
+            megapixels,
+            ", ".join(sorted({f"{r['width']}x{r['height']}" for r in records})),
+            f", {len(skipped)} skipped" if skipped else "",
+        )
+        return {
+            "images": len(records),
+            "skipped": len(skipped),
+            "source_megapixels": round(megapixels, 3),
+            "raw": sum(r["raw"] for r in records),
+            "with_alpha": sum(r["has_alpha"] for r in records),
+            "with_focal_prior": sum(r["focal_prior"] is not None for r in records),
+        }
+
+    @staticmethod
+    def _convert(
+        inputs: StageInputs,
+        fp: Fingerprint,
+        name: str,
+        duplicate_of: str | None,
+        out: Path,
+        params: IngestParams,
+        raw: Any,
+    ) -> dict[str, Any]:
+        import cv2
+
+        from nerfpipe.imaging import focal_prior_px, photo_kind, read_photo, unsupported_advice
+
+        path = inputs.path(fp)
+        kind = photo_kind(path)
+        if kind is None:
+            raise BadPhotoError(path, "is not a photo format nerfpipe reads", unsupported_advice(path))
+        if duplicate_of is not None and duplicate_of != fp.relpath:
+            raise BadPhotoError(
+                path, f"is the same photo as {duplicate_of} (identical content)", "remove one of them, or pass --skip-bad"
+            )
+        photo = read_photo(path, raw)
+        pixels = photo.pixels
+        src_w, src_h = photo.source_size
+        width, height = target_size(src_w, src_h, params.max_size)
+        if (width, height) != (src_w, src_h):
+            pixels = cv2.resize(pixels, (width, height), interpolation=cv2.INTER_AREA)
+        bits = 16 if params.bit_depth == "16" or (params.bit_depth == "auto" and photo.bit_depth == 16) else 8
+        pixels = to_bit_depth(pixels, bits)
+        mask_rel = None
+        if photo.has_alpha and params.alpha == "mask":
+            mask_rel = f"masks/{name}"
+            write_png(out / mask_rel, np.ascontiguousarray(pixels[..., 3]))
+            pixels = np.ascontiguousarray(pixels[..., :3])
+        write_png(out / "images" / name, pixels)
+        prior = focal_prior_px(photo.exif, width, height)
+        return {
+            "name": name,
+            "source": fp.relpath,
+            "source_sha256": fp.sha256,
+            "source_bytes": fp.size,
+            "format": kind,
+            "width": width,
+            "height": height,
+            "source_width": src_w,
+            "source_height": src_h,
+            "scale": width / src_w,
+            "bit_depth": bits,
+            "has_alpha": photo.has_alpha,
+            "mask": mask_rel,
+            "raw": photo.is_raw,
+            "linear": photo.linear,
+            "exif": photo.exif.to_json(),
+            "focal_prior": None if prior is None else {"focal_px": prior[0], "source": prior[1]},
+        }

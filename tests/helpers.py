@@ -1,0 +1,61 @@
+"""Helpers shared by the tests: where the data is, how to run the CLI, a small downstream stage."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from nerfpipe.pipeline import Stage
+from nerfpipe.stages import IngestStage
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+TEMPLE = REPO / "samples" / "templeSparseRing"
+
+
+def shared(*parts: str) -> Path:
+    """A path under ../shared/data; the test is skipped, saying so, when that folder is absent."""
+    path = SHARED_DATA.joinpath(*parts)
+    if not path.exists():
+        pytest.skip(f"shared data not found at {path}")
+    return path
+
+
+def run_cli(*args: str, cwd: Path | None = None, timeout: float = 120) -> subprocess.CompletedProcess:
+    """`python -m nerfpipe ARGS` in a fresh interpreter, as a user would run it."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200"}
+    return subprocess.run(
+        [sys.executable, "-m", "nerfpipe", *map(str, args)],
+        capture_output=True, text=True, cwd=cwd, env=env, timeout=timeout,
+    )
+
+
+@dataclass(frozen=True)
+class CountParams:
+    label: str = "count"
+
+
+class CountStage(Stage):
+    """Count the ingested images: a tiny downstream stage, so the engine is tested as a real DAG."""
+
+    name = "count"
+    version = 1
+    Params = CountParams
+    presets = {"draft": {"label": "draft"}}
+    requires = ("images_json",)
+    provides = {"count": "count.json"}
+
+    def run(self, inputs, out, params, ctx):
+        images = json.loads(inputs["images_json"].read_text())["images"]
+        (out / "count.json").write_text(json.dumps({params.label: len(images)}))
+        return {"images": len(images)}
+
+
+def two_stages() -> list[Stage]:
+    return [IngestStage(), CountStage()]

@@ -1,0 +1,45 @@
+"""A stage killed mid-write (SIGKILL) leaves no committed result, and the next run completes."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+from nerfpipe.pipeline import ArtifactStore, Pipeline
+from nerfpipe.stages import default_stages
+
+from helpers import shared
+
+
+def test_sigkill_mid_write_leaves_nothing_committed_and_the_next_run_completes(tmp_path):
+    lego = shared("nerf_synthetic_lego_400", "train")
+    run_dir = tmp_path / "run"
+    cmd = [sys.executable, "-m", "nerfpipe", "run", str(lego), "--out", str(run_dir), "--until", "ingest",
+           "--set", "ingest.workers=1"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    written: list = []
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and proc.poll() is None:
+        written = list((run_dir / ".work").glob("ingest-*/images/*.png"))
+        if len(written) >= 5:
+            break
+        time.sleep(0.005)
+    assert proc.poll() is None, "ingest finished before it could be killed: " + proc.stderr.read().decode()
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert len(written) >= 5  # it really was killed in the middle of writing its images
+
+    store = ArtifactStore(run_dir)
+    assert store.keys("ingest") == [] and store.latest("ingest") is None
+    assert not (run_dir / "stages" / "ingest" / "latest.json").exists()
+    pipe = Pipeline.from_run_dir(default_stages(), run_dir)
+    assert pipe.status()[0].state == "missing"
+
+    outcome = pipe.run(until="ingest")[0]  # the lock of the killed run is not stuck either
+    assert outcome.action == "ran"
+    images = json.loads((outcome.path / "images.json").read_text())["images"]
+    assert len(images) == 100 and len(list((outcome.path / "images").iterdir())) == 100
+    assert not list((run_dir / ".work").glob("ingest-*"))
