@@ -167,17 +167,22 @@ class IngestStage(Stage):
                 return err
 
         records, skipped = [], []
-        workers = params.workers or os.cpu_count() or 1
-        with ctx.progress(len(inputs.files), "ingest") as advance, ThreadPoolExecutor(workers) as pool:
-            for fp, result in zip(inputs.files, pool.map(convert, inputs.files)):
-                advance(1)
-                if isinstance(result, BadPhotoError):
-                    if not params.skip_bad:
-                        raise result
-                    ctx.log.warning("skipped %s", result)
-                    skipped.append({"source": fp.relpath, "reason": result.problem})
-                else:
-                    records.append(result)
+        pool = ThreadPoolExecutor(params.workers or os.cpu_count() or 1)
+        try:
+            with ctx.progress(len(inputs.files), "ingest") as advance:
+                # map keeps input order, so "the first bad photo" is the first by name, whatever the threads do
+                for fp, result in zip(inputs.files, pool.map(convert, inputs.files)):
+                    advance(1)
+                    if isinstance(result, BadPhotoError):
+                        if not params.skip_bad:
+                            raise result
+                        ctx.log.warning("skipped %s", result)
+                        skipped.append({"source": fp.relpath, "reason": result.problem})
+                    else:
+                        records.append(result)
+        finally:
+            # on an error or Ctrl-C, photos not yet started are dropped instead of decoded for nothing
+            pool.shutdown(wait=True, cancel_futures=True)
         if not records:
             raise InputError(inputs.source, "none of the photos could be used", "see the warnings above for each file")
 
@@ -211,12 +216,9 @@ class IngestStage(Stage):
     ) -> dict[str, Any]:
         import cv2
 
-        from nerfpipe.imaging import focal_prior_px, photo_kind, read_photo, unsupported_advice
+        from nerfpipe.imaging import focal_prior_px, photo_kind, read_photo
 
         path = inputs.path(fp)
-        kind = photo_kind(path)
-        if kind is None:
-            raise BadPhotoError(path, "is not a photo format nerfpipe reads", unsupported_advice(path))
         if duplicate_of is not None and duplicate_of != fp.relpath:
             raise BadPhotoError(
                 path, f"is the same photo as {duplicate_of} (identical content)", "remove one of them, or pass --skip-bad"
@@ -241,7 +243,7 @@ class IngestStage(Stage):
             "source": fp.relpath,
             "source_sha256": fp.sha256,
             "source_bytes": fp.size,
-            "format": kind,
+            "format": photo_kind(path),
             "width": width,
             "height": height,
             "source_width": src_w,

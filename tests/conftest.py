@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
+import sys
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -18,3 +21,21 @@ def capture(tmp_path: Path) -> Path:
     for name in ("templeSR0001.png", "templeSR0002.png", "templeSR0003.png", "templeSR0004.png", "templeSR_par.txt"):
         shutil.copy2(TEMPLE / name, folder / name)
     return folder
+
+
+def _load_exif_writer() -> ModuleType:
+    # Loaded by file path: under --import-mode=importlib the test folder is not on sys.path.
+    location = Path(__file__).parent / "imaging" / "exif_writer.py"
+    spec = importlib.util.spec_from_file_location("imaging_tests_exif_writer", location)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    # dataclasses look their module up in sys.modules while the class is being created.
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="session")
+def exif_writer() -> ModuleType:
+    """The helpers of ``tests/imaging/exif_writer.py`` (tiff_blob, jpeg_with_exif, ...)."""
+    return _load_exif_writer()

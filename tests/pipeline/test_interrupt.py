@@ -14,9 +14,9 @@ from nerfpipe.stages import default_stages
 from helpers import shared
 
 
-def test_sigkill_mid_write_leaves_nothing_committed_and_the_next_run_completes(tmp_path):
+def start_and_interrupt(run_dir, sig) -> subprocess.Popen:
+    """Start ingest of the 100 lego photos and send ``sig`` once a few of its PNGs are on disk."""
     lego = shared("nerf_synthetic_lego_400", "train")
-    run_dir = tmp_path / "run"
     cmd = [sys.executable, "-m", "nerfpipe", "run", str(lego), "--out", str(run_dir), "--until", "ingest",
            "--set", "ingest.workers=1"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -28,10 +28,15 @@ def test_sigkill_mid_write_leaves_nothing_committed_and_the_next_run_completes(t
             break
         time.sleep(0.005)
     assert proc.poll() is None, "ingest finished before it could be killed: " + proc.stderr.read().decode()
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert len(written) >= 5  # it really was killed in the middle of writing its images
+    proc.send_signal(sig)
+    proc.wait(timeout=60)
+    assert len(written) >= 5  # it really was stopped in the middle of writing its images
+    return proc
 
+
+def test_sigkill_mid_write_leaves_nothing_committed_and_the_next_run_completes(tmp_path):
+    run_dir = tmp_path / "run"
+    start_and_interrupt(run_dir, signal.SIGKILL)
     store = ArtifactStore(run_dir)
     assert store.keys("ingest") == [] and store.latest("ingest") is None
     assert not (run_dir / "stages" / "ingest" / "latest.json").exists()
@@ -43,3 +48,12 @@ def test_sigkill_mid_write_leaves_nothing_committed_and_the_next_run_completes(t
     images = json.loads((outcome.path / "images.json").read_text())["images"]
     assert len(images) == 100 and len(list((outcome.path / "images").iterdir())) == 100
     assert not list((run_dir / ".work").glob("ingest-*"))
+
+
+def test_ctrl_c_stops_promptly_says_so_and_commits_nothing(tmp_path):
+    run_dir = tmp_path / "run"
+    proc = start_and_interrupt(run_dir, signal.SIGINT)
+    stderr = proc.stderr.read().decode()
+    assert proc.returncode == 130 and "interrupted" in stderr and "Traceback" not in stderr
+    assert ArtifactStore(run_dir).keys("ingest") == []
+    assert not list((run_dir / ".work").glob("ingest-*"))  # the work folder was removed on the way out

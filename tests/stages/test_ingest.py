@@ -153,3 +153,36 @@ def test_linear_raw_output_is_darker_than_gamma_encoded(raw_capture, tmp_path):
     gamma = read_png(out_gamma / "images" / "kodak_dc50.png").astype(float)
     linear = read_png(out_linear / "images" / "kodak_dc50.png").astype(float)
     assert linear.mean() < 0.8 * gamma.mean()
+
+
+def test_exif_orientation_is_applied_and_the_focal_prior_follows_the_output_size(tmp_path, exif_writer):
+    w = exif_writer
+    # an asymmetric 60x40 landscape picture; orientation 6 means "rotate 90 clockwise to view upright"
+    stored = np.zeros((40, 60, 3), np.uint8)
+    stored[:10, :10] = (0, 0, 255)  # red (BGR) top-left as stored
+    stored[-10:, -10:] = (255, 0, 0)  # blue bottom-right
+    tiff = w.tiff_blob(
+        {0x010F: (w.ASCII, "Acme"), 0x0110: (w.ASCII, "Cam 1"), 0x0112: (w.SHORT, (6,))},
+        exif={0xA405: (w.SHORT, (28,)), 0x829A: (w.RATIONAL, ((1, 250),))},
+    )
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    (folder / "rotated.jpg").write_bytes(w.jpeg_with_exif(stored, tiff))
+
+    out, meta = ingest(folder, tmp_path, max_size=30)
+    record = meta["images"][0]
+    assert (record["source_width"], record["source_height"]) == (40, 60)  # upright is portrait
+    assert (record["width"], record["height"]) == (20, 30)
+    assert record["exif"]["orientation"] == 6 and record["exif"]["make"] == "Acme"
+    assert record["exif"]["model"] == "Cam 1" and record["exif"]["exposure_time_s"] == pytest.approx(1 / 250)
+    # COLMAP's rule: focal_px = f35 / 35 * longest side = 28 / 35 * 30 = 24 px at the output size
+    assert record["focal_prior"] == {"focal_px": pytest.approx(24.0), "source": "exif_35mm"}
+
+    upright = read_png(out / "images" / "rotated.png")
+    expected = cv2.resize(
+        cv2.imdecode(np.fromfile(folder / "rotated.jpg", np.uint8), cv2.IMREAD_COLOR), (20, 30),
+        interpolation=cv2.INTER_AREA,
+    )  # OpenCV's IMREAD_COLOR applies EXIF orientation itself: an independent reference
+    assert np.array_equal(upright, expected)
+    # rotated 90 clockwise, the stored top-left red corner is now top-right
+    assert upright[0, -1, 2] > 200 and upright[0, -1, 0] < 50
