@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any, Literal
 
 import numpy as np
@@ -19,9 +19,7 @@ from nerfpipe.pipeline.errors import BadPhotoError, InputError
 from nerfpipe.pipeline.fingerprint import Fingerprint
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
-
-PHOTO_SUBFOLDER = "images"  # LLFF and COLMAP captures keep their photos here
-
+from nerfpipe.poses.layout import PHOTO_SUBFOLDER, detect_layout
 
 @dataclass(frozen=True)
 class IngestParams:
@@ -53,45 +51,24 @@ class IngestParams:
             raise ValueError(f"workers must be >= 0, got {self.workers}")
 
 
-def discover_photos(source: Path) -> list[Path]:
-    """Photo-like files of a capture folder, sorted by name; raises ``InputError`` when there are none.
-
-    Files directly in ``source`` count; when it holds none, ``source/images`` is used (the LLFF and
-    COLMAP layout). Known side-car files (poses, notes, XMP) are ignored; any other file is returned,
-    so that ingest names it and says what to do instead of silently dropping a photo.
-    """
-    from nerfpipe.imaging import SIDECAR_EXTENSIONS
-
-    def candidates(folder: Path) -> tuple[list[Path], list[Path]]:
-        files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
-        photos = [p for p in files if p.suffix.lower() not in SIDECAR_EXTENSIONS]
-        return files, photos
-
-    files, photos = candidates(source)
-    if not photos and (source / PHOTO_SUBFOLDER).is_dir():
-        files, photos = candidates(source / PHOTO_SUBFOLDER)
-    if photos:
-        return photos
-    if not files:
-        raise InputError(source, "the capture folder is empty", "put the photos (JPEG, PNG, TIFF or camera RAW) in it")
-    shown = ", ".join(p.name for p in files[:3]) + (", ..." if len(files) > 3 else "")
-    raise InputError(
-        source,
-        f"no photos found among its {len(files)} files ({shown})",
-        "nerfpipe reads JPEG, PNG, TIFF and camera RAW files",
-    )
-
-
 def output_names(relpaths: list[str]) -> dict[str, str]:
-    """``a.jpg`` -> ``a.png``; when two photos share a stem (``a.jpg``, ``a.tif``) both keep their extension."""
-    stems: dict[str, int] = {}
-    for rel in relpaths:
-        stem = Path(rel).stem
-        stems[stem] = stems.get(stem, 0) + 1
+    """Ingest names of the photos: their paths below the photo folder, as ``.png``.
+
+    ``images/0001.jpg`` -> ``0001.png`` when every photo is under ``images/`` (LLFF, COLMAP);
+    ``train/r_0.png`` keeps its folder (NeRF splits); two photos that would share a name (``a.jpg``,
+    ``a.tif``) both keep their extension (``a_jpg.png``, ``a_tif.png``).
+    """
+    prefix = f"{PHOTO_SUBFOLDER}/"
+    strip = bool(relpaths) and all(rel.startswith(prefix) for rel in relpaths)
+    stems = {rel: PurePosixPath(rel[len(prefix):] if strip else rel) for rel in relpaths}
+    counts: dict[PurePosixPath, int] = {}
+    for path in stems.values():
+        counts[path.with_suffix("")] = counts.get(path.with_suffix(""), 0) + 1
     names = {}
-    for rel in relpaths:
-        p = Path(rel)
-        names[rel] = f"{p.stem}.png" if stems[p.stem] == 1 else f"{p.stem}_{p.suffix.lstrip('.').lower()}.png"
+    for rel, path in stems.items():
+        base = path.with_suffix("")
+        clash = counts[base] > 1
+        names[rel] = f"{base}_{path.suffix.lstrip('.').lower()}.png" if clash else f"{base}.png"
     return names
 
 
@@ -121,6 +98,7 @@ def write_png(path: Path, rgb: np.ndarray) -> None:
     ok, buf = cv2.imencode(".png", rgb, [cv2.IMWRITE_PNG_COMPRESSION, 1])
     if not ok:
         raise RuntimeError(f"PNG encoding failed for {path}")
+    path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(buf.tobytes())
 
 
@@ -144,7 +122,7 @@ class IngestStage(Stage):
     inputs_label = "photos"
 
     def input_files(self, source: Path, params: IngestParams) -> list[Path]:
-        return discover_photos(source)
+        return detect_layout(source).photos
 
     def run(self, inputs: StageInputs, out: Path, params: IngestParams, ctx: StageContext) -> dict[str, Any]:
         from nerfpipe.imaging import RawOptions
@@ -186,7 +164,10 @@ class IngestStage(Stage):
         if not records:
             raise InputError(inputs.source, "none of the photos could be used", "see the warnings above for each file")
 
-        write_json_atomic(out / "images.json", {"images": records, "skipped": skipped})
+        layout = detect_layout(inputs.source)
+        for record in records:
+            record["split"] = layout.splits.get(record["source"])
+        write_json_atomic(out / "images.json", {"layout": layout.kind, "images": records, "skipped": skipped})
         megapixels = sum(r["source_width"] * r["source_height"] for r in records) / 1e6
         ctx.log.info(
             "ingest: %d photos (%.1f MP) -> %s%s",

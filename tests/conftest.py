@@ -15,11 +15,12 @@ from helpers import TEMPLE
 
 @pytest.fixture
 def capture(tmp_path: Path) -> Path:
-    """A writable copy of four bundled temple photos plus its calibration text file."""
+    """A writable plain folder: four bundled temple photos and a side-car text file (no pose file)."""
     folder = tmp_path / "capture"
     folder.mkdir()
-    for name in ("templeSR0001.png", "templeSR0002.png", "templeSR0003.png", "templeSR0004.png", "templeSR_par.txt"):
+    for name in ("templeSR0001.png", "templeSR0002.png", "templeSR0003.png", "templeSR0004.png"):
         shutil.copy2(TEMPLE / name, folder / name)
+    shutil.copy2(TEMPLE / "README.txt", folder / "README.txt")
     return folder
 
 

@@ -14,7 +14,8 @@ from nerfpipe import Pipeline
 from nerfpipe.pipeline import InputError
 from nerfpipe.pipeline.hashing import sha256_file
 from nerfpipe.stages import IngestStage
-from nerfpipe.stages.ingest import discover_photos, output_names, target_size, to_bit_depth
+from nerfpipe.poses.layout import discover_photos
+from nerfpipe.stages.ingest import output_names, target_size, to_bit_depth
 
 from helpers import TEMPLE, shared
 
@@ -48,6 +49,10 @@ def test_bit_depth_conversion_round_trips():
 def test_output_names_keep_stems_unless_they_collide():
     assert output_names(["a.jpg", "b.PNG", "a.tif", "c.dng"]) == {
         "a.jpg": "a_jpg.png", "b.PNG": "b.png", "a.tif": "a_tif.png", "c.dng": "c.png"
+    }
+    assert output_names(["images/1.jpg", "images/10.jpg"]) == {"images/1.jpg": "1.png", "images/10.jpg": "10.png"}
+    assert output_names(["train/r_0.png", "val/r_0.png", "images/x.jpg"]) == {
+        "train/r_0.png": "train/r_0.png", "val/r_0.png": "val/r_0.png", "images/x.jpg": "images/x.png"
     }
 
 
