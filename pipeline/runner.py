@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Literal, Mapping, Sequence
 
 from nerfpipe.pipeline.dag import Dag
-from nerfpipe.pipeline.errors import InputError, ParamError, StageError, UpstreamNotReadyError
+from nerfpipe.pipeline.errors import InputError, NerfpipeError, ParamError, UpstreamNotReadyError
 from nerfpipe.pipeline.fingerprint import Fingerprint, FingerprintCache, diff_inputs
 from nerfpipe.pipeline.hashing import cache_key
 from nerfpipe.pipeline.lock import RunLock
@@ -260,6 +260,10 @@ class Pipeline:
             missing = [rel for rel in planned.stage.provides.values() if not (work / rel).exists()]
             if missing:
                 raise RuntimeError(f"stage {name} did not write its declared artifacts {missing}")
+        except NerfpipeError:
+            # Kept for the user to inspect (logs the error message may point at); it is not a result,
+            # and the next attempt at this key wipes it.
+            raise
         except BaseException:
             self.store.abandon(work)
             raise

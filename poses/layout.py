@@ -62,8 +62,24 @@ def resolve_inside(capture: Path, name: str, pose_file: Path, suffixes: tuple[st
                      "copy the missing image in, or remove its entry from the pose file")
 
 
-def detect_layout(capture: Path) -> CaptureLayout:
-    for detect in (_transforms, _colmap, _llff, _middlebury):
+POSE_FILE_NAMES = {
+    "transforms": "transforms.json or transforms_{train,val,test}.json",
+    "colmap": "a COLMAP model (sparse/0/cameras.bin, images.bin, ...)",
+    "llff": "poses_bounds.npy",
+    "middlebury": "a *_par.txt calibration file",
+}
+
+
+def detect_layout(capture: Path, kind: str | None = None) -> CaptureLayout:
+    """The capture's layout: the first that matches, or exactly ``kind`` when one is asked for."""
+    detectors = {"transforms": _transforms, "colmap": _colmap, "llff": _llff, "middlebury": _middlebury}
+    if kind is not None and kind != "folder":
+        layout = detectors[kind](capture)
+        if layout is None:
+            raise InputError(capture, f"has no {POSE_FILE_NAMES[kind]} to import poses from",
+                             "drop the --set sfm.poses override to detect the poses, or use sfm.poses=sfm")
+        return layout
+    for detect in detectors.values():
         layout = detect(capture)
         if layout is not None:
             return layout

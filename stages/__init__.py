@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from nerfpipe.pipeline.stage import Stage
 from nerfpipe.stages.ingest import IngestParams, IngestStage
+from nerfpipe.stages.sfm import SfmParams, SfmStage
 
 
 def default_stages() -> list[Stage]:
     """The stages `nerfpipe run` chains, in declaration order."""
-    return [IngestStage()]
+    return [IngestStage(), SfmStage()]
 
 
-__all__ = ["IngestParams", "IngestStage", "default_stages"]
+__all__ = ["IngestParams", "IngestStage", "SfmParams", "SfmStage", "default_stages"]

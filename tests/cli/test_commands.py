@@ -14,11 +14,11 @@ from helpers import REPO, TEMPLE, run_cli
 
 def test_run_status_and_rerun(capture, tmp_path):
     run_dir = tmp_path / "run"
-    first = run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320")
+    first = run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320", "--until", "ingest")
     assert first.returncode == 0, first.stderr
     assert "ingest: running (not run yet)" in first.stderr and "ran" in first.stdout
 
-    second = run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320")
+    second = run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320", "--until", "ingest")
     assert second.returncode == 0 and "ingest: fresh, nothing to do" in second.stderr and "cached" in second.stdout
 
     status = run_cli("status", run_dir)
@@ -32,7 +32,7 @@ def test_run_status_and_rerun(capture, tmp_path):
     status = run_cli("status", run_dir)
     assert "photos changed: 2 added, 1 modified" in status.stdout
 
-    rerun = run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320")
+    rerun = run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320", "--until", "ingest")
     assert rerun.returncode == 0
     assert "ingest: running (photos changed: 2 added, 1 modified)" in rerun.stderr
 
@@ -53,8 +53,8 @@ def test_stages_lists_params_defaults_and_presets():
 
 def test_clean_prunes_old_keys(capture, tmp_path):
     run_dir = tmp_path / "run"
-    assert run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=100").returncode == 0
-    assert run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=120").returncode == 0
+    assert run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=100", "--until", "ingest").returncode == 0
+    assert run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=120", "--until", "ingest").returncode == 0
     assert len(list((run_dir / "stages" / "ingest").glob("*/manifest.json"))) == 2
     result = run_cli("clean", run_dir)
     assert result.returncode == 0 and "removed 1 folders" in result.stdout
