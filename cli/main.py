@@ -133,6 +133,10 @@ def status(
     for s in statuses:
         table.add_row(s.name, f"[{STATE_STYLE[s.state]}]{s.state}[/]", "; ".join(s.reasons), s.key[:12])
     out_console.print(table)
+    for s in statuses:
+        if s.result is not None:
+            for line in pipe.dag.stages[s.name].describe(s.result.path, s.result.manifest):
+                out_console.print(f"{s.name}: {escape(line)}", highlight=False, soft_wrap=True)
 
 
 @app.command()

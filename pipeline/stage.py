@@ -71,6 +71,10 @@ class Stage:
         """Files of the capture folder this stage reads; their fingerprints enter the cache key."""
         return []
 
+    def describe(self, result: Path, manifest: Mapping[str, Any]) -> list[str]:
+        """Lines ``nerfpipe status`` prints about a committed result (its folder and manifest)."""
+        return []
+
     def run(self, inputs: StageInputs, out: Path, params: Any, ctx: StageContext) -> Mapping[str, Any] | None:
         """Produce every artifact in ``provides`` inside ``out``; return a JSON-able summary for the manifest."""
         raise NotImplementedError

@@ -3,13 +3,19 @@
 from __future__ import annotations
 
 from nerfpipe.pipeline.stage import Stage
+from nerfpipe.stages.bounds import BoundsParams, BoundsStage
 from nerfpipe.stages.ingest import IngestParams, IngestStage
+from nerfpipe.stages.scene import SceneParams, SceneStage
 from nerfpipe.stages.sfm import SfmParams, SfmStage
+from nerfpipe.stages.undistort import UndistortParams, UndistortStage
 
 
 def default_stages() -> list[Stage]:
     """The stages `nerfpipe run` chains, in declaration order."""
-    return [IngestStage(), SfmStage()]
+    return [IngestStage(), SfmStage(), UndistortStage(), BoundsStage(), SceneStage()]
 
 
-__all__ = ["IngestParams", "IngestStage", "SfmParams", "SfmStage", "default_stages"]
+__all__ = [
+    "BoundsParams", "BoundsStage", "IngestParams", "IngestStage", "SceneParams", "SceneStage", "SfmParams",
+    "SfmStage", "UndistortParams", "UndistortStage", "default_stages",
+]

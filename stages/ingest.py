@@ -106,7 +106,7 @@ class IngestStage(Stage):
     """Decode photos (JPEG, PNG, TIFF, camera RAW), apply EXIF orientation, downscale, write PNGs + images.json."""
 
     name = "ingest"
-    version = 1
+    version = 2  # 2: images.json records the capture layout and splits; names keep sub-folders
     Params = IngestParams
     presets = {
         "draft": {"max_size": 400},
@@ -120,6 +120,13 @@ class IngestStage(Stage):
     provides = {"images": "images", "images_json": "images.json"}
     libraries = ("numpy", "opencv-contrib-python-headless", "rawpy")
     inputs_label = "photos"
+
+    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
+        s = manifest.get("summary", {})
+        line = f"{s.get('images')} photos ({s.get('source_megapixels')} MP)"
+        extras = [f"{s[k]} {label}" for k, label in (("skipped", "skipped"), ("raw", "RAW"), ("with_alpha", "with alpha"),
+                                                      ("with_focal_prior", "with an EXIF focal prior")) if s.get(k)]
+        return [line + (", " + ", ".join(extras) if extras else "")]
 
     def input_files(self, source: Path, params: IngestParams) -> list[Path]:
         return detect_layout(source).photos

@@ -79,6 +79,17 @@ class SfmStage(Stage):
     libraries = ("pycolmap", "numpy")
     inputs_label = "pose files"
 
+    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
+        s = manifest.get("summary", {})
+        line = f"{s.get('method')}: {s.get('registered')}/{s.get('total')} photos registered"
+        if "mean_reprojection_error_px" in s:
+            line += (f", mean reprojection error {s['mean_reprojection_error_px']} px, "
+                     f"mean track length {s['mean_track_length']}, {s['points']} points")
+        lines = [line]
+        if s.get("unregistered"):
+            lines.append("unregistered: " + ", ".join(s["unregistered"]))
+        return lines
+
     def input_files(self, source: Path, params: SfmParams) -> list[Path]:
         if params.poses == "sfm":
             return []

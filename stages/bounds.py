@@ -1,0 +1,202 @@
+"""bounds: the normalized world (z up, region of interest in [-1, 1]^3) and per-image near/far bounds.
+
+Reads the undistorted cameras (``pinhole``), moves them and their sparse points into the normalized world
+of ``nerfpipe.geometry.normalize`` and writes:
+
+- ``world/``: the same CameraSet (names, cameras, splits unchanged) with every c2w and point transformed;
+- ``bounds.json``: ``to_world`` (4x4 similarity SfM -> normalized) and ``to_sfm`` (its inverse) so exports
+  can go back, ``scale``, ``up`` (in the SfM frame), ``scene_box`` and per-frame ``near`` / ``far`` in
+  normalized units, and the ``method`` that produced them: ``points`` (depth percentiles of the sparse
+  points each image sees, as LLFF computes the bounds of the NeRF paper's forward-facing scenes) or
+  ``rig`` (no points, e.g. an imported ``transforms.json``: a sphere around the rig's look-at centre).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nerfpipe.geometry.cameras import CameraSet, Frame, Points
+from nerfpipe.geometry.normalize import (
+    Similarity,
+    in_view,
+    look_at_center,
+    near_far_from_points,
+    near_far_from_rig,
+    normalization,
+    rig_kind,
+    rig_radius,
+    robust_box,
+    up_direction,
+)
+from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
+from nerfpipe.pipeline.store import write_json_atomic
+
+# Without points a non-converging rig says nothing about depth: wide bounds in normalized units (the
+# cameras fit the unit cube), which NDC (forward-facing) does not need anyway.
+UNCONSTRAINED_NEAR = 0.01
+UNCONSTRAINED_FAR = 100.0
+
+
+@dataclass(frozen=True)
+class BoundsParams:
+    near_percentile: float = field(default=0.1, metadata={"help": "percentile of the point depths an image sees taken as its near bound"})
+    far_percentile: float = field(default=99.9, metadata={"help": "percentile of the point depths an image sees taken as its far bound"})
+    margin: float = field(default=0.1, metadata={"help": "relative margin: near * (1 - margin), far * (1 + margin)"})
+    box_outlier_quantile: float = field(
+        default=0.01, metadata={"help": "per-axis quantile cut from each side of the sparse points for the scene box"}
+    )
+    box_mad_k: float = field(
+        default=5.0, metadata={"help": "points farther from the median than median + k MADs are left out of the scene box"}
+    )
+    min_points: int = field(
+        default=10, metadata={"help": "fewest sparse points an image must see for point-based near/far (else rig-based)"}
+    )
+    rig_radius: float = field(
+        default=0.5, metadata={"help": "without points: scene sphere radius as a fraction of the camera distance to the look-at centre"}
+    )
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.near_percentile < self.far_percentile <= 100.0:
+            raise ValueError(
+                f"need 0 <= near_percentile < far_percentile <= 100, got {self.near_percentile} and {self.far_percentile}"
+            )
+        if not 0.0 <= self.margin < 1.0:
+            raise ValueError(f"margin must be in [0, 1), got {self.margin}")
+        if not 0.0 <= self.box_outlier_quantile < 0.5:
+            raise ValueError(f"box_outlier_quantile must be in [0, 0.5), got {self.box_outlier_quantile}")
+        if self.box_mad_k <= 0:
+            raise ValueError(f"box_mad_k must be positive, got {self.box_mad_k}")
+        if self.min_points < 1:
+            raise ValueError(f"min_points must be >= 1, got {self.min_points}")
+        if not 0.0 < self.rig_radius < 1.0:
+            raise ValueError(f"rig_radius must be in (0, 1), got {self.rig_radius}")
+
+
+def frame_points(cameras: CameraSet, index: int) -> np.ndarray:
+    """(M, 3) sparse points that frame ``index`` sees: its SfM track list, else the points in its view."""
+    points = cameras.points
+    if points is None:
+        return np.zeros((0, 3))
+    if index < len(points.visible) and len(points.visible[index]) > 0:
+        return points.xyz[points.visible[index]]
+    frame = cameras.frames[index]
+    camera = cameras.camera_of(frame)
+    return points.xyz[in_view(frame.c2w, camera.K(), camera.width, camera.height, points.xyz)]
+
+
+def transform_camera_set(cameras: CameraSet, similarity: Similarity) -> CameraSet:
+    """The CameraSet with every frame's c2w and every point moved by ``similarity``; nothing else changes."""
+    frames = [replace(f, c2w=similarity.apply_c2w(f.c2w)) for f in cameras.frames]
+    points = None
+    if cameras.points is not None:
+        p = cameras.points
+        points = Points(similarity.apply_points(p.xyz).reshape(-1, 3), p.rgb, p.error, p.visible)
+    return CameraSet(dict(cameras.cameras), frames, points, cameras.source, list(cameras.unregistered), dict(cameras.extra))
+
+
+class BoundsStage(Stage):
+    """Normalize the world (z up, scene in [-1, 1]^3) and compute per-image near/far bounds."""
+
+    name = "bounds"
+    version = 1
+    Params = BoundsParams
+    requires = ("pinhole",)
+    provides = {"world": "world", "bounds": "bounds.json"}
+    libraries = ("numpy",)
+
+    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
+        s = manifest.get("summary", {})
+        if "near" not in s:
+            return []
+        return [
+            f"{s.get('frames')} images, {s.get('method')}-based near/far {s['near']:.3g} .. {s['far']:.3g} "
+            f"(normalized units), {s.get('rig')} rig, scale {s.get('scale', 0.0):.4g}"
+        ]
+
+    def run(self, inputs: StageInputs, out: Path, params: BoundsParams, ctx: StageContext) -> dict[str, Any]:
+        sfm = CameraSet.load(inputs["pinhole"])
+        if not sfm.frames:
+            raise StageError("bounds: no registered images to normalize; check the sfm / pose import result")
+        c2ws = np.array([f.c2w for f in sfm.frames])
+        xyz = sfm.points.xyz if sfm.points is not None and len(sfm.points.xyz) >= params.min_points else None
+
+        up = up_direction(c2ws)
+        similarity = normalization(c2ws, xyz, params.box_outlier_quantile, params.box_mad_k)
+        world = transform_camera_set(sfm, similarity)
+        (out / "world").mkdir()
+        world.save(out / "world")
+        world_c2ws = np.array([f.c2w for f in world.frames])
+
+        kind = rig_kind(world_c2ws)
+        frames: list[dict[str, Any]] = []
+        if xyz is not None:
+            method = "points"
+            lo, hi = robust_box(world.points.xyz, params.box_outlier_quantile, params.box_mad_k)
+            # images that see too few points fall back to the sphere around the scene box
+            box_center, box_radius = (lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0)
+            for i, frame in enumerate(world.frames):
+                bounds = near_far_from_points(
+                    frame.c2w, frame_points(world, i), params.near_percentile, params.far_percentile,
+                    params.margin, params.min_points,
+                )
+                if bounds is None:
+                    near, far = near_far_from_rig(frame.c2w[None], box_center, box_radius)
+                    frames.append(self._frame(frame, float(near[0]), float(far[0]), "rig"))
+                else:
+                    frames.append(self._frame(frame, bounds[0], bounds[1], "points"))
+            fallback = sum(f["method"] != "points" for f in frames)
+            if fallback:
+                ctx.log.warning(
+                    "bounds: %d of %d images see fewer than %d sparse points; their near/far come from the scene box",
+                    fallback, len(frames), params.min_points,
+                )
+        elif kind == "inward":
+            method = "rig"
+            center = look_at_center(world_c2ws)
+            radius = rig_radius(world_c2ws, center, params.rig_radius)
+            lo, hi = center - radius, center + radius
+            near, far = near_far_from_rig(world_c2ws, center, radius)
+            frames = [self._frame(f, float(n), float(x), "rig") for f, n, x in zip(world.frames, near, far)]
+        else:
+            method = "rig"
+            ctx.log.warning(
+                "bounds: no sparse points and the cameras do not look at a common centre (%s rig); "
+                "near/far are wide defaults %.2f / %.0f", kind, UNCONSTRAINED_NEAR, UNCONSTRAINED_FAR,
+            )
+            centers = world_c2ws[:, :3, 3]
+            lo, hi = centers.min(axis=0), centers.max(axis=0)
+            frames = [self._frame(f, UNCONSTRAINED_NEAR, UNCONSTRAINED_FAR, "rig") for f in world.frames]
+
+        inverse = similarity.inverse()
+        near_all = min(f["near"] for f in frames)
+        far_all = max(f["far"] for f in frames)
+        write_json_atomic(
+            out / "bounds.json",
+            {
+                "convention": "world: z up, region of interest in [-1, 1]^3; near/far are depths along the camera z axis",
+                "to_world": similarity.matrix().tolist(),
+                "to_sfm": inverse.matrix().tolist(),
+                "scale": similarity.scale,
+                "up": up.tolist(),
+                "rig": kind,
+                "method": method,
+                "scene_box": [lo.tolist(), hi.tolist()],
+                "near": near_all,
+                "far": far_all,
+                "frames": frames,
+            },
+        )
+        ctx.log.info(
+            "bounds: %d images, %s-based near/far %.3g .. %.3g (normalized units), scale %.4g, %s rig",
+            len(frames), method, near_all, far_all, similarity.scale, kind,
+        )
+        return {"method": method, "rig": kind, "scale": similarity.scale, "near": near_all, "far": far_all, "frames": len(frames)}
+
+    @staticmethod
+    def _frame(frame: Frame, near: float, far: float, method: str) -> dict[str, Any]:
+        return {"name": frame.name, "near": near, "far": far, "method": method}

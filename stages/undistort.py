@@ -1,0 +1,215 @@
+"""undistort: pinhole cameras for everything downstream, resampling only the images that need it.
+
+NeRF rays are cast through pinhole cameras, so every camera leaves this stage as PINHOLE. A camera whose
+lens moves some pixel by more than ``threshold_px`` has its images resampled (``geometry.distortion``)
+into ``images/`` here and gets the pinhole camera of the resampled images; a camera within the threshold
+keeps its K, drops its (negligible) distortion, and its images are not touched, not even copied: the
+``pinhole`` camera set says per frame where its image lives (``extra["image_roots"]``), and
+``frame_image_path`` turns that into a path.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
+from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
+from nerfpipe.stages.ingest import write_png
+
+IMAGE_ROOTS: tuple[str, ...] = ("undistort", "ingest")
+
+
+@dataclass(frozen=True)
+class UndistortParams:
+    threshold_px: float = field(
+        default=0.5,
+        metadata={"help": "undistort a camera only when its lens moves some pixel by more than this many pixels"},
+    )
+    interpolation: Literal["linear", "cubic", "lanczos"] = field(
+        default="cubic", metadata={"help": "resampling of the colour channels; alpha is always resampled linearly"}
+    )
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.threshold_px) and self.threshold_px >= 0):
+            raise ValueError(f"threshold_px must be a number of pixels >= 0, got {self.threshold_px}")
+
+
+def frame_image_path(frame_name: str, image_root: str, ingest_images: Path, undistort_images: Path) -> Path:
+    """The image of frame ``frame_name``, given its ``extra["image_roots"]`` entry in the pinhole camera set.
+
+    ``ingest_images`` and ``undistort_images`` are the ``images`` artifact of ingest and the
+    ``undistorted_images`` artifact of undistort.
+    """
+    if image_root == "undistort":
+        return Path(undistort_images) / frame_name
+    if image_root == "ingest":
+        return Path(ingest_images) / frame_name
+    raise ValueError(f"image root of {frame_name!r} is {image_root!r}; expected one of {', '.join(IMAGE_ROOTS)}")
+
+
+def read_png(path: Path) -> np.ndarray:
+    """RGB(A) or single-channel pixels of a PNG, 8 or 16 bit, read through bytes so any path name works."""
+    import cv2
+
+    pixels = cv2.imdecode(np.fromfile(path, np.uint8), cv2.IMREAD_UNCHANGED)
+    if pixels is None:
+        raise StageError(f"{path}: cannot decode this ingest image; rerun ingest with --force ingest")
+    if pixels.ndim == 3:
+        pixels = cv2.cvtColor(pixels, cv2.COLOR_BGRA2RGBA if pixels.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+    return pixels
+
+
+def remap_image(pixels: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interpolation: str) -> np.ndarray:
+    """Resample (H, W[, C]) pixels (uint8 / uint16, C = 1, 3 or 4) through remap tables (H', W') float32.
+
+    Colour uses ``interpolation``; an alpha channel (C = 4) is resampled linearly, so a mask's edge
+    becomes a ramp instead of ringing. Positions outside the image repeat the border pixel.
+    """
+    import cv2
+
+    flags = {"linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4}[interpolation]
+    border = cv2.BORDER_REPLICATE
+    if pixels.ndim == 3 and pixels.shape[2] == 4:
+        colour = cv2.remap(np.ascontiguousarray(pixels[..., :3]), map_x, map_y, flags, borderMode=border)
+        alpha = cv2.remap(np.ascontiguousarray(pixels[..., 3]), map_x, map_y, cv2.INTER_LINEAR, borderMode=border)
+        return np.dstack([colour, alpha])
+    return cv2.remap(pixels, map_x, map_y, flags, borderMode=border)
+
+
+def pinhole_of(camera: Camera) -> Camera:
+    """The PINHOLE camera with ``camera``'s K, its distortion dropped."""
+    return Camera.pinhole(camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
+
+
+class UndistortStage(Stage):
+    """Make every camera a pinhole: resample the images of cameras with noticeable lens distortion."""
+
+    name = "undistort"
+    version = 1
+    Params = UndistortParams
+    presets = {
+        "draft": {"interpolation": "linear"},
+        "fast": {"interpolation": "linear"},
+    }
+    requires = ("images", "images_json", "sfm_model")
+    provides = {"pinhole": "pinhole", "undistorted_images": "images"}
+    libraries = ("numpy", "opencv-contrib-python-headless")
+
+    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
+        s = manifest.get("summary", {})
+        largest = s.get("max_displacement_px")
+        moved = "beyond 90 degrees" if largest is None else f"{largest:.2f} px"
+        if s.get("undistorted_cameras"):
+            return [f"{s.get('images_undistorted')} images undistorted ({s.get('undistorted_cameras')} of "
+                    f"{s.get('cameras')} cameras, max displacement {moved}), "
+                    f"{s.get('images_passed_through')} untouched"]
+        return [f"{s.get('cameras')} pinhole cameras, max displacement {moved}: images untouched"]
+
+    def run(self, inputs: StageInputs, out: Path, params: UndistortParams, ctx: StageContext) -> dict[str, Any]:
+        from nerfpipe.geometry.distortion import max_distortion_displacement, undistortion_maps
+
+        model = CameraSet.load(inputs["sfm_model"])
+        records = {r["name"]: r for r in json.loads(inputs["images_json"].read_text(encoding="utf-8"))["images"]}
+        self._check_frames(model, records)
+        (out / "images").mkdir()
+        (out / "pinhole").mkdir()
+
+        displacement = {cid: max_distortion_displacement(camera) for cid, camera in model.cameras.items()}
+        to_undistort = sorted(cid for cid, d in displacement.items() if d > params.threshold_px)
+        frames_of: dict[int, list[Frame]] = {cid: [] for cid in model.cameras}
+        for frame in model.frames:
+            frames_of[frame.camera_id].append(frame)
+
+        cameras = {cid: pinhole_of(camera) for cid, camera in model.cameras.items()}
+        written: dict[int, int] = {}
+        pool = ThreadPoolExecutor(os.cpu_count() or 1)  # cv2 releases the GIL while it decodes, remaps, encodes
+        try:
+            with ctx.progress(sum(len(frames_of[cid]) for cid in to_undistort), "undistort") as advance:
+                for cid in to_undistort:
+                    map_x, map_y, cameras[cid] = undistortion_maps(model.cameras[cid])
+                    names = [f.name for f in frames_of[cid]]
+                    for _ in pool.map(
+                        self._resample,
+                        [inputs["images"] / n for n in names],
+                        [out / "images" / n for n in names],
+                        [(map_x, map_y)] * len(names),
+                        [params.interpolation] * len(names),
+                    ):
+                        advance(1)
+                    written[cid] = len(names)
+        finally:
+            # on an error or Ctrl-C, images not yet started are dropped instead of resampled for nothing
+            pool.shutdown(wait=True, cancel_futures=True)
+
+        image_roots = {f.name: "undistort" if f.camera_id in written else "ingest" for f in model.frames}
+        undistortion = {
+            str(cid): {
+                "model": model.cameras[cid].model,
+                "max_displacement_px": round(d, 4) if math.isfinite(d) else None,  # None: a fisheye beyond 90 degrees
+                "undistorted": cid in written,
+            }
+            for cid, d in sorted(displacement.items())
+        }
+        pinhole = CameraSet(
+            cameras, model.frames, model.points, model.source, model.unregistered,
+            {**model.extra, "image_roots": image_roots, "undistortion": undistortion},
+        )
+        pinhole.save(out / "pinhole")
+
+        ctx.log.info("undistort: %s", self._log_line(displacement, written, params.threshold_px))
+        largest = max(displacement.values(), default=0.0)
+        return {
+            "cameras": len(model.cameras),
+            "undistorted_cameras": len(written),
+            "images_undistorted": sum(written.values()),
+            "images_passed_through": len(model.frames) - sum(written.values()),
+            "max_displacement_px": round(largest, 4) if math.isfinite(largest) else None,
+        }
+
+    @staticmethod
+    def _resample(source: Path, target: Path, maps: tuple[np.ndarray, np.ndarray], interpolation: str) -> None:
+        write_png(target, remap_image(read_png(source), *maps, interpolation))
+
+    @staticmethod
+    def _check_frames(model: CameraSet, records: dict[str, dict[str, Any]]) -> None:
+        for frame in model.frames:
+            if frame.camera_id not in model.cameras:
+                raise StageError(
+                    f"sfm model: frame {frame.name} names camera {frame.camera_id}, which it does not hold"
+                )
+            record = records.get(frame.name)
+            if record is None:
+                raise StageError(
+                    f"sfm model: frame {frame.name} is not an ingest image; rerun sfm on the current ingest output"
+                )
+            camera = model.cameras[frame.camera_id]
+            if (record["width"], record["height"]) != (camera.width, camera.height):
+                raise StageError(
+                    f"sfm model: frame {frame.name} is {record['width']}x{record['height']} pixels but its camera "
+                    f"{frame.camera_id} is {camera.width}x{camera.height}; rerun sfm on the current ingest output"
+                )
+
+    @staticmethod
+    def _log_line(displacement: dict[int, float], written: dict[int, int], threshold: float) -> str:
+        if not written:
+            largest = max(displacement.values(), default=0.0)
+            return f"max displacement {largest:.2f} px <= {threshold:g} px: images pass through untouched"
+        parts = [
+            f"undistorted {n} image{'s' if n != 1 else ''} of camera {cid} "
+            f"(max displacement {displacement[cid]:.1f} px)"
+            for cid, n in sorted(written.items())
+        ]
+        kept = [d for cid, d in displacement.items() if cid not in written]
+        if kept:
+            parts.append(f"{len(kept)} camera{'s' if len(kept) != 1 else ''} within {threshold:g} px "
+                         f"(max {max(kept):.2f} px) pass{'' if len(kept) != 1 else 'es'} through untouched")
+        return "; ".join(parts)
