@@ -77,6 +77,19 @@ class BoundsParams:
             raise ValueError(f"rig_radius must be in (0, 1), got {self.rig_radius}")
 
 
+def frustum_box(world: CameraSet, frames: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned box of every image's view frustum between its near and far depth."""
+    corners = []
+    for frame, bounds in zip(world.frames, frames):
+        camera = world.cameras[frame.camera_id]
+        for depth in (bounds["near"], bounds["far"]):
+            for u, v in ((0, 0), (camera.width, 0), (0, camera.height), (camera.width, camera.height)):
+                ray = np.array([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0]) * depth
+                corners.append(frame.c2w[:3, :3] @ ray + frame.c2w[:3, 3])
+    corners = np.array(corners)
+    return corners.min(axis=0), corners.max(axis=0)
+
+
 def frame_points(cameras: CameraSet, index: int) -> np.ndarray:
     """(M, 3) sparse points that frame ``index`` sees: its SfM track list, else the points in its view."""
     points = cameras.points
@@ -155,6 +168,13 @@ class BoundsStage(Stage):
                     "bounds: %d of %d images see fewer than %d sparse points; their near/far come from the scene box",
                     fallback, len(frames), params.min_points,
                 )
+        elif sfm.extra.get("llff_bounds"):
+            # LLFF's poses_bounds.npy carries near/far depths from the points COLMAP had: use them, scaled
+            method = "pose_file"
+            llff = sfm.extra["llff_bounds"]
+            frames = [self._frame(f, float(llff[f.name][0]) * similarity.scale, float(llff[f.name][1]) * similarity.scale,
+                                  "pose_file") for f in world.frames]
+            lo, hi = frustum_box(world, frames)
         elif kind == "inward":
             method = "rig"
             center = look_at_center(world_c2ws)

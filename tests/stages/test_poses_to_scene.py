@@ -77,3 +77,38 @@ def test_status_shows_the_scene_decisions_and_an_override(tmp_path):
     scene = json.loads((result(run_dir, "scene") / "scene.json").read_text())
     assert scene["layout"]["value"] == "forward" and scene["layout"]["overridden"]
     assert "inward360" in scene["layout"]["evidence"]  # the data's own answer stays on record
+
+
+def test_cup_llff_import_keeps_its_near_far(tmp_path):
+    cup = shared("llff_cup_kwrous")
+    run_dir = tmp_path / "run"
+    Pipeline(default_stages(), cup, run_dir, overrides={"ingest": {"max_size": "100"}}).run(until="bounds")
+    bounds = json.loads((result(run_dir, "bounds") / "bounds.json").read_text())
+    assert bounds["method"] == "pose_file" and len(bounds["frames"]) == 77
+    poses = np.load(cup / "poses_bounds.npy")
+    names = sorted(p.name for p in (cup / "images").iterdir())
+    by_name = {f["name"]: f for f in bounds["frames"]}
+    for row, name in zip(poses, names):
+        frame = by_name[name.replace(".jpg", ".png")]
+        # depths scale with the scene; their ratio does not
+        assert frame["far"] / frame["near"] == pytest.approx(row[16] / row[15], rel=1e-9)
+        assert frame["near"] == pytest.approx(row[15] * bounds["scale"], rel=1e-9)
+
+
+@pytest.mark.slow
+def test_cup_sfm_registers_a_subset_and_calls_it_inward_facing(tmp_path):
+    """Acceptance (CI subset): every 3rd photo of the cup (26 of 77, 800x600), poses ignored: at least 95 %
+    register, and the scene analysis calls the capture what it is, an inward-facing orbit of the cup (the
+    photos circle it over ~190 degrees; they do not all look one way, so it is not forward-facing)."""
+    source = shared("llff_cup_kwrous", "images")
+    capture = tmp_path / "cup" / "images"
+    capture.mkdir(parents=True)
+    for name in sorted(p.name for p in source.iterdir())[::3]:
+        shutil.copy(source / name, capture)
+    run_dir = tmp_path / "run"
+    outcomes = Pipeline(default_stages(), capture.parent, run_dir, overrides={"sfm": {"poses": "sfm"}}).run()
+    sfm = outcomes[1].summary
+    assert sfm["total"] == 26 and sfm["registered"] >= 0.95 * 26
+    scene = json.loads((result(run_dir, "scene") / "scene.json").read_text())
+    assert scene["layout"]["value"] == "inward360", scene["layout"]["evidence"]
+    assert scene["background"]["value"] == "none"
