@@ -38,10 +38,12 @@ def sfm_pipeline(capture: Path, run_dir: Path, **sfm) -> Pipeline:
 
 
 @pytest.mark.slow
-def test_temple_registers_all_16_and_matches_the_calibration(tmp_path):
+@pytest.mark.parametrize("mapper", ["incremental", "global"])
+def test_temple_registers_all_16_and_matches_the_calibration(tmp_path, mapper):
     """Acceptance: images only (poses ignored); after a similarity alignment to templeSR_par.txt the median
     rotation error is <= 1 degree and the median position error <= 2 % of the ring's diameter."""
-    outcome = sfm_pipeline(TEMPLE, tmp_path / "run").run()[-1]
+    outcome = sfm_pipeline(TEMPLE, tmp_path / "run", mapper=mapper).run(until="sfm")[-1]
+    assert outcome.summary["method"] == f"colmap {mapper}"
     assert outcome.summary["registered"] == 16 and outcome.summary["total"] == 16
     cameras = CameraSet.load(outcome.path / "model")
     truth = read_par(TEMPLE / "templeSR_par.txt")
@@ -52,7 +54,7 @@ def test_temple_registers_all_16_and_matches_the_calibration(tmp_path):
     position_error = np.linalg.norm(est @ (s * R).T + t - gt, axis=1)
     diameter = max(np.linalg.norm(a - b) for a in gt for b in gt)
     rotation_error = [rotation_angle_deg(truth[f.name][1][:3, :3].T @ R @ f.c2w[:3, :3]) for f in cameras.frames]
-    print(f"temple: median rotation error {np.median(rotation_error):.3f} deg, median position error "
+    print(f"temple ({mapper}): median rotation error {np.median(rotation_error):.3f} deg, median position error "
           f"{100 * np.median(position_error) / diameter:.3f} % of the ring diameter")
     assert np.median(rotation_error) <= 1.0
     assert np.median(position_error) <= 0.02 * diameter
