@@ -9,6 +9,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from nerfpipe.pipeline import Stage
@@ -59,3 +60,14 @@ class CountStage(Stage):
 
 def two_stages() -> list[Stage]:
     return [IngestStage(), CountStage()]
+
+
+def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """OpenCV c2w (x right, y down, z forward) of a level camera at ``eye`` looking at ``target``, world z up."""
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    c2w = np.eye(4)
+    c2w[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
+    c2w[:3, 3] = eye
+    return c2w

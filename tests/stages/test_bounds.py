@@ -15,7 +15,7 @@ from nerfpipe.geometry.normalize import Similarity, depths, in_view
 from nerfpipe.pipeline import ParamError, Stage
 from nerfpipe.stages.bounds import BoundsStage
 
-from helpers import shared
+from helpers import look_at, shared
 
 
 @dataclass(frozen=True)
@@ -44,16 +44,6 @@ def run_bounds(cameras: CameraSet, tmp_path: Path, **overrides) -> tuple[Path, d
     pipe = Pipeline([FixturePoses(cameras), BoundsStage()], tmp_path, tmp_path / "run", overrides={"bounds": overrides})
     path = pipe.run()[-1].path
     return path, json.loads((path / "bounds.json").read_text())
-
-
-def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
-    c2w[:3, 3] = eye
-    return c2w
 
 
 def ring_with_points(n_frames: int = 12, seed: int = 0) -> CameraSet:

@@ -19,7 +19,7 @@ from nerfpipe.stages import IngestStage
 from nerfpipe.stages.bounds import BoundsStage
 from nerfpipe.stages.scene import SceneParams, SceneStage, decide_exposure, decide_layout, decide_photometric, describe_scene
 
-from helpers import TEMPLE, shared
+from helpers import TEMPLE, look_at, shared
 
 # README.txt of templeSparseRing: "The (tight) bounding box for the templeSparseRing model"
 TEMPLE_BOX = (np.array([-0.073568, 0.021728, -0.012445]), np.array([0.028855, 0.181892, 0.062736]))
@@ -249,16 +249,6 @@ def test_lens_evidence_per_camera():
 
 
 # -- layout on synthetic rigs ----------------------------------------------------------------------------
-def level_camera(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
-    c2w[:3, 3] = eye
-    return c2w
-
-
 def synthetic(c2ws: list[np.ndarray], xyz: np.ndarray) -> tuple[CameraSet, dict]:
     """A world CameraSet with points, and bounds frames with the points' depth range per camera."""
     frames = [Frame(f"{i}.png", 1, c) for i, c in enumerate(c2ws)]
@@ -271,7 +261,7 @@ def synthetic(c2ws: list[np.ndarray], xyz: np.ndarray) -> tuple[CameraSet, dict]
 def test_layout_forward_for_a_handheld_forward_facing_rig():
     rng = np.random.default_rng(0)
     eyes = np.c_[rng.uniform(-0.5, 0.5, 20), np.full(20, -1.0), rng.uniform(-0.3, 0.3, 20)]
-    c2ws = [level_camera(e, e + [0, 1, 0] + rng.normal(scale=0.1, size=3)) for e in eyes]
+    c2ws = [look_at(e, e + [0, 1, 0] + rng.normal(scale=0.1, size=3)) for e in eyes]
     world, bounds = synthetic(c2ws, rng.uniform([-3, 2, -2], [3, 9, 2], (2000, 3)))
     value, evidence, measured = decide_layout(world, bounds, SceneParams())
     assert value == "forward" and measured["max_angle_to_mean_deg"] < 15
@@ -280,7 +270,7 @@ def test_layout_forward_for_a_handheld_forward_facing_rig():
 
 def test_layout_unbounded_when_the_points_reach_far_beyond_the_ring():
     rng = np.random.default_rng(1)
-    c2ws = [level_camera(np.array([np.cos(a), np.sin(a), 0.3]), np.zeros(3)) for a in np.linspace(0, 6.2, 30)]
+    c2ws = [look_at(np.array([np.cos(a), np.sin(a), 0.3]), np.zeros(3)) for a in np.linspace(0, 6.2, 30)]
     near = rng.uniform(-0.3, 0.3, (1500, 3))
     far = rng.normal(size=(1500, 3))
     far = 8 * far / np.linalg.norm(far, axis=1, keepdims=True)  # a room / landscape all around
@@ -294,7 +284,7 @@ def test_layout_unbounded_when_the_points_reach_far_beyond_the_ring():
 
 def test_layout_unbounded_when_cameras_share_no_centre():
     # a panorama: cameras at one spot looking outwards in every direction
-    c2ws = [level_camera(np.zeros(3), np.array([np.cos(a), np.sin(a), 0.0])) for a in np.linspace(0, 6.2, 24)]
+    c2ws = [look_at(np.zeros(3), np.array([np.cos(a), np.sin(a), 0.0])) for a in np.linspace(0, 6.2, 24)]
     rng = np.random.default_rng(2)
     world, bounds = synthetic(c2ws, rng.normal(size=(500, 3)) * 5)
     value, evidence, _ = decide_layout(world, bounds, SceneParams())
