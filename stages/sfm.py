@@ -66,7 +66,7 @@ class SfmStage(Stage):
     """Camera poses + sparse points: COLMAP SfM through pycolmap, or the capture's own pose files."""
 
     name = "sfm"
-    version = 1
+    version = 2  # 2: seeded two-view RANSAC and mapper
     Params = SfmParams
     presets = {
         "draft": {"max_image_size": 800, "max_features": 4096},
@@ -283,18 +283,21 @@ def _looks_like_video(records: list[dict]) -> bool:
 
 def _match(pycolmap: Any, database: Path, matcher: str, params: SfmParams) -> None:
     device = pycolmap.Device.auto
+    # two-view RANSAC is seeded too, so the same photos give the same matches, and the same model
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = params.seed
     if matcher == "exhaustive":
-        pycolmap.match_exhaustive(database, device=device)
+        pycolmap.match_exhaustive(database, verification_options=verification, device=device)
     elif matcher == "sequential":
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = params.sequential_overlap
-        pycolmap.match_sequential(database, pairing_options=pairing, device=device)
+        pycolmap.match_sequential(database, pairing_options=pairing, verification_options=verification, device=device)
     else:
         with pycolmap.Database.open(database) as db:
             if db.num_pose_priors() == 0:
                 raise StageError("sfm.matcher=spatial needs GPS in the photos' EXIF; none was found. "
                                  "Use --set sfm.matcher=exhaustive or sequential")
-        pycolmap.match_spatial(database, device=device)
+        pycolmap.match_spatial(database, verification_options=verification, device=device)
 
 
 def _mapper_options(pycolmap: Any, params: SfmParams, relaxed: bool) -> Any:
@@ -305,6 +308,8 @@ def _mapper_options(pycolmap: Any, params: SfmParams, relaxed: bool) -> Any:
             options.min_num_matches = 10
         return options
     options = pycolmap.IncrementalPipelineOptions()
+    options.random_seed = params.seed
+    options.mapper.random_seed = params.seed
     if relaxed:
         # Fewer inliers to start and to register, a smaller initial triangulation angle: what gets
         # low-texture objects on a sparse ring (like the Middlebury temple) fully registered.
