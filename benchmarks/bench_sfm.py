@@ -10,7 +10,6 @@ Prints one Markdown row per capture; the figures go into the README's results ta
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import tempfile

@@ -16,7 +16,7 @@ import platform
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator, Literal, Mapping, Sequence
+from typing import Any, Iterator, Literal, Mapping, Sequence
 
 from nerfpipe.pipeline.dag import Dag
 from nerfpipe.pipeline.errors import InputError, NerfpipeError, ParamError, UpstreamNotReadyError

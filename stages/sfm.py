@@ -22,7 +22,7 @@ from typing import Any, Iterator, Literal
 import numpy as np
 
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, invert_pose
-from nerfpipe.pipeline.errors import ParamError, StageError
+from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.poses.layout import detect_layout
 

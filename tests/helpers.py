@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.pipeline import Stage
 from nerfpipe.stages import IngestStage
 
@@ -71,3 +72,38 @@ def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
     c2w[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
     c2w[:3, 3] = eye
     return c2w
+
+
+@dataclass(frozen=True)
+class SavedCamerasParams:
+    tag: str = ""  # e.g. a digest of the camera set, so the cache key follows its content
+
+
+class SavedCameras(Stage):
+    """Test-only stand-in for sfm / undistort: saves a CameraSet the test made as ``artifact`` and, when
+    given, images (name -> BGR pixels) as ``images_artifact``."""
+
+    version = 1
+    Params = SavedCamerasParams
+
+    def __init__(self, cameras: CameraSet, name: str = "poses", artifact: str = "pinhole",
+                 requires: tuple[str, ...] = (), images: dict | None = None, images_artifact: str | None = None,
+                 check_frames: bool = False) -> None:
+        self.cameras, self.name, self.artifact, self.requires = cameras, name, artifact, tuple(requires)
+        self.check_frames = check_frames
+        self.images, self.images_artifact = images or {}, images_artifact
+        self.provides = {artifact: artifact, **({images_artifact: images_artifact} if images_artifact else {})}
+
+    def run(self, inputs, out, params, ctx):
+        import cv2
+
+        if self.check_frames:
+            names = {r["name"] for r in json.loads(inputs["images_json"].read_text())["images"]}
+            assert {f.name for f in self.cameras.frames} <= names, "saved frames must be ingested images"
+        (out / self.artifact).mkdir()
+        self.cameras.save(out / self.artifact)
+        if self.images_artifact:
+            (out / self.images_artifact).mkdir()
+            for name, pixels in self.images.items():
+                cv2.imwrite(str(out / self.images_artifact / name), pixels)
+        return {"frames": len(self.cameras.frames)}

@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import importlib.metadata
-import json
 import shutil
 import subprocess
 import sys
-from pathlib import Path
 
 from helpers import REPO, TEMPLE, run_cli
 

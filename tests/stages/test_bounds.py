@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -12,36 +11,14 @@ import pytest
 from nerfpipe import Pipeline
 from nerfpipe.geometry.cameras import OPENGL_TO_OPENCV, Camera, CameraSet, Frame, Points
 from nerfpipe.geometry.normalize import Similarity, depths, in_view
-from nerfpipe.pipeline import ParamError, Stage
+from nerfpipe.pipeline import ParamError
 from nerfpipe.stages.bounds import BoundsStage
 
-from helpers import look_at, shared
-
-
-@dataclass(frozen=True)
-class FixtureParams:
-    label: str = "fixture"
-
-
-class FixturePoses(Stage):
-    """Test-only stand-in for sfm + undistort: saves a given CameraSet as the ``pinhole`` artifact."""
-
-    name = "poses"
-    version = 1
-    Params = FixtureParams
-    provides = {"pinhole": "pinhole"}
-
-    def __init__(self, cameras: CameraSet) -> None:
-        self.cameras = cameras
-
-    def run(self, inputs, out, params, ctx):
-        (out / "pinhole").mkdir()
-        self.cameras.save(out / "pinhole")
-        return {}
+from helpers import SavedCameras, look_at, shared
 
 
 def run_bounds(cameras: CameraSet, tmp_path: Path, **overrides) -> tuple[Path, dict]:
-    pipe = Pipeline([FixturePoses(cameras), BoundsStage()], tmp_path, tmp_path / "run", overrides={"bounds": overrides})
+    pipe = Pipeline([SavedCameras(cameras), BoundsStage()], tmp_path, tmp_path / "run", overrides={"bounds": overrides})
     path = pipe.run()[-1].path
     return path, json.loads((path / "bounds.json").read_text())
 

@@ -4,59 +4,27 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
 from nerfpipe import Pipeline
 from nerfpipe.geometry.cameras import OPENGL_TO_OPENCV, Camera, CameraSet, Frame, Points, invert_pose
 from nerfpipe.geometry.normalize import in_view
-from nerfpipe.pipeline import ParamError, Stage, parse_assignments
+from nerfpipe.pipeline import ParamError, parse_assignments
 from nerfpipe.stages import IngestStage
 from nerfpipe.stages.bounds import BoundsStage
 from nerfpipe.stages.scene import SceneParams, SceneStage, decide_exposure, decide_layout, decide_photometric, describe_scene
 
-from helpers import TEMPLE, look_at, shared
+from helpers import TEMPLE, SavedCameras, look_at, shared
 
 # README.txt of templeSparseRing: "The (tight) bounding box for the templeSparseRing model"
 TEMPLE_BOX = (np.array([-0.073568, 0.021728, -0.012445]), np.array([0.028855, 0.181892, 0.062736]))
 
 
-@dataclass(frozen=True)
-class FixtureParams:
-    label: str = "fixture"
-
-
-class FixturePoses(Stage):
-    """Test-only stand-in for sfm + undistort: saves a given CameraSet as ``pinhole`` and, for frames whose
-    image root is "undistort", the given images as ``undistorted_images``."""
-
-    name = "poses"
-    version = 1
-    Params = FixtureParams
-    requires = ("images_json",)
-    provides = {"pinhole": "pinhole", "undistorted_images": "undistorted_images"}
-
-    def __init__(self, cameras: CameraSet, undistorted: dict[str, np.ndarray] | None = None) -> None:
-        self.cameras = cameras
-        self.undistorted = undistorted or {}
-
-    def run(self, inputs, out, params, ctx):
-        (out / "pinhole").mkdir()
-        (out / "undistorted_images").mkdir()
-        names = {r["name"] for r in json.loads(inputs["images_json"].read_text())["images"]}
-        assert {f.name for f in self.cameras.frames} <= names, "fixture frames must be ingested images"
-        self.cameras.save(out / "pinhole")
-        for name, pixels in self.undistorted.items():
-            cv2.imwrite(str(out / "undistorted_images" / name), pixels)
-        return {}
-
-
 def run_scene(capture: Path, cameras: CameraSet, run_dir: Path, undistorted=None, **overrides) -> dict:
-    stages = [IngestStage(), FixturePoses(cameras, undistorted), BoundsStage(), SceneStage()]
+    stages = [IngestStage(), SavedCameras(cameras, requires=("images_json",), check_frames=True, images=undistorted, images_artifact="undistorted_images"), BoundsStage(), SceneStage()]
     outcome = Pipeline(stages, capture, run_dir, overrides={"scene": overrides} if overrides else None).run()[-1]
     return json.loads((outcome.path / "scene.json").read_text())
 
@@ -163,7 +131,7 @@ def test_temple_ring_is_inward360_on_a_black_background(temple_run):
 
 def test_override_keeps_the_evidence_and_marks_it(temple_run):
     run_dir, auto = temple_run
-    stages = [IngestStage(), FixturePoses(temple_cameras()), BoundsStage(), SceneStage()]
+    stages = [IngestStage(), SavedCameras(temple_cameras(), requires=("images_json",), check_frames=True, images_artifact="undistorted_images"), BoundsStage(), SceneStage()]
     overrides = parse_assignments(["scene.layout=forward", "scene.background_color=0.5,0.5,0.5"])
     outcomes = Pipeline(stages, TEMPLE, run_dir, overrides=overrides).run()
     assert [o.action for o in outcomes] == ["cached", "cached", "cached", "ran"]
@@ -185,7 +153,7 @@ def test_override_keeps_the_evidence_and_marks_it(temple_run):
 
 
 def test_bad_overrides_are_refused(tmp_path):
-    stages = [IngestStage(), FixturePoses(temple_cameras()), BoundsStage(), SceneStage()]
+    stages = [IngestStage(), SavedCameras(temple_cameras(), requires=("images_json",), check_frames=True, images_artifact="undistorted_images"), BoundsStage(), SceneStage()]
     with pytest.raises(ParamError, match="scene.layout: 'sideways' is not one of"):
         Pipeline(stages, TEMPLE, tmp_path / "run", overrides={"scene": {"layout": "sideways"}}).plan()
     with pytest.raises(ParamError, match="background_color must be auto, white, black or r,g,b"):

@@ -6,7 +6,6 @@ import hashlib
 import json
 import logging
 import shutil
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -16,44 +15,20 @@ import pytest
 from nerfpipe import Pipeline
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, Points
 from nerfpipe.geometry.distortion import max_distortion_displacement, undistort_pixels, undistortion_maps
-from nerfpipe.pipeline import Stage, StageContext, StageError, StageInputs
+from nerfpipe.pipeline import StageContext, StageError, StageInputs
 from nerfpipe.stages import IngestStage
 from nerfpipe.stages.ingest import write_png
 from nerfpipe.stages.undistort import UndistortParams, UndistortStage, frame_image_path, read_png
 
-from helpers import shared
+from helpers import SavedCameras, shared
 
 PATTERN = (9, 6)  # inner corners per row, rows
 SUBPIX = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-6)
 
 
-# -- a test-only sfm stage: hands on a given CameraSet -------------------------------------------------
-@dataclass(frozen=True)
-class FakeSfmParams:
-    tag: str = ""  # a digest of the camera set, so the cache key follows its content
-
-
-class FakeSfmStage(Stage):
-    """Provide ``sfm_model`` by saving a CameraSet made by the test."""
-
-    name = "sfm"
-    version = 1
-    Params = FakeSfmParams
-    requires = ("images_json",)
-    provides = {"sfm_model": "sfm"}
-
-    def __init__(self, camera_set: CameraSet) -> None:
-        self.camera_set = camera_set
-
-    def run(self, inputs, out, params, ctx):
-        (out / "sfm").mkdir()
-        self.camera_set.save(out / "sfm")
-        return {"frames": len(self.camera_set.frames)}
-
-
 def pipeline(capture: Path, run_dir: Path, camera_set: CameraSet, **undistort: object) -> Pipeline:
     digest = hashlib.sha256(json.dumps({k: c.to_json() for k, c in camera_set.cameras.items()}).encode()).hexdigest()
-    stages = [IngestStage(), FakeSfmStage(camera_set), UndistortStage()]
+    stages = [IngestStage(), SavedCameras(camera_set, name="sfm", artifact="sfm_model", requires=("images_json",)), UndistortStage()]
     overrides = {"ingest": {"max_size": 0}, "sfm": {"tag": digest[:16]}, "undistort": undistort}
     return Pipeline(stages, capture, run_dir, overrides=overrides)
 
