@@ -72,14 +72,21 @@ def _progress_factory() -> Callable:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     @contextlib.contextmanager
-    def progress(total: int, description: str) -> Iterator[Callable[[int], None]]:
+    def progress(total: int, description: str) -> Iterator[Callable[..., None]]:
         if not err_console.is_terminal:
-            yield lambda n=1: None
+            yield lambda n=1, info=None: None
             return
-        columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
+        columns = (
+            TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+            TextColumn("left"), TimeRemainingColumn(), TextColumn("{task.fields[info]}"),
+        )
         with Progress(*columns, console=err_console, transient=True) as bar:
-            task = bar.add_task(description, total=total)
-            yield lambda n=1: bar.advance(task, n)
+            task = bar.add_task(description, total=total, info="")
+
+            def advance(n: int = 1, info: str | None = None) -> None:
+                bar.update(task, advance=n, **({} if info is None else {"info": info}))
+
+            yield advance
 
     return progress
 

@@ -251,7 +251,7 @@ class Pipeline:
             reasons = stale_reasons(planned, latest.manifest, planned.stage.inputs_label)
         log.info("%s: running (%s)", name, "; ".join(reasons))
 
-        work = self.store.begin(name, key)
+        work = self.store.begin(name, key, resume=planned.stage.resumable and not forced)
         started = time.time()
         ctx = StageContext(log=logging.getLogger(f"nerfpipe.stages.{name}"), progress=self.progress, debug=self.debug)
         inputs = StageInputs(artifacts, self.source, planned.files)
@@ -265,7 +265,8 @@ class Pipeline:
             # and the next attempt at this key wipes it.
             raise
         except BaseException:
-            self.store.abandon(work)
+            if not planned.stage.resumable:
+                self.store.abandon(work)
             raise
         finished = time.time()
         manifest = {

@@ -33,12 +33,13 @@ class StageInputs:
         return self.source / fp.relpath
 
 
-ProgressFactory = Callable[[int, str], contextlib.AbstractContextManager[Callable[[int], None]]]
+# progress(total, description) -> advance(n=1, info=None); ``info`` is a short status text shown beside the bar
+ProgressFactory = Callable[[int, str], contextlib.AbstractContextManager[Callable[..., None]]]
 
 
 @contextlib.contextmanager
-def _no_progress(total: int, description: str) -> Iterator[Callable[[int], None]]:
-    yield lambda n=1: None
+def _no_progress(total: int, description: str) -> Iterator[Callable[..., None]]:
+    yield lambda n=1, info=None: None
 
 
 @dataclass
@@ -62,6 +63,9 @@ class Stage:
     provides: ClassVar[Mapping[str, str]] = {}
     libraries: ClassVar[tuple[str, ...]] = ()
     inputs_label: ClassVar[str] = "input files"
+    # A resumable stage keeps its work folder across interrupted attempts at the same cache key (and
+    # must cope with finding a partial one there); others always start from an empty folder.
+    resumable: ClassVar[bool] = False
 
     @classmethod
     def summary(cls) -> str:

@@ -11,7 +11,8 @@ Layout of a run directory::
 
 A result exists only once ``os.rename`` has moved its finished folder, manifest included, into
 ``stages/<stage>/``. A process killed before that leaves at most a ``.work`` folder, which the next run
-of that stage wipes and ``nerfpipe clean`` removes.
+of that stage wipes (a resumable stage, such as training, resumes from its checkpoints there instead)
+and ``nerfpipe clean`` removes.
 """
 
 from __future__ import annotations
@@ -103,12 +104,16 @@ class ArtifactStore:
         return sorted(p.name for p in folder.iterdir() if p.is_dir() and (p / MANIFEST).is_file())
 
     # -- writing -------------------------------------------------------------------------------
-    def begin(self, stage: str, key: str) -> Path:
-        """A fresh, empty work folder for (stage, key), inside the run directory (same filesystem)."""
+    def begin(self, stage: str, key: str, resume: bool = False) -> Path:
+        """The work folder for (stage, key), inside the run directory (same filesystem).
+
+        Empty unless ``resume``: a resumable stage (training) finds what a killed earlier attempt at the
+        same key left there, its checkpoints, and carries on. It is never a result either way.
+        """
         work = self.work_dir / f"{stage}-{key[:16]}"
-        if work.exists():
+        if work.exists() and not resume:
             shutil.rmtree(work)  # what a killed earlier attempt left
-        work.mkdir(parents=True)
+        work.mkdir(parents=True, exist_ok=True)
         return work
 
     def commit(self, stage: str, key: str, work: Path, manifest: dict[str, Any], replace: bool = False) -> Committed:

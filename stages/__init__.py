@@ -7,15 +7,16 @@ from nerfpipe.stages.bounds import BoundsParams, BoundsStage
 from nerfpipe.stages.ingest import IngestParams, IngestStage
 from nerfpipe.stages.scene import SceneParams, SceneStage
 from nerfpipe.stages.sfm import SfmParams, SfmStage
+from nerfpipe.stages.train import TrainParams, TrainStage
 from nerfpipe.stages.undistort import UndistortParams, UndistortStage
 
 
 def default_stages() -> list[Stage]:
     """The stages `nerfpipe run` chains, in declaration order."""
-    return [IngestStage(), SfmStage(), UndistortStage(), BoundsStage(), SceneStage()]
+    return [IngestStage(), SfmStage(), UndistortStage(), BoundsStage(), SceneStage(), TrainStage()]
 
 
 __all__ = [
     "BoundsParams", "BoundsStage", "IngestParams", "IngestStage", "SceneParams", "SceneStage", "SfmParams",
-    "SfmStage", "UndistortParams", "UndistortStage", "default_stages",
+    "SfmStage", "TrainParams", "TrainStage", "UndistortParams", "UndistortStage", "default_stages",
 ]

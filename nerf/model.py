@@ -1,0 +1,140 @@
+"""A trained radiance field with everything needed to render it: fields, sampling, background and the
+ray space the scene analysis chose (world rays clipped to the scene box, or NDC rays). Saved as
+``model.pt`` (tensors only, loadable with ``torch.load(..., weights_only=True)``) and ``model.json``."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from nerfpipe.nerf.field import FieldConfig, NerfField
+from nerfpipe.nerf.rays import camera_rays, intersect_box, ndc_rays, pixel_centers
+from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
+
+
+@dataclass(frozen=True)
+class RaySpace:
+    """How pixels become rays for this scene.
+
+    ``ndc``: forward-facing; rays go into the frame of ``ndc_c2w`` (the mean camera, OpenCV) and through
+    ``ndc_rays`` with ``ndc_focal``, ``ndc_size`` and ``ndc_near``; sampled over t' in [0, 1].
+    ``box``: bounded (inward 360); each ray's [near, far] is clipped to the box (min, max corners).
+    """
+
+    ndc: bool = False
+    ndc_c2w: tuple[tuple[float, ...], ...] | None = None
+    ndc_focal: float = 0.0
+    ndc_size: tuple[int, int] = (0, 0)
+    ndc_near: float = 1.0
+    box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+
+    def rays(self, uv: Tensor, intrinsics: Tensor, c2w: Tensor, near: Tensor, far: Tensor) -> RayBatch:
+        """Rays for pixel positions ``uv`` (R, 2) of cameras (R, 4) / (R, 4, 4) with depth bounds (R,)."""
+        origins, directions = camera_rays(uv, intrinsics, c2w)
+        viewdirs = torch.nn.functional.normalize(directions, dim=-1)
+        if self.ndc:
+            ref = torch.as_tensor(self.ndc_c2w, dtype=origins.dtype, device=origins.device)
+            rotation, center = ref[:3, :3], ref[:3, 3]
+            flip = torch.tensor([1.0, -1.0, -1.0], dtype=origins.dtype, device=origins.device)  # OpenCV -> OpenGL
+            o = ((origins - center) @ rotation) * flip
+            d = (directions @ rotation) * flip
+            o, d = ndc_rays(o, d, self.ndc_focal, self.ndc_size[0], self.ndc_size[1], self.ndc_near)
+            zeros = torch.zeros_like(near)
+            return RayBatch(o, d, viewdirs, zeros, torch.ones_like(near))
+        if self.box is not None:
+            lo = torch.as_tensor(self.box[0], dtype=origins.dtype, device=origins.device)
+            hi = torch.as_tensor(self.box[1], dtype=origins.dtype, device=origins.device)
+            t_enter, t_exit = intersect_box(origins, directions, lo, hi)
+            near_c, far_c = torch.maximum(near, t_enter), torch.minimum(far, t_exit)
+            miss = near_c >= far_c
+            # a ray that misses the box samples a zero-length interval at far: all weight goes to the background
+            near = torch.where(miss, far, near_c)
+            far = torch.where(miss, far, far_c)
+        return RayBatch(origins, directions, viewdirs, near, far)
+
+
+@dataclass
+class RadianceModel:
+    """Coarse (and fine) fields plus how to sample and composite them."""
+
+    coarse: NerfField
+    fine: NerfField | None
+    sampling: SamplingConfig
+    ray_space: RaySpace
+    background: tuple[float, float, float] | None
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def device(self) -> torch.device:
+        return next(self.coarse.parameters()).device
+
+    def background_tensor(self) -> Tensor | None:
+        return None if self.background is None else torch.tensor(self.background, device=self.device)
+
+    def render_image(
+        self, intrinsics: tuple[float, float, float, float], c2w: np.ndarray, width: int, height: int,
+        near: float, far: float, chunk: int = 8192,
+    ) -> dict[str, Tensor]:
+        """Render a whole pinhole view. Returns rgb (H, W, 3), depth, disparity, acc (H, W), on the CPU.
+
+        ``depth`` is along the camera axis in world units, except in NDC where it is the NDC t' in [0, 1].
+        """
+        device = self.device
+        uv = pixel_centers(width, height, device)
+        n = uv.shape[0]
+        k = torch.tensor(intrinsics, dtype=torch.float32, device=device).expand(n, 4)
+        pose = torch.as_tensor(np.asarray(c2w), dtype=torch.float32, device=device)
+        rays = self.ray_space.rays(uv, k, pose, torch.full((n,), near, device=device), torch.full((n,), far, device=device))
+        self.coarse.eval()
+        if self.fine is not None:
+            self.fine.eval()
+        out = render_chunked(self.coarse, self.fine, rays, self.sampling, self.background_tensor(), chunk)
+        shapes = {"rgb": (height, width, 3)}
+        return {key: value.reshape(shapes.get(key, (height, width))).cpu() for key, value in out.items()}
+
+    # -- files ---------------------------------------------------------------------------------
+    def save(self, folder: Path) -> None:
+        weights = {"coarse": self.coarse.state_dict()}
+        if self.fine is not None:
+            weights["fine"] = self.fine.state_dict()
+        torch.save(weights, folder / "model.pt")
+        doc = {
+            "field": asdict(self.coarse.config),
+            "fine_network": self.fine is not None,
+            "sampling": asdict(self.sampling),
+            "ray_space": asdict(self.ray_space),
+            "background": None if self.background is None else list(self.background),
+            "info": self.info,
+        }
+        (folder / "model.json").write_text(json.dumps(doc, indent=1))
+
+    @staticmethod
+    def load(folder: Path, device: torch.device | str = "cpu") -> "RadianceModel":
+        doc = json.loads((folder / "model.json").read_text())
+        config = field_config_from_json(doc["field"])
+        weights = torch.load(folder / "model.pt", map_location=device, weights_only=True)
+        coarse = NerfField(config).to(device)
+        coarse.load_state_dict(weights["coarse"])
+        fine = None
+        if doc["fine_network"]:
+            fine = NerfField(config).to(device)
+            fine.load_state_dict(weights["fine"])
+        rs = doc["ray_space"]
+        ray_space = RaySpace(
+            ndc=rs["ndc"],
+            ndc_c2w=None if rs["ndc_c2w"] is None else tuple(tuple(r) for r in rs["ndc_c2w"]),
+            ndc_focal=rs["ndc_focal"], ndc_size=tuple(rs["ndc_size"]), ndc_near=rs["ndc_near"],
+            box=None if rs["box"] is None else (tuple(rs["box"][0]), tuple(rs["box"][1])),
+        )
+        background = None if doc["background"] is None else tuple(doc["background"])
+        return RadianceModel(coarse, fine, SamplingConfig(**doc["sampling"]), ray_space, background, doc.get("info", {}))
+
+
+def field_config_from_json(d: dict[str, Any]) -> FieldConfig:
+    return FieldConfig(**{**d, "skips": tuple(d["skips"])})

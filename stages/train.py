@@ -1,0 +1,401 @@
+"""train: fit the NeRF of Mildenhall et al. 2020 to the posed images, then evaluate it on held-out views.
+
+Reads the normalized world, per-image near/far and the scene decisions, and models what they call for:
+rays in NDC for forward-facing captures (Section 6.1's real scenes), rays clipped to the scene box for
+inward 360° captures, depth sampling linear in disparity for unbounded ones; compositing onto the
+background colour for photos with alpha or a constant backdrop; sRGB previews of linear RAW renders.
+
+Writes ``model.pt`` / ``model.json`` (``nerfpipe.nerf.model.RadianceModel``), ``checkpoints/``,
+``metrics.jsonl`` (loss and PSNR against wall time), ``metrics.json`` (PSNR and SSIM on held-out views)
+and ``eval/`` (each held-out view rendered, beside its ground truth).
+
+Held-out views: the capture's test (else val) split when it has one; otherwise every 8th image, as the
+paper holds out 1/8 of its real scenes (Section 6.1).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from nerfpipe.geometry.cameras import CameraSet, Frame
+from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
+from nerfpipe.pipeline.store import write_json_atomic
+from nerfpipe.stages.undistort import frame_image_path, read_png
+
+NDC_NEAR_FACTOR = 0.75  # the NDC near plane at 0.75 x the nearest bound, as LLFF's bd_factor places it
+
+
+@dataclass(frozen=True)
+class TrainParams:
+    steps: int = field(default=3000, metadata={"help": "optimization steps (the paper: 100-300k, Section 5.3)"})
+    batch_rays: int = field(default=1024, metadata={"help": "rays per batch (the paper: 4096)"})
+    n_coarse: int = field(default=32, metadata={"help": "N_c stratified samples per ray (the paper: 64)"})
+    n_fine: int = field(default=64, metadata={"help": "N_f samples from the coarse weights (the paper: 128; 0: no hierarchical sampling)"})
+    hierarchical: bool = field(default=True, metadata={"help": "hierarchical sampling; false is Table 2's 'No Hierarchical' (N_c samples only)"})
+    fine_network: bool = field(default=False, metadata={"help": "a separate fine network (the paper); false reuses the coarse one"})
+    depth: int = field(default=4, metadata={"help": "layers of the MLP trunk (the paper: 8)"})
+    width: int = field(default=128, metadata={"help": "channels per trunk layer (the paper: 256)"})
+    view_width: int = field(default=64, metadata={"help": "channels of the view-direction layer (the paper: 128)"})
+    skip_after: int = field(default=0, metadata={"help": "concatenate the encoded input to this layer's activation (the paper: 5; 0: none)"})
+    positional_encoding: bool = field(default=True, metadata={"help": "encode x and d with Eq. 4; false is Table 2's 'No Pos. Encoding'"})
+    pos_freqs: int = field(default=10, metadata={"help": "L for positions (Section 5.1: 10)"})
+    dir_freqs: int = field(default=4, metadata={"help": "L for directions (Section 5.1: 4)"})
+    include_input: bool = field(default=True, metadata={"help": "feed the raw coordinates beside their encoding (the authors' code does)"})
+    view_dependence: bool = field(default=True, metadata={"help": "colour depends on the viewing direction; false is Table 2's 'No View Dependence'"})
+    density_activation: Literal["relu", "softplus"] = field(default="softplus", metadata={"help": "relu (the paper) or softplus"})
+    lr: float = field(default=1e-3, metadata={"help": "initial Adam learning rate (the paper: 5e-4)"})
+    lr_final: float = field(default=5e-5, metadata={"help": "learning rate at the last step, reached by exponential decay (the paper: 5e-5)"})
+    adam_eps: float = field(default=1e-7, metadata={"help": "Adam epsilon (the paper: 1e-7)"})
+    density_noise: str = field(default="auto", metadata={"help": "std of noise on raw density: auto (1.0 for forward-facing real captures, else 0) or a number"})
+    lindisp: Literal["auto", "true", "false"] = field(default="auto", metadata={"help": "sample linearly in disparity; auto: for unbounded scenes"})
+    clip_to_box: bool = field(default=True, metadata={"help": "inward 360: clip each ray to the scene box"})
+    train_images: int = field(default=0, metadata={"help": "train on this many images, evenly spaced (Table 2 rows 5-6); 0: all"})
+    holdout_every: int = field(default=8, metadata={"help": "without a val/test split, hold out every n-th image (the paper: 8)"})
+    eval_stride: int = field(default=1, metadata={"help": "evaluate every n-th held-out view"})
+    checkpoint_every: int = field(default=500, metadata={"help": "write a checkpoint every n steps (a killed run resumes from the last)"})
+    keep_checkpoints: int = field(default=2, metadata={"help": "checkpoints kept (0: all)"})
+    seed: int = field(default=0, metadata={"help": "seed of initialization, batches and samples"})
+    device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
+    tf32: bool = field(default=False, metadata={"help": "CUDA: TF32 matmuls"})
+    autocast: Literal["none", "bf16", "fp16"] = field(default="none", metadata={"help": "mixed precision for the MLP (compositing stays float32)"})
+    chunk: int = field(default=8192, metadata={"help": "rays per chunk when rendering whole views"})
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "batch_rays", "n_coarse", "depth", "width", "view_width", "holdout_every", "eval_stride",
+                     "checkpoint_every", "chunk"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("n_fine", "pos_freqs", "dir_freqs", "train_images", "keep_checkpoints", "skip_after"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.skip_after > self.depth - 1:
+            raise ValueError(f"skip_after must be below depth ({self.depth}), got {self.skip_after}")
+        if not (0 < self.lr_final <= self.lr) or self.adam_eps <= 0:
+            raise ValueError("need 0 < lr_final <= lr and adam_eps > 0")
+        if self.density_noise != "auto":
+            try:
+                noise = float(self.density_noise)
+            except ValueError:
+                raise ValueError(f"density_noise must be auto or a number >= 0, got {self.density_noise!r}") from None
+            if not noise >= 0:
+                raise ValueError(f"density_noise must be >= 0, got {noise}")
+
+
+PAPER = {
+    "steps": 200_000, "batch_rays": 4096, "n_coarse": 64, "n_fine": 128, "fine_network": True, "depth": 8,
+    "width": 256, "view_width": 128, "skip_after": 5, "include_input": False, "density_activation": "relu",
+    "lr": 5e-4, "lr_final": 5e-5, "adam_eps": 1e-7, "checkpoint_every": 10_000,
+}
+
+
+@dataclass
+class Views:
+    """The frames used for training and for evaluation, and why."""
+
+    train: list[Frame]
+    heldout: list[Frame]
+    rule: str
+
+
+def split_views(world: CameraSet, params: TrainParams) -> Views:
+    """Held-out views: the test split, else the val split, else every ``holdout_every``-th image."""
+    frames = world.frames
+    splits = {f.split for f in frames}
+    for name in ("test", "val"):
+        if name in splits:
+            train = [f for f in frames if f.split == "train"] or [f for f in frames if f.split != name]
+            heldout = [f for f in frames if f.split == name]
+            rule = f"the capture's {name} split"
+            break
+    else:
+        heldout = frames[:: params.holdout_every]
+        train = [f for i, f in enumerate(frames) if i % params.holdout_every != 0]
+        rule = f"every {params.holdout_every}th image"
+    if params.train_images and params.train_images < len(train):
+        keep = np.unique(np.linspace(0, len(train) - 1, params.train_images).round().astype(int))
+        train = [train[i] for i in keep]
+    heldout = heldout[:: params.eval_stride]
+    if not train:
+        raise StageError(f"train: no training images left after holding out {rule}; lower train.holdout_every")
+    return Views(train, heldout, rule)
+
+
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """The sRGB transfer curve (IEC 61966-2-1) for previews of linear renders."""
+    linear = np.clip(linear, 0.0, 1.0)
+    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
+
+
+def mean_camera(c2ws: np.ndarray) -> np.ndarray:
+    """The average pose (OpenCV): mean centre, mean viewing axis, mean down axis made orthonormal."""
+    z = c2ws[:, :3, 2].mean(axis=0)
+    z /= np.linalg.norm(z)
+    y = c2ws[:, :3, 1].mean(axis=0)
+    x = np.cross(y, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([x, y, z], axis=1)
+    pose[:3, 3] = c2ws[:, :3, 3].mean(axis=0)
+    return pose
+
+
+class TrainStage(Stage):
+    """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
+
+    name = "train"
+    version = 1
+    Params = TrainParams
+    presets = {
+        # Section 5.3 and Fig. 7: the model, sampling and optimizer of the paper
+        "paper": PAPER,
+        # the defaults: a 4x128 MLP, one network for both passes, 32 + 64 samples; minutes on 2 CPU cores
+        "cpu": {},
+    }
+    requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")
+    provides = {"model": "model.pt", "model_json": "model.json", "metrics": "metrics.json", "eval": "eval"}
+    libraries = ("torch", "kornia", "numpy")
+    resumable = True
+
+    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
+        s = manifest.get("summary", {})
+        if "steps" not in s:
+            return []
+        if s.get("psnr") is None:
+            return [f"{s['steps']} steps in {s['train_seconds']:.0f} s on {s['device']}; no held-out views to evaluate"]
+        lines = [f"{s['steps']} steps in {s['train_seconds']:.0f} s on {s['device']} "
+                 f"({s['samples_per_s']:.0f} samples/s); {s['heldout']} held-out views ({s['heldout_rule']}): "
+                 f"PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f}"]
+        if s.get("resumed_from"):
+            lines.append(f"resumed from the checkpoint at step {s['resumed_from']}")
+        return lines
+
+    def run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext) -> dict[str, Any]:
+        import torch
+
+        from nerfpipe.nerf.trainer import TrainConfig, Trainer
+
+        device = resolve_device(params.device)
+        if device.type == "cuda" and params.tf32:
+            torch.backends.cuda.matmul.allow_tf32 = True
+            torch.backends.cudnn.allow_tf32 = True
+        scene = json.loads(inputs["scene"].read_text(encoding="utf-8"))
+        world = CameraSet.load(inputs["world"])
+        bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
+        views = split_views(world, params)
+        model, decisions = build_model(params, scene, world, bounds, device)
+        for line in decisions:
+            ctx.log.info("train: %s", line)
+        ctx.log.info("train: %d training images, %d held out (%s)", len(views.train), len(views.heldout), views.rule)
+
+        loader = ImageLoader(inputs, world, bounds, scene)
+        pixels = loader.pixel_set(views.train)
+        config = TrainConfig(
+            steps=params.steps, batch_rays=params.batch_rays, lr=params.lr, lr_final=params.lr_final,
+            adam_eps=params.adam_eps, density_noise=density_noise(params, scene), seed=params.seed,
+            checkpoint_every=params.checkpoint_every, keep_checkpoints=params.keep_checkpoints, autocast=params.autocast,
+        )
+        trainer = Trainer(model, pixels, config, out, device)
+        resumed = trainer.resume()
+        if resumed is not None:
+            ctx.log.info("train: resuming from the checkpoint at step %d of %d", resumed, params.steps)
+        with ctx.progress(params.steps - trainer.step, "train") as advance:
+            trainer.run(advance)
+        model.save(out)
+
+        evaluation = evaluate(model, loader, views.heldout, out / "eval", params.chunk, ctx)
+        samples_per_s = trainer.samples_per_step() * params.steps / max(trainer.elapsed, 1e-9)
+        summary = {
+            "steps": params.steps,
+            "train_seconds": round(trainer.elapsed, 2),
+            "samples_per_s": round(samples_per_s),
+            "device": str(device),
+            "train_images": len(views.train),
+            "heldout": len(views.heldout),
+            "heldout_rule": views.rule,
+            "psnr": evaluation["psnr"],
+            "ssim": evaluation["ssim"],
+            "resumed_from": resumed,
+            "decisions": decisions,
+        }
+        write_json_atomic(out / "metrics.json", {**summary, "views": evaluation["views"], "eval_seconds": evaluation["seconds"]})
+        ctx.log.info("train: held-out PSNR %.2f dB, SSIM %.3f over %d views", evaluation["psnr"], evaluation["ssim"],
+                     len(views.heldout))
+        return summary
+
+
+def resolve_device(choice: str):
+    import torch
+
+    if choice == "cuda" and not torch.cuda.is_available():
+        raise StageError("train.device=cuda but torch sees no CUDA device; use train.device=auto or cpu")
+    return torch.device("cuda" if choice == "cuda" or (choice == "auto" and torch.cuda.is_available()) else "cpu")
+
+
+def density_noise(params: TrainParams, scene: dict[str, Any]) -> float:
+    """The authors regularize real forward-facing scenes with noise of std 1 on the raw density; not synthetic ones."""
+    if params.density_noise != "auto":
+        return float(params.density_noise)
+    return 1.0 if scene["layout"]["value"] == "forward" else 0.0
+
+
+def build_model(params: TrainParams, scene: dict[str, Any], world: CameraSet, bounds: dict[str, Any], device):
+    """The fields, sampling, ray space and background this scene calls for, and a sentence per choice."""
+    from nerfpipe.nerf.field import FieldConfig, NerfField
+    from nerfpipe.nerf.model import RadianceModel, RaySpace
+    from nerfpipe.nerf.renderer import SamplingConfig
+
+    import torch
+
+    torch.manual_seed(params.seed)
+    layout = scene["layout"]["value"]
+    decisions = []
+    config = FieldConfig(
+        depth=params.depth, width=params.width, skips=(params.skip_after - 1,) if params.skip_after else (),
+        view_width=params.view_width, pos_freqs=params.pos_freqs if params.positional_encoding else 0,
+        dir_freqs=params.dir_freqs if params.positional_encoding else 0, include_input=params.include_input,
+        view_dependent=params.view_dependence, density_activation=params.density_activation,
+    )
+    coarse = NerfField(config).to(device)
+    fine = NerfField(config).to(device) if params.fine_network and params.hierarchical and params.n_fine > 0 else None
+    lindisp = layout == "unbounded360" if params.lindisp == "auto" else params.lindisp == "true"
+    sampling = SamplingConfig(params.n_coarse, params.n_fine if params.hierarchical else 0, lindisp)
+
+    if layout == "forward":
+        c2ws = np.array([f.c2w for f in world.frames])
+        reference = world.camera_of(world.frames[0])
+        near_plane = NDC_NEAR_FACTOR * min(f["near"] for f in bounds["frames"])
+        ray_space = RaySpace(ndc=True, ndc_c2w=tuple(map(tuple, mean_camera(c2ws).tolist())), ndc_focal=reference.fx,
+                             ndc_size=(reference.width, reference.height), ndc_near=near_plane)
+        decisions.append(f"forward-facing: rays in NDC of the mean camera, near plane {near_plane:.3g}, "
+                         "samples linear in NDC depth (near to infinity)")
+    elif layout == "inward360" and params.clip_to_box:
+        box = (tuple(bounds["scene_box"][0]), tuple(bounds["scene_box"][1]))
+        ray_space = RaySpace(box=box)
+        decisions.append("inward 360: world rays, each clipped to the scene box and its image's near/far")
+    else:
+        ray_space = RaySpace()
+        what = "unbounded 360: world rays over each image's near/far" if layout == "unbounded360" else "world rays over each image's near/far"
+        decisions.append(what + (", samples linear in disparity" if lindisp else ""))
+
+    background_kind = scene["background"]["value"]
+    color = scene["background_color"]["value"]
+    if background_kind in ("alpha", "color") and color is not None:
+        background = tuple(float(c) for c in color)
+        decisions.append(f"background {background_kind}: renders composited onto ({', '.join(f'{c:.2f}' for c in background)})")
+    else:
+        background = None
+        decisions.append("no background model: the background is part of the scene (composited onto black)")
+    if scene["photometric"]["value"] == "linear_raw":
+        decisions.append("linear RAW: trained on linear values; previews are sRGB-encoded")
+    noise = density_noise(params, scene)
+    if noise:
+        decisions.append(f"noise of std {noise:g} on raw density while training")
+    info = {"layout": layout, "photometric": scene["photometric"]["value"], "to_sfm": bounds["to_sfm"]}
+    return RadianceModel(coarse, fine, sampling, ray_space, background, info), decisions
+
+
+class ImageLoader:
+    """Training targets and cameras of frames, from the ingest / undistort images."""
+
+    def __init__(self, inputs: StageInputs, world: CameraSet, bounds: dict[str, Any], scene: dict[str, Any]) -> None:
+        self.inputs = inputs
+        self.world = world
+        self.roots = CameraSet.load(inputs["pinhole"]).extra.get("image_roots", {})
+        self.near_far = {f["name"]: (f["near"], f["far"]) for f in bounds["frames"]}
+        self.use_alpha = scene["background"]["value"] == "alpha"
+        color = scene["background_color"]["value"]
+        self.background = np.array(color if color is not None else (0.0, 0.0, 0.0), dtype=np.float32)
+
+    def image(self, frame: Frame) -> np.ndarray:
+        """(H, W, 3) float32 in [0, 1]; alpha composited onto the background colour when the scene uses it."""
+        path = frame_image_path(frame.name, self.roots.get(frame.name, "ingest"), self.inputs["images"],
+                                self.inputs["undistorted_images"])
+        pixels = read_png(path)
+        scale = 65535.0 if pixels.dtype == np.uint16 else 255.0
+        pixels = pixels.astype(np.float32) / scale
+        if pixels.ndim == 2:
+            pixels = np.repeat(pixels[..., None], 3, axis=-1)
+        if pixels.shape[-1] == 4:
+            rgb, alpha = pixels[..., :3], pixels[..., 3:]
+            pixels = rgb * alpha + self.background * (1.0 - alpha) if self.use_alpha else rgb
+        camera = self.world.camera_of(frame)
+        if pixels.shape[:2] != (camera.height, camera.width):
+            raise StageError(f"train: {path} is {pixels.shape[1]}x{pixels.shape[0]} but its camera is "
+                             f"{camera.width}x{camera.height}; rerun with --force undistort")
+        return pixels
+
+    def intrinsics(self, frame: Frame) -> tuple[float, float, float, float]:
+        c = self.world.camera_of(frame)
+        return (c.fx, c.fy, c.cx, c.cy)
+
+    def pixel_set(self, frames: list[Frame]):
+        import torch
+
+        from nerfpipe.nerf.rays import pixel_centers
+        from nerfpipe.nerf.trainer import PixelSet
+
+        rgb, image, uv = [], [], []
+        for i, frame in enumerate(frames):
+            pixels = self.image(frame)
+            h, w = pixels.shape[:2]
+            rgb.append(torch.from_numpy(np.ascontiguousarray(pixels.reshape(-1, 3))))
+            uv.append(pixel_centers(w, h))
+            image.append(torch.full((h * w,), i, dtype=torch.int64))
+        return PixelSet(
+            rgb=torch.cat(rgb), image=torch.cat(image), uv=torch.cat(uv),
+            intrinsics=torch.tensor([self.intrinsics(f) for f in frames], dtype=torch.float32),
+            c2w=torch.tensor(np.array([f.c2w for f in frames]), dtype=torch.float32),
+            near=torch.tensor([self.near_far[f.name][0] for f in frames], dtype=torch.float32),
+            far=torch.tensor([self.near_far[f.name][1] for f in frames], dtype=torch.float32),
+        )
+
+
+def view_file_stem(name: str) -> str:
+    """An eval file name for a frame name that may contain folders: ``val/r_0.png`` -> ``val__r_0``."""
+    return Path(name).with_suffix("").as_posix().replace("/", "__")
+
+
+def evaluate(model, loader: ImageLoader, frames: list[Frame], folder: Path, chunk: int, ctx: StageContext) -> dict[str, Any]:
+    """Render each held-out view; PSNR and SSIM (kornia.metrics, 11x11 Gaussian window) against its image;
+    ``<view>.render.png`` written beside ``<view>.gt.png``."""
+    import kornia
+    import torch
+
+    from nerfpipe.stages.ingest import write_png
+
+    folder.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    linear = model.info.get("photometric") == "linear_raw"
+    views = []
+    with ctx.progress(len(frames), "evaluate") as advance:
+        for frame in frames:
+            gt = loader.image(frame)
+            camera = loader.world.camera_of(frame)
+            near, far = loader.near_far[frame.name]
+            out = model.render_image(loader.intrinsics(frame), frame.c2w, camera.width, camera.height, near, far, chunk)
+            render = out["rgb"].clamp(0.0, 1.0)
+            target = torch.from_numpy(gt)
+            psnr = float(kornia.metrics.psnr(render, target, 1.0))
+            ssim = float(kornia.metrics.ssim(render.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None], 11).mean())
+            stem = view_file_stem(frame.name)
+            for suffix, pixels in (("render", render.numpy()), ("gt", gt)):
+                shown = srgb_encode(pixels) if linear else pixels
+                write_png(folder / f"{stem}.{suffix}.png", np.round(np.clip(shown, 0, 1) * 255).astype(np.uint8))
+            views.append({"name": frame.name, "psnr": round(psnr, 4), "ssim": round(ssim, 5)})
+            advance(1, info=f"{frame.name}: {psnr:.2f} dB")
+    if not views:
+        return {"psnr": None, "ssim": None, "views": [], "seconds": 0.0}
+    return {
+        "psnr": round(float(np.mean([v["psnr"] for v in views])), 4),
+        "ssim": round(float(np.mean([v["ssim"] for v in views])), 5),
+        "views": views,
+        "seconds": round(time.perf_counter() - started, 2),
+    }
