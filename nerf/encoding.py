@@ -19,7 +19,7 @@ def positional_encoding(x: Tensor, num_freqs: int, include_input: bool = False) 
     Fig. 7 of the paper does not).
 
     The phase 2^k p is reduced modulo 2 before it is multiplied by pi. Both steps are exact in floating
-    point (``remainder`` is exact and 2^k only changes the exponent), so the result equals Eq. 4 for
+    point (``fmod`` is exact and 2^k only changes the exponent), so the result equals Eq. 4 for
     every finite input, stays finite and within [-1, 1] for coordinates of any size (where sin(2^k pi p)
     evaluated directly would overflow to inf and give NaN), and is more accurate than the direct form.
 
@@ -34,9 +34,10 @@ def positional_encoding(x: Tensor, num_freqs: int, include_input: bool = False) 
         raise ValueError(f"num_freqs must be >= 0, got {num_freqs}")
     parts = [x] if include_input else []
     if num_freqs:
-        base = torch.remainder(x, 2.0)
+        # fmod, not remainder: remainder(p, 2) = p + 2 for p in (-1, 0) rounds away p's last bit in float32.
+        base = torch.fmod(x, 2.0)
         scales = 2.0 ** torch.arange(num_freqs, dtype=x.dtype, device=x.device)
-        phase = torch.remainder(base.unsqueeze(-2) * scales.unsqueeze(-1), 2.0) * math.pi  # (..., L, D)
+        phase = torch.fmod(base.unsqueeze(-2) * scales.unsqueeze(-1), 2.0) * math.pi  # (..., L, D), in (-2 pi, 2 pi)
         trig = torch.stack([torch.sin(phase), torch.cos(phase)], dim=-2)  # (..., L, 2, D)
         parts.append(trig.reshape(*x.shape[:-1], 2 * num_freqs * x.shape[-1]))
     if not parts:

@@ -66,8 +66,10 @@ def transmittance(sigmas: Tensor, deltas: Tensor) -> Tensor:
         T: (R, N) in [0, 1], T_1 = 1.
     """
     tau = optical_depth(sigmas, deltas)
-    exclusive = torch.cumsum(tau, dim=-1) - tau
-    return torch.exp(-exclusive.clamp_min(0.0))
+    # Shifted, not cumsum(tau) - tau: subtracting a large tau_i (up to the cap) from the running sum
+    # loses the small optical depth before it, off by up to half an ulp of 1e4 in float32.
+    exclusive = torch.cat([torch.zeros_like(tau[..., :1]), torch.cumsum(tau, dim=-1)[..., :-1]], dim=-1)
+    return torch.exp(-exclusive)
 
 
 def transmittance_from_alphas(alphas: Tensor) -> Tensor:

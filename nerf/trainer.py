@@ -174,7 +174,7 @@ class Trainer:
         self.scaler.step(self.optimizer)
         self.scaler.update()
         final = losses.get("fine", losses["coarse"])
-        return float(loss), mse_to_psnr(float(final))
+        return float(loss.detach()), mse_to_psnr(float(final.detach()))
 
     def samples_per_step(self) -> int:
         s = self.model.sampling

@@ -65,7 +65,7 @@ class TrainParams:
     device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
     tf32: bool = field(default=False, metadata={"help": "CUDA: TF32 matmuls"})
     autocast: Literal["none", "bf16", "fp16"] = field(default="none", metadata={"help": "mixed precision for the MLP (compositing stays float32)"})
-    chunk: int = field(default=8192, metadata={"help": "rays per chunk when rendering whole views"})
+    chunk: int = field(default=2048, metadata={"help": "rays per chunk when rendering whole views"})
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_rays", "n_coarse", "depth", "width", "view_width", "holdout_every", "eval_stride",
@@ -183,6 +183,10 @@ class TrainStage(Stage):
         from nerfpipe.nerf.trainer import TrainConfig, Trainer
 
         device = resolve_device(params.device)
+        if device.type == "cpu":
+            from nerfpipe.nerf.cpu import keep_freed_memory
+
+            keep_freed_memory()
         if device.type == "cuda" and params.tf32:
             torch.backends.cuda.matmul.allow_tf32 = True
             torch.backends.cudnn.allow_tf32 = True

@@ -1,0 +1,441 @@
+"""Numerical stability of the NeRF maths at the edges: extreme densities, empty intervals, degenerate bounds,
+one sample per ray, empty or peaked coarse weights, huge coordinates, rays parallel to the image plane.
+
+Every case runs in float32 and, where it applies, under CPU autocast to bfloat16 (and float16 when this torch
+supports it on the CPU), and checks concrete bounds, not just "does not crash".
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from torch import nn
+
+from nerfpipe.nerf.encoding import positional_encoding
+from nerfpipe.nerf.field import FieldConfig, NerfField
+from nerfpipe.nerf.rays import ndc_rays
+from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_rays
+from nerfpipe.nerf.rendering import alphas_from_density, composite
+from nerfpipe.nerf.sampling import sample_intervals, sample_pdf, stratified_samples
+
+EXTREME_DENSITIES = [0.0, 1e-8, 1e6, 1e10]
+F32_MAX = torch.finfo(torch.float32).max
+
+
+def _cpu_autocast_works(dtype: torch.dtype) -> str | None:
+    """None if CPU autocast to ``dtype`` runs a Linear layer here, else why not."""
+    try:
+        with torch.autocast("cpu", dtype=dtype):
+            out = nn.Linear(3, 2)(torch.ones(1, 3))
+        return None if out.dtype == dtype else f"CPU autocast to {dtype} leaves Linear in {out.dtype}"
+    except RuntimeError as error:  # older torch warns and leaves autocast off instead: the dtype check above
+        return f"CPU autocast to {dtype} unsupported: {error}"
+
+
+MODES = [
+    pytest.param("float32", id="float32"),
+    pytest.param("bfloat16", id="autocast-bf16"),
+    pytest.param("float16", id="autocast-fp16"),
+]
+
+
+def precision(mode: str):
+    """The context a case runs in: plain float32, or CPU autocast to bf16 / fp16 (skipped if unsupported)."""
+    if mode == "float32":
+        return contextlib.nullcontext()
+    dtype = getattr(torch, mode)
+    reason = _cpu_autocast_works(dtype)
+    if reason is not None:
+        pytest.skip(reason)
+    return torch.autocast("cpu", dtype=dtype)
+
+
+def assert_sane(result, background=None, colors_max: float = 1.0) -> None:
+    """The bounds every composite must keep, whatever went in."""
+    w = result.weights
+    assert w.dtype in (torch.float32, torch.float64)
+    assert torch.isfinite(w).all()
+    assert (w >= 0).all() and (w <= 1).all()
+    assert (w.sum(-1) <= 1 + 1e-6).all()
+    assert torch.isfinite(result.acc).all() and (result.acc >= 0).all() and (result.acc <= 1 + 1e-6).all()
+    assert torch.isfinite(result.rgb).all()
+    assert (result.rgb >= 0).all() and (result.rgb <= colors_max + 1e-6).all()
+    assert torch.isfinite(result.depth).all() and torch.isfinite(result.disparity).all()
+    assert (result.disparity >= 0).all()
+
+
+def assert_finite_grads(*tensors: torch.Tensor) -> None:
+    for tensor in tensors:
+        assert tensor.grad is not None
+        assert torch.isfinite(tensor.grad).all()
+
+
+def scene(density: float, n_rays: int = 3, n_samples: int = 8):
+    """Samples at the bin centres of [2, 6], constant ``density``, colours and background in [0, 1]."""
+    g = torch.Generator().manual_seed(0)
+    near, far = torch.full((n_rays,), 2.0), torch.full((n_rays,), 6.0)
+    t = stratified_samples(near, far, n_samples, perturb=False)
+    sigmas = torch.full((n_rays, n_samples), density, requires_grad=True)
+    colors = torch.rand(n_rays, n_samples, 3, generator=g).requires_grad_()
+    background = torch.rand(3, generator=g).requires_grad_()
+    return sigmas, colors, t, far, background
+
+
+def loss_of(result) -> torch.Tensor:
+    return result.rgb.sum() + result.depth.sum() + result.disparity.sum() + result.acc.sum() + result.weights.sum()
+
+
+# --- extreme densities -------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("density", EXTREME_DENSITIES)
+def test_extreme_density_composite(density, mode):
+    sigmas, colors, t, far, background = scene(density)
+    reference = composite(sigmas, colors, t, far, background)
+    with precision(mode):
+        result = composite(sigmas, colors, t, far, background)
+    assert_sane(result)
+    # compositing ignores autocast: the same float32 numbers inside it as outside
+    assert result.rgb.dtype == torch.float32
+    for key in ("rgb", "depth", "disparity", "acc", "weights"):
+        assert torch.equal(getattr(result, key), getattr(reference, key)), key
+    loss_of(result).backward()
+    assert_finite_grads(sigmas, colors, background)
+
+
+@pytest.mark.parametrize("mode", MODES[1:])
+@pytest.mark.parametrize("density", EXTREME_DENSITIES)
+def test_extreme_density_half_precision_inputs(density, mode):
+    # A network in reduced precision hands over bf16 densities and colours (bf16 holds 1e10; fp16 would
+    # not, so only bf16 inputs here). Compositing upcasts them: same result as from their float32 values.
+    sigmas, colors, t, far, background = scene(density)
+    s16 = sigmas.detach().to(torch.bfloat16).requires_grad_()
+    c16 = colors.detach().to(torch.bfloat16).requires_grad_()
+    with precision(mode):
+        result = composite(s16, c16, t, far, background.detach())
+    reference = composite(s16.detach().float(), c16.detach().float(), t, far, background.detach())
+    assert result.rgb.dtype == torch.float32
+    assert_sane(result)
+    assert torch.equal(result.rgb, reference.rgb) and torch.equal(result.weights, reference.weights)
+    loss_of(result).backward()
+    assert_finite_grads(s16, c16)
+
+
+def test_tiny_density_alpha_keeps_its_value():
+    # sigma 1e-8, delta 0.5: alpha = 1 - exp(-5e-9) = 5e-9 to 1e-3, where 1 - exp() in float32 would give 0.
+    sigmas, colors, t, far, background = scene(1e-8)
+    deltas = torch.full_like(sigmas, 0.5)
+    alphas = alphas_from_density(sigmas.detach(), deltas)
+    assert torch.allclose(alphas, torch.full_like(alphas, 5e-9), rtol=1e-3, atol=0)
+    # and inside composite: bins of 0.5 on [2, 6], the first weight is alpha_1 (T_1 = 1)
+    result = composite(sigmas.detach(), colors.detach(), t, far, background.detach())
+    assert torch.allclose(result.weights[:, 0], torch.full((3,), 5e-9), rtol=1e-3, atol=0)
+    # t = 2.25, 2.75, ..., 5.75: seven deltas of 0.5 and a last one of 0.25, acc = 1e-8 * 3.75
+    assert torch.allclose(result.acc, torch.full((3,), 3.75e-8), rtol=1e-3, atol=0)
+
+
+def test_huge_density_first_sample_takes_all():
+    sigmas, colors, t, far, background = scene(1e10)
+    result = composite(sigmas, colors, t, far, background)
+    expected = torch.zeros(3, 8)
+    expected[:, 0] = 1.0
+    assert torch.equal(result.weights, expected)
+    assert torch.equal(result.acc, torch.ones(3))
+    assert torch.allclose(result.rgb, colors[:, 0].detach(), rtol=0, atol=1e-7)
+    assert torch.allclose(result.depth, t[:, 0], rtol=0, atol=1e-6)
+
+
+def test_huge_density_behind_empty_space():
+    # empty up to sample 5, then 1e10: sample 5 takes all the weight, depth is its t.
+    sigmas, colors, t, far, background = scene(0.0)
+    sigmas = sigmas.detach().clone()
+    sigmas[:, 5:] = 1e10
+    sigmas.requires_grad_()
+    result = composite(sigmas, colors, t, far, background)
+    assert torch.equal(result.weights.argmax(-1), torch.full((3,), 5))
+    assert torch.allclose(result.weights[:, 5], torch.ones(3), rtol=0, atol=0)
+    assert torch.allclose(result.depth, t[:, 5], rtol=0, atol=1e-6)
+    loss_of(result).backward()
+    assert_finite_grads(sigmas, colors, background)
+
+
+densities = st.one_of(st.just(0.0), st.floats(-10.0, 12.0).map(lambda e: 10.0**e))
+spacings = st.one_of(st.just(0.0), st.floats(-8.0, 1.0).map(lambda e: 10.0**e))
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    st.integers(1, 16).flatmap(lambda n: st.tuples(st.lists(densities, min_size=n, max_size=n),
+                                                   st.lists(spacings, min_size=n, max_size=n))),
+    st.floats(0.0, 1.0),
+    st.integers(0, 2**31 - 1),
+)
+def test_random_wide_range_densities_and_deltas(case, bg, seed):
+    sig, dts = case
+    sigmas = torch.tensor([sig], requires_grad=True)
+    deltas = torch.tensor([dts])
+    t = 1.0 + torch.cumsum(deltas, -1) - deltas  # t_1 = 1, spaced by the deltas
+    far = t[:, -1] + deltas[:, -1]
+    colors = torch.rand(1, len(sig), 3, generator=torch.Generator().manual_seed(seed)).requires_grad_()
+    background = torch.full((3,), bg, requires_grad=True)
+    result = composite(sigmas, colors, t, far, background, deltas=deltas)
+    assert_sane(result)
+    assert (result.depth >= t[:, 0] - 1e-6).all() and (result.depth <= far + 1e-6).all()
+    loss_of(result).backward()
+    assert_finite_grads(sigmas, colors, background)
+
+
+# --- empty intervals and degenerate bounds --------------------------------------------------------------
+
+
+@pytest.mark.parametrize("density", EXTREME_DENSITIES)
+def test_zero_length_intervals_show_the_background(density):
+    sigmas, colors, t, far, background = scene(density)
+    result = composite(sigmas, colors, t, far, background, deltas=torch.zeros(3, 8))
+    assert torch.equal(result.weights, torch.zeros(3, 8))
+    assert torch.equal(result.acc, torch.zeros(3))
+    assert torch.equal(result.rgb, background.detach().expand(3, 3))
+    assert torch.equal(result.depth, far) and torch.equal(result.disparity, 1.0 / far)
+    loss_of(result).backward()
+    assert_finite_grads(sigmas, colors, background)
+
+
+@pytest.mark.parametrize("perturb", [False, True])
+@pytest.mark.parametrize("lindisp", [False, True])
+@pytest.mark.parametrize("density", EXTREME_DENSITIES)
+def test_near_equals_far(perturb, lindisp, density):
+    near = far = torch.tensor([3.0, 0.5])
+    t = stratified_samples(near, far, 5, perturb=perturb, lindisp=lindisp, generator=torch.Generator().manual_seed(0))
+    assert torch.equal(t, near[:, None].expand(2, 5))
+    sigmas = torch.full((2, 5), density, requires_grad=True)
+    colors = torch.rand(2, 5, 3, requires_grad=True)
+    background = torch.tensor([0.25, 0.5, 0.75], requires_grad=True)
+    result = composite(sigmas, colors, t, far, background)
+    assert torch.equal(result.acc, torch.zeros(2))
+    assert torch.equal(result.rgb, background.detach().expand(2, 3))
+    assert torch.equal(result.depth, far) and torch.equal(result.disparity, 1.0 / far)
+    loss_of(result).backward()
+    assert_finite_grads(sigmas, colors, background)
+
+
+@pytest.mark.parametrize("perturb", [False, True])
+def test_one_sample_per_ray(perturb):
+    near, far = torch.tensor([2.0, 0.0]), torch.tensor([6.0, 1.0])
+    t = stratified_samples(near, far, 1, perturb=perturb, generator=torch.Generator().manual_seed(0))
+    assert t.shape == (2, 1)
+    assert (t[:, 0] >= near).all() and (t[:, 0] <= far).all()
+    if not perturb:
+        assert torch.equal(t[:, 0], torch.tensor([4.0, 0.5]))
+    # one sample, delta = far - t; sigma ln 2 / delta makes alpha 1/2
+    sigmas = (math.log(2.0) / (far - t[:, 0])).unsqueeze(-1).requires_grad_()
+    colors = torch.ones(2, 1, 3, requires_grad=True)
+    result = composite(sigmas, colors, t, far, torch.zeros(3))
+    assert torch.allclose(result.acc, torch.full((2,), 0.5), rtol=1e-6)
+    assert torch.allclose(result.rgb, torch.full((2, 3), 0.5), rtol=1e-6)
+    assert torch.equal(result.depth, t[:, 0])
+    loss_of(result).backward()
+    assert_finite_grads(sigmas, colors)
+    # one bin for inverse transform sampling: [near, far]
+    edges = sample_intervals(t, near, far)
+    assert edges.shape == (2, 2)
+    for deterministic in (True, False):
+        fine = sample_pdf(edges, result.weights.detach(), 6, deterministic, torch.Generator().manual_seed(1))
+        assert torch.isfinite(fine).all()
+        assert (fine >= near[:, None]).all() and (fine <= far[:, None]).all()
+        assert (fine[:, 1:] >= fine[:, :-1]).all()
+
+
+# --- inverse transform sampling of degenerate weights -------------------------------------------------------
+
+
+PDF_WEIGHTS = {
+    "all-zero": [0.0] * 8,
+    "one-bin": [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+    "one-bin-huge": [0.0] * 7 + [1e30],
+    "tiny": [1e-30] * 8,
+    "first-bin": [1.0] + [0.0] * 7,
+}
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("deterministic", [True, False])
+@pytest.mark.parametrize("kind", list(PDF_WEIGHTS))
+def test_sample_pdf_degenerate_weights(kind, deterministic, mode):
+    near, far = torch.tensor([2.0, 0.1]), torch.tensor([6.0, 100.0])
+    t = stratified_samples(near, far, 8, perturb=False)
+    edges = sample_intervals(t, near, far)
+    weights = torch.tensor([PDF_WEIGHTS[kind]] * 2)
+    with precision(mode):
+        fine = sample_pdf(edges, weights, 32, deterministic, torch.Generator().manual_seed(0))
+    assert fine.dtype == torch.float32
+    assert torch.isfinite(fine).all()
+    assert (fine[:, 1:] >= fine[:, :-1]).all()
+    assert (fine >= near[:, None]).all() and (fine <= far[:, None]).all()
+    if kind == "one-bin" and deterministic:
+        # u in [1/64, 63/64]; the seven empty bins hold 7e-5 / (1 + 8e-5) of the mass together: all in bin 3
+        assert (fine >= edges[:, 3:4]).all() and (fine <= edges[:, 4:5]).all()
+    if kind == "one-bin-huge":
+        assert (fine >= edges[:, 7:8]).all()
+    if kind in ("all-zero", "tiny") and deterministic:
+        # uniform: 32 samples evenly over [near, far]
+        expected = near[:, None] + (far - near)[:, None] * (torch.arange(32) + 0.5) / 32
+        assert torch.allclose(fine, expected, rtol=1e-5, atol=1e-5)
+
+
+# --- network gradients at extreme densities ------------------------------------------------------------------
+
+
+def scaled_field(scale: float) -> tuple[NerfField, callable]:
+    torch.manual_seed(0)
+    net = NerfField(FieldConfig(depth=2, width=16, view_width=8, skips=(), density_activation="softplus"))
+
+    def field(points, viewdirs):
+        rgb, sigma = net(points, viewdirs)
+        return rgb, sigma * scale
+
+    return net, field
+
+
+def ray_batch(n: int, near: float, far: float) -> RayBatch:
+    g = torch.Generator().manual_seed(2)
+    origins = torch.rand(n, 3, generator=g) - 0.5
+    directions = nn.functional.normalize(torch.randn(n, 3, generator=g), dim=-1)
+    return RayBatch(origins, directions, directions, torch.full((n,), near), torch.full((n,), far))
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("scale", [0.0, 1e-8, 1.0, 1e6, 1e10])
+@pytest.mark.parametrize(
+    "bounds, n_coarse",
+    [((0.5, 2.5), 8), ((1.0, 1.0), 8), ((0.5, 2.5), 1)],
+    ids=["ordinary", "near-equals-far", "one-sample"],
+)
+def test_network_gradients_finite(mode, scale, bounds, n_coarse):
+    net, field = scaled_field(scale)
+    rays = ray_batch(4, *bounds)
+    target = torch.full((4, 3), 0.5)
+    with precision(mode):
+        out = render_rays(field, None, rays, SamplingConfig(n_coarse=n_coarse, n_fine=4), torch.ones(3),
+                          randomized=True, generator=torch.Generator().manual_seed(0))
+        loss = sum(((level.rgb - target) ** 2).mean() + level.depth.mean() + level.disparity.mean() + level.acc.mean()
+                   for level in out.values())
+    for level in out.values():
+        assert_sane(level)
+    assert torch.isfinite(loss)
+    loss.backward()
+    for name, param in net.named_parameters():
+        assert param.grad is not None, name
+        assert torch.isfinite(param.grad).all(), name
+    # the colour path is live whenever something is hit
+    if scale >= 1.0 and bounds[0] < bounds[1]:
+        assert net.rgb.weight.grad.abs().sum() > 0
+
+
+# --- positional encoding of huge coordinates ------------------------------------------------------------------
+
+
+def huge(dtype: torch.dtype) -> list[float]:
+    top = torch.finfo(dtype).max  # the float32 maximum would round to inf in bf16
+    return [1e6, 1e10, 1e30, top, -1e6, -1e10, -1e30, -top, 1e6 + 0.25, -(1e6 + 0.25)]
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
+def test_encoding_of_huge_coordinates(mode, dtype):
+    if dtype == torch.bfloat16 and mode == "float16":
+        pytest.skip("torch's CPU fp16 autocast rejects bf16 tensors in torch.stack (at::autocast::prioritize)")
+    x = torch.tensor(huge(dtype), dtype=dtype).reshape(-1, 1)
+    assert torch.isfinite(x).all()
+    with precision(mode):
+        out = positional_encoding(x, 10, include_input=False)
+    assert torch.isfinite(out).all()
+    assert (out.abs() <= 1).all()
+    if dtype == torch.float32:
+        # 1e6 + 0.25 (exact in float32): 2^k 1e6 is even, so the phases are those of 0.25:
+        # k = 0: sin(pi/4), cos(pi/4); k = 1: 1, 0; k = 2: 0, -1; k >= 3: 0, 1.
+        r = math.sqrt(0.5)
+        expected = [r, r, 1.0, 0.0, 0.0, -1.0] + [0.0, 1.0] * 7
+        assert torch.allclose(out[8], torch.tensor(expected), rtol=0, atol=1e-6)
+        # -(1e6 + 0.25): sines negated, cosines the same
+        assert torch.allclose(out[9], torch.tensor(expected) * torch.tensor([-1.0, 1.0] * 10), rtol=0, atol=1e-6)
+        # whole even numbers (all of 1e10, 1e30 and the float32 maximum are): sin 0, cos 1 at every frequency
+        assert torch.equal(out[:8].abs(), torch.tensor([0.0, 1.0] * 10).expand(8, 20))
+
+
+def test_encoding_equals_direct_formula_for_moderate_coordinates():
+    # every float32 on a fine grid of [-1, 1] (negatives included) against sin(2^k pi p) in float64
+    x32 = torch.linspace(-1.0, 1.0, 4001).unsqueeze(-1)
+    x32 = torch.cat([x32, x32.nextafter(torch.tensor(2.0)), x32.nextafter(torch.tensor(-2.0))])
+    out = positional_encoding(x32, 10).double()
+    x64 = x32.double()
+    direct = torch.cat([f(2.0**k * math.pi * x64) for k in range(10) for f in (torch.sin, torch.cos)], dim=-1)
+    assert torch.allclose(out, direct, rtol=0, atol=1e-5)
+
+
+def test_encoding_gradient_of_huge_coordinates_is_finite():
+    x = torch.tensor([[1e30, -F32_MAX, 1e6 + 0.25]], requires_grad=True)
+    positional_encoding(x, 10).sum().backward()
+    assert torch.isfinite(x.grad).all()
+
+
+# --- NDC for rays parallel to the image plane ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize("dz", [0.0, -0.0, 1e-12, -1e-12, 1e-7])
+def test_ndc_parallel_rays_are_finite(dz):
+    origins = torch.tensor([[0.0, 0.0, 0.0], [0.3, -0.2, -1.0], [1.0, 1.0, -5.0]])
+    directions = torch.tensor([[1.0, 0.0, dz], [0.0, 1.0, dz], [0.6, 0.8, dz]], requires_grad=True)
+    o, d = ndc_rays(origins, directions, focal=500.0, width=640, height=480)
+    assert torch.isfinite(o).all() and torch.isfinite(d).all()
+    (o.sum() + d.sum()).backward()
+    assert torch.isfinite(directions.grad).all()
+
+
+def test_ndc_parallel_ray_in_the_near_plane_is_finite():
+    # a ray already in z = -near with dz = 0: the origin does not move, oz = -1 exactly.
+    o, d = ndc_rays(torch.tensor([[0.5, 0.5, -1.0]]), torch.tensor([[1.0, 0.0, 0.0]]), 100.0, 200, 200)
+    assert torch.isfinite(o).all() and torch.isfinite(d).all()
+    assert torch.allclose(o, torch.tensor([[0.5, 0.5, -1.0]]), rtol=0, atol=1e-6)
+
+
+# --- depth and disparity when nothing is hit ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("density", [0.0, 1e-30])
+def test_depth_and_disparity_of_an_empty_ray(density):
+    # acc = 0 (or below ACC_EPS): depth = far = 5, disparity = 1/5, gradients finite, also w.r.t. t and far.
+    sigmas = torch.full((2, 4), density, requires_grad=True)
+    colors = torch.rand(2, 4, 3, requires_grad=True)
+    t = torch.tensor([[1.0, 2.0, 3.0, 4.0]] * 2, requires_grad=True)
+    far = torch.tensor([5.0, 5.0], requires_grad=True)
+    result = composite(sigmas, colors, t, far)
+    assert torch.equal(result.depth, torch.tensor([5.0, 5.0]))
+    assert torch.equal(result.disparity, torch.tensor([0.2, 0.2]))
+    (result.depth.sum() + result.disparity.sum() + result.rgb.sum()).backward()
+    assert_finite_grads(sigmas, colors, t, far)
+    assert torch.equal(far.grad, torch.tensor([1 - 1 / 25.0] * 2))  # d(far + 1/far)/d far
+
+
+def test_depth_just_above_the_hit_threshold():
+    # sigma 1e-8 on deltas of 1: acc about 4e-8, above ACC_EPS: depth is the weighted mean, inside [t_1, far].
+    sigmas = torch.full((1, 4), 1e-8, requires_grad=True)
+    t = torch.tensor([[1.0, 2.0, 3.0, 4.0]])
+    result = composite(sigmas, torch.rand(1, 4, 3), t, torch.tensor([5.0]))
+    assert result.acc.item() > 1e-10
+    assert result.depth.item() == pytest.approx(2.5, rel=1e-4)  # equal weights: the mean of t
+    assert result.disparity.item() == pytest.approx(0.4, rel=1e-4)
+    (result.depth.sum() + result.disparity.sum()).backward()
+    assert_finite_grads(sigmas)
+
+
+def test_disparity_of_zero_depth_is_finite():
+    # near = far = 0: depth 0, disparity 0 rather than inf.
+    result = composite(torch.ones(1, 2), torch.rand(1, 2, 3), torch.zeros(1, 2), torch.zeros(1))
+    assert result.depth.item() == 0.0
+    assert result.disparity.item() == 0.0

@@ -1,0 +1,193 @@
+"""The train stage: held-out splits, what it writes, resuming a killed training, and the paper's switches."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from helpers import TEMPLE, shared
+from nerfpipe.geometry.cameras import CameraSet, Frame
+from nerfpipe.pipeline import Pipeline, param_specs
+from nerfpipe.pipeline.errors import ParamError
+from nerfpipe.pipeline.params import build_params
+from nerfpipe.stages import TrainParams, TrainStage, default_stages
+from nerfpipe.stages.train import PAPER, build_model, split_views
+
+# a training small enough for a test: lego at 32 px, a 2x32 MLP, 16 + 16 samples
+TINY = {
+    "ingest": {"max_size": 32},
+    "train": {"steps": 60, "batch_rays": 256, "n_coarse": 16, "n_fine": 16, "depth": 2, "width": 32, "view_width": 16,
+              "checkpoint_every": 20, "eval_stride": 25, "lr": 5e-3, "keep_checkpoints": 0},
+}
+
+
+def tiny_cli_args() -> list[str]:
+    return [f"--set={stage}.{k}={v}" for stage, values in TINY.items() for k, v in values.items()]
+
+
+def world_of(splits: list[str | None]) -> CameraSet:
+    frames = [Frame(f"img{i:02d}.png", 1, np.eye(4), s) for i, s in enumerate(splits)]
+    return CameraSet({}, frames)
+
+
+def test_held_out_views_follow_the_split_else_every_eighth() -> None:
+    with_val = world_of(["train"] * 6 + ["val"] * 4)
+    views = split_views(with_val, TrainParams())
+    assert [f.name for f in views.heldout] == [f"img{i:02d}.png" for i in range(6, 10)]
+    assert len(views.train) == 6 and views.rule == "the capture's val split"
+
+    test_beats_val = world_of(["train"] * 4 + ["val"] * 2 + ["test"] * 3)
+    assert [f.split for f in split_views(test_beats_val, TrainParams()).heldout] == ["test"] * 3
+
+    plain = world_of([None] * 17)
+    views = split_views(plain, TrainParams())
+    assert [f.name for f in views.heldout] == ["img00.png", "img08.png", "img16.png"]
+    assert len(views.train) == 14 and not {f.name for f in views.train} & {f.name for f in views.heldout}
+
+    subset = split_views(plain, TrainParams(train_images=4, eval_stride=2))
+    assert [f.name for f in subset.train] == ["img01.png", "img06.png", "img11.png", "img15.png"]
+    assert [f.name for f in subset.heldout] == ["img00.png", "img16.png"]
+
+
+def test_paper_preset_has_the_papers_values() -> None:
+    params = build_params("train", TrainParams, TrainStage.presets, "paper", {})
+    assert (params.steps, params.batch_rays, params.n_coarse, params.n_fine) == (200_000, 4096, 64, 128)
+    assert (params.depth, params.width, params.view_width, params.skip_after) == (8, 256, 128, 5)
+    assert (params.pos_freqs, params.dir_freqs, params.lr, params.lr_final, params.adam_eps) == (10, 4, 5e-4, 5e-5, 1e-7)
+    assert params.fine_network and params.density_activation == "relu" and not params.include_input
+    scene = scene_json("inward360")
+    model, _ = build_model(params, scene, world_of([None]), {"scene_box": [[-1] * 3, [1] * 3], "to_sfm": np.eye(4).tolist(),
+                                                               "frames": []}, torch.device("cpu"))
+    linear = [m for m in model.coarse.modules() if isinstance(m, torch.nn.Linear)]
+    assert [(m.in_features, m.out_features) for m in linear] == (
+        [(60, 256)] + [(256, 256)] * 4 + [(256 + 60, 256)] + [(256, 256)] * 2 + [(256, 1), (256, 256), (256 + 24, 128), (128, 3)]
+    )
+    assert model.fine is not None and model.sampling.n_fine == 128
+
+
+def scene_json(layout: str, background: str = "none", color=None, photometric: str = "srgb") -> dict:
+    return {"layout": {"value": layout}, "background": {"value": background}, "background_color": {"value": color},
+            "photometric": {"value": photometric}}
+
+
+@pytest.mark.parametrize(
+    "overrides, first_in, view_in, n_fine, fine",
+    [
+        ({}, 3 + 60, 64 + 3 + 24, 64, False),
+        ({"positional_encoding": False}, 3, 64 + 3, 64, False),  # Table 2 row 2: raw x and d
+        ({"view_dependence": False}, 63, 64, 64, False),  # row 3: colour from x alone
+        ({"hierarchical": False, "fine_network": True}, 63, 64 + 27, 0, False),  # row 4: N_c samples, one network
+        ({"pos_freqs": 5, "dir_freqs": 2}, 3 + 30, 64 + 3 + 12, 64, False),  # rows 7-8: L
+        ({"fine_network": True}, 63, 64 + 27, 64, True),
+    ],
+)
+def test_ablation_switches_build_the_tables_models(overrides, first_in, view_in, n_fine, fine) -> None:
+    params = TrainParams(**overrides)
+    bounds = {"scene_box": [[-1] * 3, [1] * 3], "to_sfm": np.eye(4).tolist(), "frames": []}
+    model, _ = build_model(params, scene_json("inward360"), world_of([None]), bounds, torch.device("cpu"))
+    assert model.coarse.trunk[0].in_features == first_in
+    assert model.coarse.view.in_features == view_in
+    assert model.sampling.n_fine == n_fine
+    assert (model.fine is not None) == fine
+
+
+def test_scene_decisions_choose_the_ray_space_and_background() -> None:
+    bounds = {"scene_box": [[-1] * 3, [1] * 3], "to_sfm": np.eye(4).tolist(), "frames": [{"near": 2.0, "far": 9.0}]}
+    world = CameraSet({1: __import__("nerfpipe").geometry.cameras.Camera.pinhole(50, 50, 20, 15, 40, 30)},
+                      [Frame("a.png", 1, np.eye(4))])
+    cpu = torch.device("cpu")
+    inward, said = build_model(TrainParams(), scene_json("inward360", "alpha", [1, 1, 1]), world, bounds, cpu)
+    assert inward.ray_space.box == ((-1, -1, -1), (1, 1, 1)) and not inward.ray_space.ndc
+    assert inward.background == (1.0, 1.0, 1.0) and not inward.sampling.lindisp
+    assert any("clipped to the scene box" in line for line in said)
+    forward, said = build_model(TrainParams(), scene_json("forward"), world, bounds, cpu)
+    assert forward.ray_space.ndc and forward.ray_space.ndc_near == pytest.approx(0.75 * 2.0)
+    assert forward.ray_space.ndc_focal == 50 and forward.ray_space.ndc_size == (40, 30) and forward.background is None
+    assert any("noise of std 1" in line for line in said)  # the authors' regularizer for real forward scenes
+    unbounded, _ = build_model(TrainParams(), scene_json("unbounded360"), world, bounds, cpu)
+    assert unbounded.sampling.lindisp and unbounded.ray_space.box is None
+
+
+def test_bad_train_values_are_parameter_errors() -> None:
+    for overrides in ({"density_noise": "loud"}, {"steps": "0"}, {"lr_final": "1e-2"}, {"skip_after": "4", "depth": "4"}):
+        with pytest.raises(ParamError):
+            build_params("train", TrainParams, TrainStage.presets, None, overrides)
+    assert any(spec.name == "autocast" for spec in param_specs(TrainParams))
+
+
+def lego_pipeline(run_dir: Path, **train: object) -> Pipeline:
+    overrides = {"ingest": TINY["ingest"], "train": {**TINY["train"], **train}}
+    return Pipeline(default_stages(), shared("nerf_synthetic_lego_400"), run_dir, None, overrides)
+
+
+@pytest.mark.slow
+def test_training_writes_model_metrics_and_held_out_renders(tmp_path: Path) -> None:
+    outcome = lego_pipeline(tmp_path / "run").run()[-1]
+    out = outcome.path
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["steps"] == 60 and metrics["heldout_rule"] == "the capture's val split"
+    assert [v["name"] for v in metrics["views"]] == ["val/r_0.png", "val/r_25.png", "val/r_50.png", "val/r_75.png"]
+    for view in metrics["views"]:
+        stem = view["name"][:-4].replace("/", "__")
+        assert (out / "eval" / f"{stem}.render.png").is_file() and (out / "eval" / f"{stem}.gt.png").is_file()
+    # better than the best constant image (the white background alone scores about 12 dB on lego)
+    assert metrics["psnr"] > 14.0 and 0.0 < metrics["ssim"] <= 1.0
+    log = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == list(range(25, 60, 25)) + [60]
+    assert all(r["wall"] > 0 and np.isfinite(r["loss"]) for r in log)
+    assert [r["wall"] for r in log] == sorted(r["wall"] for r in log)
+    # checkpoints and the model load with weights_only=True, and the model renders
+    for path in sorted((out / "checkpoints").glob("*.pt")):
+        state = torch.load(path, weights_only=True)
+        assert state["step"] in (20, 40, 60)
+    assert torch.load(out / "model.pt", weights_only=True)["coarse"]
+    from nerfpipe.nerf.model import RadianceModel
+
+    model = RadianceModel.load(out)
+    assert model.background == (1.0, 1.0, 1.0) and model.ray_space.box is not None
+
+
+def test_resumed_training_matches_an_uninterrupted_one(tmp_path: Path) -> None:
+    """SIGKILL mid-training; the rerun resumes from the last checkpoint and ends at the same weights."""
+    lego = shared("nerf_synthetic_lego_400")
+    run_dir = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "nerfpipe", "run", str(lego), "--out", str(run_dir), *tiny_cli_args()]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    try:
+        while time.time() < deadline and proc.poll() is None:
+            if list(run_dir.glob(".work/train-*/checkpoints/step_0000020.pt")):
+                break
+            time.sleep(0.05)
+        assert proc.poll() is None, "training ended before it could be killed: " + proc.stderr.read().decode()[-2000:]
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait(timeout=30)
+    assert not (run_dir / "stages" / "train").exists() or not list((run_dir / "stages" / "train").glob("*/manifest.json"))
+    written = sorted(run_dir.glob(".work/train-*/checkpoints/step_*.pt"))
+    last = max(int(p.stem.split("_")[1]) for p in written)
+    assert last in (20, 40)
+
+    resumed = lego_pipeline(run_dir).run()[-1]
+    assert resumed.action == "ran" and resumed.summary["resumed_from"] == last
+    assert resumed.summary["steps"] == 60
+    steps = [json.loads(line)["step"] for line in (resumed.path / "metrics.jsonl").read_text().splitlines()]
+    assert steps == [25, 50, 60]  # nothing logged twice, nothing missing
+    assert not list(run_dir.glob(".work/train-*"))
+
+    straight = lego_pipeline(tmp_path / "straight").run()[-1]
+    assert straight.summary["resumed_from"] is None
+    a = torch.load(resumed.path / "model.pt", weights_only=True)["coarse"]
+    b = torch.load(straight.path / "model.pt", weights_only=True)["coarse"]
+    assert a.keys() == b.keys()
+    for name in a:
+        torch.testing.assert_close(a[name], b[name], rtol=0, atol=1e-6, msg=name)
