@@ -195,6 +195,26 @@ class Pipeline:
         """The committed result of ``stage`` for the current settings, if there is one."""
         return self.store.get(stage, self.plan()[self.dag.check_name(stage)].key)
 
+    def stage_inputs(self, name: str) -> StageInputs:
+        """What stage ``name`` reads, from its upstream results for the current settings.
+
+        Raises ``UpstreamNotReadyError`` when an upstream stage has no result for them.
+        """
+        planned = self.plan()[self.dag.check_name(name)]
+        artifacts: dict[str, Path] = {}
+        for up in self.dag.upstream[name]:
+            up_result = self.store.get(up, self.plan()[up].key)
+            if up_result is None:  # only reachable with --only: otherwise upstream ran just before
+                status = next(s for s in self.status() if s.name == up)
+                raise UpstreamNotReadyError(
+                    f"--only {name}: upstream stage {up} is {status.state} ({'; '.join(status.reasons)}); "
+                    f"run it first, e.g. with --until {up}"
+                )
+            for artifact in planned.stage.requires:
+                if self.dag.provider[artifact] == up:
+                    artifacts[artifact] = up_result.path / self.dag.stages[up].provides[artifact]
+        return StageInputs(artifacts, self.source, planned.files)
+
     # -- running -------------------------------------------------------------------------------
     def run(
         self,
@@ -228,19 +248,9 @@ class Pipeline:
             log.info("%s: restored the result of an earlier run with these settings", name)
             return StageOutcome(name, "restored", key, hit.path, 0.0)
 
-        artifacts: dict[str, Path] = {}
+        inputs = self.stage_inputs(name)
         for up in self.dag.upstream[name]:
-            up_result = self.store.get(up, self.plan()[up].key)
-            if up_result is None:  # only reachable with --only: otherwise upstream ran just before
-                status = next(s for s in self.status() if s.name == up)
-                raise UpstreamNotReadyError(
-                    f"--only {name}: upstream stage {up} is {status.state} ({'; '.join(status.reasons)}); "
-                    f"run it first, e.g. with --until {up}"
-                )
-            self.store.set_latest(up, up_result.key)
-            for artifact in planned.stage.requires:
-                if self.dag.provider[artifact] == up:
-                    artifacts[artifact] = up_result.path / self.dag.stages[up].provides[artifact]
+            self.store.set_latest(up, self.plan()[up].key)
 
         latest = self.store.latest(name)
         if forced:
@@ -254,7 +264,6 @@ class Pipeline:
         work = self.store.begin(name, key, resume=planned.stage.resumable and not forced)
         started = time.time()
         ctx = StageContext(log=logging.getLogger(f"nerfpipe.stages.{name}"), progress=self.progress, debug=self.debug)
-        inputs = StageInputs(artifacts, self.source, planned.files)
         try:
             summary = dict(planned.stage.run(inputs, work, planned.params, ctx) or {})
             missing = [rel for rel in planned.stage.provides.values() if not (work / rel).exists()]

@@ -25,8 +25,8 @@ from nerfpipe.stages.train import PAPER, build_model, split_views
 # a training small enough for a test: lego at 32 px, a 2x32 MLP, 16 + 16 samples
 TINY = {
     "ingest": {"max_size": 32},
-    "train": {"steps": 60, "batch_rays": 256, "n_coarse": 16, "n_fine": 16, "depth": 2, "width": 32, "view_width": 16,
-              "checkpoint_every": 20, "eval_stride": 25, "lr": 5e-3, "keep_checkpoints": 0},
+    "train": {"steps": 300, "batch_rays": 256, "n_coarse": 16, "n_fine": 16, "depth": 2, "width": 32, "view_width": 16,
+              "checkpoint_every": 100, "eval_stride": 25, "lr": 5e-3, "keep_checkpoints": 0},
 }
 
 
@@ -54,7 +54,7 @@ def test_held_out_views_follow_the_split_else_every_eighth() -> None:
     assert len(views.train) == 14 and not {f.name for f in views.train} & {f.name for f in views.heldout}
 
     subset = split_views(plain, TrainParams(train_images=4, eval_stride=2))
-    assert [f.name for f in subset.train] == ["img01.png", "img06.png", "img11.png", "img15.png"]
+    assert [f.name for f in subset.train] == ["img01.png", "img05.png", "img11.png", "img15.png"]  # train[round(linspace(0, 13, 4))]
     assert [f.name for f in subset.heldout] == ["img00.png", "img16.png"]
 
 
@@ -82,12 +82,13 @@ def scene_json(layout: str, background: str = "none", color=None, photometric: s
 @pytest.mark.parametrize(
     "overrides, first_in, view_in, n_fine, fine",
     [
-        ({}, 3 + 60, 64 + 3 + 24, 64, False),
-        ({"positional_encoding": False}, 3, 64 + 3, 64, False),  # Table 2 row 2: raw x and d
-        ({"view_dependence": False}, 63, 64, 64, False),  # row 3: colour from x alone
-        ({"hierarchical": False, "fine_network": True}, 63, 64 + 27, 0, False),  # row 4: N_c samples, one network
-        ({"pos_freqs": 5, "dir_freqs": 2}, 3 + 30, 64 + 3 + 12, 64, False),  # rows 7-8: L
-        ({"fine_network": True}, 63, 64 + 27, 64, True),
+        # the view layer sees the 128-d feature and gamma(d) (with d itself, include_input)
+        ({}, 3 + 60, 128 + 3 + 24, 64, False),
+        ({"positional_encoding": False}, 3, 128 + 3, 64, False),  # Table 2 row 2: raw x and d
+        ({"view_dependence": False}, 63, 128, 64, False),  # row 3: colour from x alone
+        ({"hierarchical": False, "fine_network": True}, 63, 155, 0, False),  # row 4: N_c samples, one network
+        ({"pos_freqs": 5, "dir_freqs": 2}, 3 + 30, 128 + 3 + 12, 64, False),  # rows 7-8: L
+        ({"fine_network": True}, 63, 155, 64, True),
     ],
 )
 def test_ablation_switches_build_the_tables_models(overrides, first_in, view_in, n_fine, fine) -> None:
@@ -134,21 +135,27 @@ def test_training_writes_model_metrics_and_held_out_renders(tmp_path: Path) -> N
     outcome = lego_pipeline(tmp_path / "run").run()[-1]
     out = outcome.path
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["steps"] == 60 and metrics["heldout_rule"] == "the capture's val split"
+    assert metrics["steps"] == 300 and metrics["heldout_rule"] == "the capture's val split"
     assert [v["name"] for v in metrics["views"]] == ["val/r_0.png", "val/r_25.png", "val/r_50.png", "val/r_75.png"]
     for view in metrics["views"]:
         stem = view["name"][:-4].replace("/", "__")
         assert (out / "eval" / f"{stem}.render.png").is_file() and (out / "eval" / f"{stem}.gt.png").is_file()
-    # better than the best constant image (the white background alone scores about 12 dB on lego)
-    assert metrics["psnr"] > 14.0 and 0.0 < metrics["ssim"] <= 1.0
+    # clearly better than rendering the white background alone
+    import cv2
+
+    white = np.mean([
+        -10 * np.log10(np.mean((cv2.imread(str(p))[..., ::-1] / 255.0 - 1.0) ** 2)) for p in (out / "eval").glob("*.gt.png")
+    ])
+    assert metrics["psnr"] > white + 3.0, (metrics["psnr"], white)
+    assert 0.0 < metrics["ssim"] <= 1.0
     log = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
-    assert [r["step"] for r in log] == list(range(25, 60, 25)) + [60]
+    assert [r["step"] for r in log] == list(range(25, 301, 25))
     assert all(r["wall"] > 0 and np.isfinite(r["loss"]) for r in log)
     assert [r["wall"] for r in log] == sorted(r["wall"] for r in log)
     # checkpoints and the model load with weights_only=True, and the model renders
     for path in sorted((out / "checkpoints").glob("*.pt")):
         state = torch.load(path, weights_only=True)
-        assert state["step"] in (20, 40, 60)
+        assert state["step"] in (100, 200, 300)
     assert torch.load(out / "model.pt", weights_only=True)["coarse"]
     from nerfpipe.nerf.model import RadianceModel
 
@@ -165,7 +172,7 @@ def test_resumed_training_matches_an_uninterrupted_one(tmp_path: Path) -> None:
     deadline = time.time() + 120
     try:
         while time.time() < deadline and proc.poll() is None:
-            if list(run_dir.glob(".work/train-*/checkpoints/step_0000020.pt")):
+            if list(run_dir.glob(".work/train-*/checkpoints/step_0000100.pt")):
                 break
             time.sleep(0.05)
         assert proc.poll() is None, "training ended before it could be killed: " + proc.stderr.read().decode()[-2000:]
@@ -175,13 +182,13 @@ def test_resumed_training_matches_an_uninterrupted_one(tmp_path: Path) -> None:
     assert not (run_dir / "stages" / "train").exists() or not list((run_dir / "stages" / "train").glob("*/manifest.json"))
     written = sorted(run_dir.glob(".work/train-*/checkpoints/step_*.pt"))
     last = max(int(p.stem.split("_")[1]) for p in written)
-    assert last in (20, 40)
+    assert last in (100, 200)
 
     resumed = lego_pipeline(run_dir).run()[-1]
     assert resumed.action == "ran" and resumed.summary["resumed_from"] == last
-    assert resumed.summary["steps"] == 60
+    assert resumed.summary["steps"] == 300
     steps = [json.loads(line)["step"] for line in (resumed.path / "metrics.jsonl").read_text().splitlines()]
-    assert steps == [25, 50, 60]  # nothing logged twice, nothing missing
+    assert steps == list(range(25, 301, 25))  # nothing logged twice, nothing missing
     assert not list(run_dir.glob(".work/train-*"))
 
     straight = lego_pipeline(tmp_path / "straight").run()[-1]

@@ -1,0 +1,145 @@
+"""Training benchmark: held-out PSNR against wall time on lego, and the paper MLP's throughput against
+this machine's float32 matmul rate.
+
+Run by hand from the repository root, with ../shared beside it:
+
+    python benchmarks/bench_train.py                        # CPU preset, lego train split at 100x100
+    python benchmarks/bench_train.py --preset paper --size 400 --steps 5000     # on a GPU machine
+
+Trains lego's train split at ``--size`` pixels with the train stage (preset and ``--set`` overrides as
+for ``nerfpipe run``), keeping a checkpoint every tenth of the run, then renders every 4th val view from
+each checkpoint and prints PSNR and SSIM against the training wall time each checkpoint recorded.
+Before training, it times the paper MLP (Fig. 7: 8x256, view branch 128) training on random samples and
+a large float32 matmul, in the same process, and prints achieved / peak FLOP rate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+from nerfpipe import Pipeline, default_stages
+from nerfpipe.nerf.cpu import keep_freed_memory
+from nerfpipe.nerf.field import FieldConfig, NerfField
+from nerfpipe.nerf.model import RadianceModel
+from nerfpipe.pipeline.params import parse_assignments
+from nerfpipe.stages.train import ImageLoader, evaluate, resolve_device, split_views
+
+REPO = Path(__file__).resolve().parents[1]
+LEGO = REPO.parent / "shared" / "data" / "nerf_synthetic_lego_400"
+
+
+def sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+
+
+def matmul_rate(device: torch.device, n: int = 4096, repeats: int = 10) -> float:
+    """Best float32 matmul rate in FLOP/s (2 n^3 per product)."""
+    a, b = torch.randn(n, n, device=device), torch.randn(n, n, device=device)
+    best = float("inf")
+    for _ in range(repeats):
+        sync(device)
+        start = time.perf_counter()
+        a @ b
+        sync(device)
+        best = min(best, time.perf_counter() - start)
+    return 2 * n**3 / best
+
+
+def paper_mlp_rate(device: torch.device, samples: int, repeats: int = 6) -> tuple[float, int]:
+    """Training samples per second of the paper MLP (forward, backward, Adam step), and its FLOPs per sample."""
+    torch.manual_seed(0)
+    field = NerfField(FieldConfig()).to(device)
+    optimizer = torch.optim.Adam(field.parameters(), lr=5e-4, eps=1e-7)
+    x = torch.rand(samples, 3, device=device) * 2 - 1
+    d = torch.nn.functional.normalize(torch.randn(samples, 3, device=device), dim=-1)
+    best = float("inf")
+    for i in range(repeats):
+        sync(device)
+        start = time.perf_counter()
+        rgb, sigma = field(x, d)
+        loss = rgb.square().mean() + sigma.mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        sync(device)
+        if i:  # the first step allocates
+            best = min(best, time.perf_counter() - start)
+    # backward costs about twice the forward pass: 3x the forward FLOPs in all
+    return samples / best, 3 * field.flops_per_sample()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--preset", default="cpu")
+    parser.add_argument("--size", type=int, default=100, help="longest image side for training and evaluation")
+    parser.add_argument("--steps", type=int, default=None, help="override train.steps")
+    parser.add_argument("--set", action="append", default=[], help="STAGE.PARAM=VALUE, as for nerfpipe run")
+    parser.add_argument("--run-dir", type=Path, default=None, help="keep the run here (default: a temporary folder)")
+    parser.add_argument("--skip-throughput", action="store_true")
+    args = parser.parse_args()
+    if not LEGO.is_dir():
+        sys.exit(f"lego not found at {LEGO}: put ../shared beside the checkout")
+    keep_freed_memory()
+    device = resolve_device("auto")
+    name = torch.cuda.get_device_name() if device.type == "cuda" else f"{os.cpu_count()} CPU cores"
+    print(f"machine: {name}, torch {torch.__version__}, {torch.get_num_threads()} threads, Python {sys.version.split()[0]}")
+
+    if not args.skip_throughput:
+        peak = matmul_rate(device)
+        rate, flops = paper_mlp_rate(device, 65536 if device.type == "cpu" else 4096 * 192)
+        print(f"float32 matmul (4096^2): {peak / 1e9:.0f} GFLOP/s")
+        print(f"paper MLP training: {rate:,.0f} samples/s x {flops / 1e6:.2f} MFLOP/sample = {rate * flops / 1e9:.0f} GFLOP/s"
+              f" = {100 * rate * flops / peak:.0f} % of the matmul rate")
+
+    overrides = parse_assignments([f"ingest.max_size={args.size}", "train.eval_stride=4", "train.keep_checkpoints=0", *args.set])
+    steps = args.steps
+    if steps is not None:
+        overrides.setdefault("train", {})["steps"] = steps
+    with tempfile.TemporaryDirectory() as tmp:
+        run_dir = args.run_dir or Path(tmp) / "lego"
+        probe = Pipeline(default_stages(), LEGO, run_dir, args.preset, overrides)
+        total = probe.plan()["train"].params.steps
+        overrides["train"].setdefault("checkpoint_every", max(total // 10, 1))
+        pipe = Pipeline(default_stages(), LEGO, run_dir, args.preset, overrides)
+        pipe.run(until="scene")
+        started = time.perf_counter()
+        train = pipe.run(until="train")[-1]
+        wall = time.perf_counter() - started
+        s = train.summary
+        print(f"\npreset {args.preset}, lego {args.size}px, {s['train_images']} training views, {s['heldout']} held-out "
+              f"({s['heldout_rule']}, every 4th): {s['steps']} steps in {s['train_seconds']:.0f} s of training "
+              f"({s['samples_per_s']:,} samples/s), stage wall time {wall:.0f} s with evaluation")
+
+        params = pipe.plan()["train"].params
+        inputs = pipe.stage_inputs("train")
+        import json
+
+        scene = json.loads(inputs["scene"].read_text())
+        bounds = json.loads(inputs["bounds"].read_text())
+        from nerfpipe.geometry.cameras import CameraSet
+
+        world = CameraSet.load(inputs["world"])
+        loader = ImageLoader(inputs, world, bounds, scene)
+        heldout = split_views(world, params).heldout
+        model = RadianceModel.load(train.path, device)
+        print("\n| step | training wall time | val PSNR | val SSIM |")
+        print("|---:|---:|---:|---:|")
+        for path in sorted((train.path / "checkpoints").glob("step_*.pt")):
+            state = torch.load(path, map_location=device, weights_only=True)
+            model.coarse.load_state_dict(state["coarse"])
+            if model.fine is not None:
+                model.fine.load_state_dict(state["fine"])
+            result = evaluate(model, loader, heldout, None, params.chunk)
+            print(f"| {state['step']} | {state['elapsed']:.0f} s | {result['psnr']:.2f} dB | {result['ssim']:.3f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
