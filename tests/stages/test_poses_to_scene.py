@@ -41,7 +41,7 @@ def result(run_dir: Path, stage: str) -> Path:
 def test_lego_imports_as_inward_360_with_alpha_and_bounds_that_contain_the_object(tmp_path):
     capture = lego_capture(tmp_path)
     run_dir = tmp_path / "run"
-    outcomes = Pipeline(default_stages(), capture, run_dir, overrides={"ingest": {"max_size": "200"}}).run()
+    outcomes = Pipeline(default_stages(), capture, run_dir, overrides={"ingest": {"max_size": "200"}}).run(until="scene")
     assert [o.name for o in outcomes][:2] == ["ingest", "sfm"]
     assert outcomes[1].summary["method"] == "imported transforms"
 
@@ -69,10 +69,10 @@ def test_status_shows_the_scene_decisions_and_an_override(tmp_path):
     capture = tmp_path / "temple"
     shutil.copytree(TEMPLE, capture)
     run_dir = tmp_path / "run"
-    assert run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320").returncode == 0
+    assert run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320", "--until", "scene").returncode == 0
     status = run_cli("status", run_dir)
     assert "scene: layout: inward360" in status.stdout and "background:" in status.stdout
-    overridden = run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320", "--set", "scene.layout=forward")
+    overridden = run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320", "--set", "scene.layout=forward", "--until", "scene")
     assert overridden.returncode == 0, overridden.stderr
     scene = json.loads((result(run_dir, "scene") / "scene.json").read_text())
     assert scene["layout"]["value"] == "forward" and scene["layout"]["overridden"]
@@ -106,7 +106,7 @@ def test_cup_sfm_registers_a_subset_and_calls_it_inward_facing(tmp_path):
     for name in sorted(p.name for p in source.iterdir())[::3]:
         shutil.copy(source / name, capture)
     run_dir = tmp_path / "run"
-    outcomes = Pipeline(default_stages(), capture.parent, run_dir, overrides={"sfm": {"poses": "sfm"}}).run()
+    outcomes = Pipeline(default_stages(), capture.parent, run_dir, overrides={"sfm": {"poses": "sfm"}}).run(until="scene")
     sfm = outcomes[1].summary
     assert sfm["total"] == 26 and sfm["registered"] >= 0.95 * 26
     scene = json.loads((result(run_dir, "scene") / "scene.json").read_text())

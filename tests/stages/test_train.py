@@ -198,3 +198,23 @@ def test_resumed_training_matches_an_uninterrupted_one(tmp_path: Path) -> None:
     assert a.keys() == b.keys()
     for name in a:
         torch.testing.assert_close(a[name], b[name], rtol=0, atol=1e-6, msg=name)
+
+
+@pytest.mark.slow
+def test_nerfpipe_run_on_the_bundled_capture_trains_and_evaluates(tmp_path: Path) -> None:
+    from helpers import run_cli
+
+    run_dir = tmp_path / "temple"
+    args = [a.replace("ingest.max_size=32", "ingest.max_size=80").replace("eval_stride=25", "eval_stride=1")
+            for a in tiny_cli_args()]
+    result = run_cli("run", TEMPLE, "--out", run_dir, *args, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "train: held-out PSNR" in result.stderr
+    metrics = json.loads(next((run_dir / "stages" / "train").glob("*/metrics.json")).read_text())
+    # no split in the Middlebury capture: every 8th of the 16 photos is held out
+    assert metrics["heldout_rule"] == "every 8th image" and [v["name"] for v in metrics["views"]] == [
+        "templeSR0001.png", "templeSR0009.png"]
+    assert metrics["train_images"] == 14 and all(np.isfinite(v["psnr"]) for v in metrics["views"])
+    assert any("composited onto (0.00, 0.00, 0.00)" in d for d in metrics["decisions"])  # the black backdrop
+    status = run_cli("status", run_dir)
+    assert "train: 300 steps in" in status.stdout and "held-out views (every 8th image): PSNR" in status.stdout
