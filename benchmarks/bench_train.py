@@ -88,6 +88,7 @@ def main() -> None:
     if not LEGO.is_dir():
         sys.exit(f"lego not found at {LEGO}: put ../shared beside the checkout")
     keep_freed_memory()
+    torch.set_flush_denormal(True)  # before torch's first parallel operation, as the train stage does in the CLI
     device = resolve_device("auto")
     name = torch.cuda.get_device_name() if device.type == "cuda" else f"{os.cpu_count()} CPU cores"
     print(f"machine: {name}, torch {torch.__version__}, {torch.get_num_threads()} threads, Python {sys.version.split()[0]}")

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import functools
 import sys
+from typing import Iterator
+
+import torch
 
 M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
@@ -27,3 +31,32 @@ def keep_freed_memory(limit_bytes: int = 1 << 30) -> bool:
         return bool(libc.mallopt(M_MMAP_THRESHOLD, limit_bytes)) and bool(libc.mallopt(M_TRIM_THRESHOLD, limit_bytes))
     except (OSError, AttributeError):
         return False
+
+
+def denormals_flushed_everywhere() -> bool:
+    """Whether every CPU thread torch computes on flushes denormals: a parallel multiply of denormal
+    inputs gives exact zeros only if each worker thread has flush-to-zero set."""
+    tiny = torch.full((1 << 18,), 1e-39)  # a float32 denormal
+    return not bool(torch.count_nonzero(tiny * 1.0))
+
+
+@contextlib.contextmanager
+def flush_denormals() -> Iterator[bool]:
+    """Flush float32 denormals (below 1.2e-38) to zero while training on the CPU, then restore the default.
+
+    Once a field learns a dark backdrop, its sigmoid inputs go very negative and the weights of samples
+    behind surfaces fall below 1e-38; x86 matrix products of such denormal numbers are several times
+    slower. Measured on the bundled temple (black background): 3.1 steps/s at step 100 fell to 0.46 by
+    step 850 without flushing; resumed from step 500 with flushing, 3.8 steps/s. Values that small change
+    no rendered colour.
+
+    The flag is per thread and OpenMP worker threads copy it when they are created, so this must run
+    before torch's first parallel operation in the process (the train stage does it first thing; the
+    CLI imports torch nowhere earlier). Yields whether every thread flushes; if torch already ran in
+    this process, the workers do not, and training is only slower.
+    """
+    torch.set_flush_denormal(True)
+    try:
+        yield denormals_flushed_everywhere()
+    finally:
+        torch.set_flush_denormal(False)

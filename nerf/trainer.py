@@ -161,6 +161,8 @@ class Trainer:
         def field(fn: NerfField) -> Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]:
             return lambda x, d: fn(x, d, noise)
 
+        if noise > 0:  # the noise, too, is a function of (seed, step): resuming does not change it
+            torch.manual_seed(self.config.seed * 1_000_003 + step)
         for group in self.optimizer.param_groups:
             group["lr"] = learning_rate(self.config, step)
         with _autocast(self.device, self.config.autocast):
@@ -188,7 +190,6 @@ class Trainer:
         self.model.coarse.train()
         if self.model.fine is not None:
             self.model.fine.train()
-        torch.manual_seed(config.seed + self.step)  # density noise; the batches have their own generators
         started = time.perf_counter() - self.elapsed
         window_start, window_steps = time.perf_counter(), 0
         with open(self.out / "metrics.jsonl", "a", encoding="utf-8") as metrics:

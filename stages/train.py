@@ -15,6 +15,7 @@ paper holds out 1/8 of its real scenes (Section 6.1).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from dataclasses import dataclass, field
@@ -179,15 +180,22 @@ class TrainStage(Stage):
         return lines
 
     def run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext) -> dict[str, Any]:
+        from nerfpipe.nerf.cpu import flush_denormals, keep_freed_memory
+
+        device = resolve_device(params.device)
+        with contextlib.ExitStack() as cpu_settings:
+            if device.type == "cpu":
+                keep_freed_memory()
+                if not cpu_settings.enter_context(flush_denormals()):
+                    ctx.log.warning("train: torch ran in this process before training, so its CPU threads do not flush "
+                                    "denormal numbers; training on dark backgrounds may slow down (the CLI avoids this)")
+            return self._run(inputs, out, params, ctx, device)
+
+    def _run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext, device) -> dict[str, Any]:
         import torch
 
         from nerfpipe.nerf.trainer import TrainConfig, Trainer
 
-        device = resolve_device(params.device)
-        if device.type == "cpu":
-            from nerfpipe.nerf.cpu import keep_freed_memory
-
-            keep_freed_memory()
         if device.type == "cuda" and params.tf32:
             torch.backends.cuda.matmul.allow_tf32 = True
             torch.backends.cudnn.allow_tf32 = True
@@ -214,7 +222,6 @@ class TrainStage(Stage):
         with ctx.progress(params.steps - trainer.step, "train") as advance:
             trainer.run(advance)
         model.save(out)
-
         evaluation = evaluate(model, loader, views.heldout, out / "eval", params.chunk, ctx)
         samples_per_s = trainer.samples_per_step() * params.steps / max(trainer.elapsed, 1e-9)
         summary = {

@@ -345,11 +345,13 @@ def huge(dtype: torch.dtype) -> list[float]:
     return [1e6, 1e10, 1e30, top, -1e6, -1e10, -1e30, -top, 1e6 + 0.25, -(1e6 + 0.25)]
 
 
-@pytest.mark.parametrize("mode", MODES)
-@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
+# bf16 coordinates under fp16 autocast are left out: torch's CPU autocast itself rejects that mix in
+# torch.stack (at::autocast::prioritize), and no nerfpipe path produces it.
+@pytest.mark.parametrize(
+    "mode, dtype",
+    [(m, d) for m in MODES for d in (torch.float32, torch.bfloat16) if not (m == "float16" and d == torch.bfloat16)],
+)
 def test_encoding_of_huge_coordinates(mode, dtype):
-    if dtype == torch.bfloat16 and mode == "float16":
-        pytest.skip("torch's CPU fp16 autocast rejects bf16 tensors in torch.stack (at::autocast::prioritize)")
     x = torch.tensor(huge(dtype), dtype=dtype).reshape(-1, 1)
     assert torch.isfinite(x).all()
     with precision(mode):

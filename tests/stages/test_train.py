@@ -26,7 +26,8 @@ from nerfpipe.stages.train import PAPER, build_model, split_views
 TINY = {
     "ingest": {"max_size": 32},
     "train": {"steps": 300, "batch_rays": 256, "n_coarse": 16, "n_fine": 16, "depth": 2, "width": 32, "view_width": 16,
-              "checkpoint_every": 100, "eval_stride": 25, "lr": 5e-3, "keep_checkpoints": 0},
+              "checkpoint_every": 100, "eval_stride": 25, "lr": 5e-3, "keep_checkpoints": 0,
+              "density_noise": 0.3},  # noise on, so resuming is shown to redraw the same noise too
 }
 
 
