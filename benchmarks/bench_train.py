@@ -120,16 +120,8 @@ def main() -> None:
               f"({s['samples_per_s']:,} samples/s), stage wall time {wall:.0f} s with evaluation")
 
         params = pipe.plan()["train"].params
-        inputs = pipe.stage_inputs("train")
-        import json
-
-        scene = json.loads(inputs["scene"].read_text())
-        bounds = json.loads(inputs["bounds"].read_text())
-        from nerfpipe.geometry.cameras import CameraSet
-
-        world = CameraSet.load(inputs["world"])
-        loader = ImageLoader(inputs, world, bounds, scene)
-        heldout = split_views(world, params).heldout
+        loader = ImageLoader.from_inputs(pipe.stage_inputs("train"))
+        heldout = split_views(loader.world, params).heldout
         model = RadianceModel.load(train.path, device)
         print("\n| step | training wall time | val PSNR | val SSIM |")
         print("|---:|---:|---:|---:|")

@@ -199,16 +199,14 @@ class TrainStage(Stage):
         if device.type == "cuda" and params.tf32:
             torch.backends.cuda.matmul.allow_tf32 = True
             torch.backends.cudnn.allow_tf32 = True
-        scene = json.loads(inputs["scene"].read_text(encoding="utf-8"))
-        world = CameraSet.load(inputs["world"])
-        bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
+        loader = ImageLoader.from_inputs(inputs)
+        scene, world, bounds = loader.scene, loader.world, loader.bounds
         views = split_views(world, params)
         model, decisions = build_model(params, scene, world, bounds, device)
         for line in decisions:
             ctx.log.info("train: %s", line)
         ctx.log.info("train: %d training images, %d held out (%s)", len(views.train), len(views.heldout), views.rule)
 
-        loader = ImageLoader(inputs, world, bounds, scene)
         pixels = loader.pixel_set(views.train)
         config = TrainConfig(
             steps=params.steps, batch_rays=params.batch_rays, lr=params.lr, lr_final=params.lr_final,
@@ -320,11 +318,21 @@ class ImageLoader:
     def __init__(self, inputs: StageInputs, world: CameraSet, bounds: dict[str, Any], scene: dict[str, Any]) -> None:
         self.inputs = inputs
         self.world = world
+        self.bounds = bounds
+        self.scene = scene
         self.roots = CameraSet.load(inputs["pinhole"]).extra.get("image_roots", {})
         self.near_far = {f["name"]: (f["near"], f["far"]) for f in bounds["frames"]}
         self.use_alpha = scene["background"]["value"] == "alpha"
         color = scene["background_color"]["value"]
         self.background = np.array(color if color is not None else (0.0, 0.0, 0.0), dtype=np.float32)
+
+    @staticmethod
+    def from_inputs(inputs: StageInputs) -> "ImageLoader":
+        """The loader of the train stage's inputs: the normalized world, its bounds and the scene decisions."""
+        return ImageLoader(
+            inputs, CameraSet.load(inputs["world"]), json.loads(inputs["bounds"].read_text(encoding="utf-8")),
+            json.loads(inputs["scene"].read_text(encoding="utf-8")),
+        )
 
     def image(self, frame: Frame) -> np.ndarray:
         """(H, W, 3) float32 in [0, 1]; alpha composited onto the background colour when the scene uses it."""
@@ -388,9 +396,9 @@ def evaluate(model, loader: ImageLoader, frames: list[Frame], folder: Path | Non
         folder.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     linear = model.info.get("photometric") == "linear_raw"
-    progress = ctx.progress if ctx is not None else StageContext(log=None).progress  # type: ignore[arg-type]
     views = []
-    with progress(len(frames), "evaluate") as advance:
+    bar = ctx.progress(len(frames), "evaluate") if ctx is not None else contextlib.nullcontext(lambda n=1, info=None: None)
+    with bar as advance:
         for frame in frames:
             gt = loader.image(frame)
             camera = loader.world.camera_of(frame)

@@ -5,19 +5,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from helpers import look_at
 from nerfpipe.nerf.analytic import SphereField
 from nerfpipe.nerf.rays import camera_rays, pixel_centers
 from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
-
-
-def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
-    c2w[:3, 3] = eye
-    return c2w
 
 
 def test_intersect_by_hand() -> None:

@@ -194,14 +194,20 @@ def test_random_wide_range_densities_and_deltas(case, bg, seed):
 # --- empty intervals and degenerate bounds --------------------------------------------------------------
 
 
+def assert_only_background(result, background, far) -> None:
+    """Nothing was hit: opacity 0, the background colour exactly, depth at far and disparity 1 / far."""
+    n = far.shape[0]
+    assert torch.equal(result.acc, torch.zeros(n))
+    assert torch.equal(result.rgb, background.detach().expand(n, 3))
+    assert torch.equal(result.depth, far) and torch.equal(result.disparity, 1.0 / far)
+
+
 @pytest.mark.parametrize("density", EXTREME_DENSITIES)
 def test_zero_length_intervals_show_the_background(density):
     sigmas, colors, t, far, background = scene(density)
     result = composite(sigmas, colors, t, far, background, deltas=torch.zeros(3, 8))
     assert torch.equal(result.weights, torch.zeros(3, 8))
-    assert torch.equal(result.acc, torch.zeros(3))
-    assert torch.equal(result.rgb, background.detach().expand(3, 3))
-    assert torch.equal(result.depth, far) and torch.equal(result.disparity, 1.0 / far)
+    assert_only_background(result, background, far)
     loss_of(result).backward()
     assert_finite_grads(sigmas, colors, background)
 
@@ -217,9 +223,7 @@ def test_near_equals_far(perturb, lindisp, density):
     colors = torch.rand(2, 5, 3, requires_grad=True)
     background = torch.tensor([0.25, 0.5, 0.75], requires_grad=True)
     result = composite(sigmas, colors, t, far, background)
-    assert torch.equal(result.acc, torch.zeros(2))
-    assert torch.equal(result.rgb, background.detach().expand(2, 3))
-    assert torch.equal(result.depth, far) and torch.equal(result.disparity, 1.0 / far)
+    assert_only_background(result, background, far)
     loss_of(result).backward()
     assert_finite_grads(sigmas, colors, background)
 

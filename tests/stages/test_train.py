@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -15,12 +14,12 @@ import pytest
 import torch
 
 from helpers import TEMPLE, shared
-from nerfpipe.geometry.cameras import CameraSet, Frame
+from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
 from nerfpipe.pipeline import Pipeline, param_specs
 from nerfpipe.pipeline.errors import ParamError
 from nerfpipe.pipeline.params import build_params
 from nerfpipe.stages import TrainParams, TrainStage, default_stages
-from nerfpipe.stages.train import PAPER, build_model, split_views
+from nerfpipe.stages.train import build_model, split_views
 
 # a training small enough for a test: lego at 32 px, a 2x32 MLP, 16 + 16 samples
 TINY = {
@@ -104,7 +103,7 @@ def test_ablation_switches_build_the_tables_models(overrides, first_in, view_in,
 
 def test_scene_decisions_choose_the_ray_space_and_background() -> None:
     bounds = {"scene_box": [[-1] * 3, [1] * 3], "to_sfm": np.eye(4).tolist(), "frames": [{"near": 2.0, "far": 9.0}]}
-    world = CameraSet({1: __import__("nerfpipe").geometry.cameras.Camera.pinhole(50, 50, 20, 15, 40, 30)},
+    world = CameraSet({1: Camera.pinhole(50, 50, 20, 15, 40, 30)},
                       [Frame("a.png", 1, np.eye(4))])
     cpu = torch.device("cpu")
     inward, said = build_model(TrainParams(), scene_json("inward360", "alpha", [1, 1, 1]), world, bounds, cpu)
