@@ -6,20 +6,22 @@ import torch
 from torch import Tensor
 
 
-class SphereField:
+class SphereField(torch.nn.Module):
     """A solid sphere: density ``density`` inside ``radius`` of ``center``, 0 outside; colour given by
     the position, c = (x - center) / (2 radius) + 0.5, so colours are in [0, 1] on and inside it.
 
-    Usable wherever the renderer takes a field: ``field(points (M, 3), viewdirs (M, 3)) -> (rgb, sigma)``.
+    Usable wherever the renderer takes a field, ``field(points (M, 3), viewdirs (M, 3)) -> (rgb, sigma)``,
+    including as the field of a ``RadianceModel``, so exports can be checked against closed-form geometry.
     """
 
     def __init__(self, center: tuple[float, float, float] = (0.0, 0.0, 0.0), radius: float = 0.5,
                  density: float = 1e3) -> None:
-        self.center = torch.tensor(center)
+        super().__init__()
+        self.register_buffer("center", torch.tensor(center, dtype=torch.float32))
         self.radius = radius
         self.density = density
 
-    def __call__(self, points: Tensor, viewdirs: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    def forward(self, points: Tensor, viewdirs: Tensor | None = None, density_noise: float = 0.0) -> tuple[Tensor, Tensor]:
         offset = points - self.center.to(points)
         inside = offset.norm(dim=-1) <= self.radius
         sigma = torch.where(inside, torch.full_like(offset[..., 0], self.density), torch.zeros_like(offset[..., 0]))

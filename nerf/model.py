@@ -4,6 +4,7 @@ ray space the scene analysis chose (world rays clipped to the scene box, or NDC 
 
 from __future__ import annotations
 
+import itertools
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -72,7 +73,7 @@ class RadianceModel:
 
     @property
     def device(self) -> torch.device:
-        return next(self.coarse.parameters()).device
+        return next(itertools.chain(self.coarse.parameters(), self.coarse.buffers())).device
 
     def background_tensor(self) -> Tensor | None:
         return None if self.background is None else torch.tensor(self.background, device=self.device)

@@ -21,9 +21,10 @@ def test_intersect_by_hand() -> None:
     assert torch.allclose(t[:2], torch.tensor([1.5, 0.8])) and torch.isinf(t[2]) and torch.isclose(t[3], torch.tensor(0.5))
 
 
-def test_rendered_depth_is_the_sphere_surface_within_one_sample_spacing() -> None:
-    """With a near-opaque sphere all weight falls on the first sample inside it, which deterministic
-    (bin-centre) sampling places between the entry point and one spacing beyond it."""
+def test_rendered_depth_is_the_sphere_surface_within_half_a_sample_spacing() -> None:
+    """With a near-opaque sphere all weight falls on the first sample inside it; its stretch of ray starts
+    halfway from the sample before, so within half a spacing of the entry point, and a ray stops 1 / sigma
+    into a medium of density sigma."""
     sphere = SphereField(center=(0.1, -0.05, 0.0), radius=0.4, density=1e4)
     width = height = 48
     c2w = torch.tensor(look_at(np.array([1.6, 0.9, 0.5]), np.zeros(3)), dtype=torch.float32)
@@ -43,10 +44,17 @@ def test_rendered_depth_is_the_sphere_surface_within_one_sample_spacing() -> Non
     solid = torch.isfinite(t_entry) & (t_exit + 1e-4 >= 2 * spacing)
     missed = ~torch.isfinite(t_entry)
     assert solid.float().mean() > 0.2 and missed.float().mean() > 0.1  # the view holds both
-    error = out["depth"][solid] - t_entry[solid]  # depth is along the optical axis, as t is
-    assert error.min() >= -1e-4 and error.max() <= spacing + 1e-4, (float(error.min()), float(error.max()))
-    assert abs(float(error.mean()) - spacing / 2) < spacing / 4  # entry points fall evenly within a bin
+    expected = t_entry[solid] + 1.0 / sphere.density  # depth is along the optical axis, as t is
+    error = out["depth"][solid] - expected
+    assert error.abs().max() <= spacing / 2 + 1e-5, (float(error.min()), float(error.max()))
+    assert abs(float(error.mean())) < spacing / 8  # entry points fall evenly within a bin: no bias
+    assert error.abs().max() > spacing / 4  # the bound is tight: coarse samples cannot do better
     assert torch.all(out["acc"][solid] > 0.99) and torch.all(out["acc"][missed] < 1e-6)
     assert torch.allclose(out["rgb"][missed], torch.ones(3))  # the background shows where the sphere is not
     assert torch.all(out["depth"][missed] == far)  # no hit: depth is the far bound, disparity 1 / far
     assert torch.allclose(out["disparity"][missed], torch.tensor(1 / far))
+
+    # hierarchical sampling packs samples near the surface, and the depth follows them
+    fine = render_chunked(sphere, None, rays, SamplingConfig(n_coarse=128, n_fine=64), background=torch.ones(3))
+    fine_error = (fine["depth"][solid] - expected).abs()
+    assert fine_error.max() <= spacing / 2 + 1e-5 and fine_error.mean() < error.abs().mean() / 4

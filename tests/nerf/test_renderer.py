@@ -81,7 +81,11 @@ def test_constant_density_coarse_by_hand():
     assert torch.allclose(out["coarse"].acc, torch.full((2,), acc), rtol=0, atol=1e-6)
     colour = torch.tensor([0.2, 0.4, 0.6])
     assert torch.allclose(out["coarse"].rgb, (acc * colour + (1 - acc)).expand(2, 3), rtol=0, atol=1e-6)
-    depth = (0.5 * 0.5 + 0.25 * 1.5 + 0.125 * 2.5 + w4 * 3.5) / acc
+    # mean stopping depths (rendering.termination_depths): stretches [0.5, 1], [1, 2], [2, 3], [3, 4] with
+    # tau = ln2 / 2, ln2, ln2, ln2, g(tau) = 1/tau - 1/(e^tau - 1)
+    g_half, g_one = 2 / math.log(2) - 1 / (2**0.5 - 1), 1 / math.log(2) - 1
+    z = (0.5 + 0.5 * g_half, 1 + g_one, 2 + g_one, 3 + g_one)
+    depth = (0.5 * z[0] + 0.25 * z[1] + 0.125 * z[2] + w4 * z[3]) / acc
     assert torch.allclose(out["coarse"].depth, torch.full((2,), depth), rtol=0, atol=1e-5)
     # the field saw z = 0.5, 1.5, 2.5, 3.5 on each ray
     assert torch.equal(field.calls[0][:, 2], torch.tensor([0.5, 1.5, 2.5, 3.5] * 2))

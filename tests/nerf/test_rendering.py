@@ -15,6 +15,7 @@ from nerfpipe.nerf.rendering import (
     composite,
     compositing_weights,
     optical_depth,
+    termination_depths,
     sample_deltas,
     transmittance,
     transmittance_from_alphas,
@@ -72,20 +73,27 @@ def test_composite_two_samples_by_hand():
     # t = 1, 2, far = 3 -> deltas 1, 1; sigma = ln 2 -> alpha = 1/2, 1/2.
     # weights: 1/2, (1 - 1/2) 1/2 = 1/4; acc = 3/4.
     # rgb = 1/2 red + 1/4 green + 1/4 blue background = (0.5, 0.25, 0.25)
-    # depth = (1/2 * 1 + 1/4 * 2) / (3/4) = 4/3; disparity = 3/4.
+    # stretches of ray: [1, 1.5] and [1.5, 3]; optical depths ln2 / 2 and 1.5 ln2; mean stopping depths
+    # 1 + 0.5 g(ln2 / 2) and 1.5 + 1.5 g(1.5 ln2) with g(tau) = 1/tau - 1/(e^tau - 1) (see below);
+    # depth = (1/2 z_0 + 1/4 z_1) / (3/4).
     sigmas = t64([[LN2, LN2]])
     colors = t64([[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])
     result = composite(sigmas, colors, t64([[1.0, 2.0]]), t64([3.0]), background=t64([0.0, 0.0, 1.0]))
     assert torch.allclose(result.weights, t64([[0.5, 0.25]]), rtol=0, atol=1e-15)
     assert torch.allclose(result.acc, t64([0.75]), rtol=0, atol=1e-15)
     assert torch.allclose(result.rgb, t64([[0.5, 0.25, 0.25]]), rtol=0, atol=1e-15)
-    assert torch.allclose(result.depth, t64([4.0 / 3.0]), rtol=0, atol=1e-15)
-    assert torch.allclose(result.disparity, t64([0.75]), rtol=0, atol=1e-15)
+    z0 = 1 + 0.5 * (2 / LN2 - 1 / (2**0.5 - 1))
+    z1 = 1.5 + 1.5 * (1 / (1.5 * LN2) - 1 / (2**1.5 - 1))
+    depth = (0.5 * z0 + 0.25 * z1) / 0.75
+    assert torch.allclose(result.depth, t64([depth]), rtol=0, atol=1e-14)
+    assert torch.allclose(result.disparity, t64([1 / depth]), rtol=0, atol=1e-14)
 
 
 def test_composite_explicit_deltas_and_black_background():
     # t = 2, 3 with deltas given as 0.5, 0.25 and sigma = 2 ln2, 4 ln2: sigma delta = ln2 again,
-    # so weights 1/2, 1/4; depth = (1/2 * 2 + 1/4 * 3) / (3/4) = 7/3; background None is black.
+    # so weights 1/2, 1/4; background None is black. The stopping depths come from t and far, not the
+    # deltas: [2, 2.5] with optical depth ln2: 2 + 0.5 (1/ln2 - 1); [2.5, 100] is opaque (tau = 270):
+    # 2.5 + 1 / (4 ln2), the mean free path.
     result = composite(
         t64([[2 * LN2, 4 * LN2]]),
         t64([[[1.0, 1.0, 1.0], [1.0, 0.0, 0.0]]]),
@@ -95,8 +103,34 @@ def test_composite_explicit_deltas_and_black_background():
     )
     assert torch.allclose(result.weights, t64([[0.5, 0.25]]), rtol=0, atol=1e-15)
     assert torch.allclose(result.rgb, t64([[0.75, 0.5, 0.5]]), rtol=0, atol=1e-15)
-    assert torch.allclose(result.depth, t64([7.0 / 3.0]), rtol=0, atol=1e-14)
-    assert torch.allclose(result.disparity, t64([3.0 / 7.0]), rtol=0, atol=1e-15)
+    depth = (0.5 * (2 + 0.5 * (1 / LN2 - 1)) + 0.25 * (2.5 + 1 / (4 * LN2))) / 0.75
+    assert torch.allclose(result.depth, t64([depth]), rtol=0, atol=1e-14)
+    assert torch.allclose(result.disparity, t64([1 / depth]), rtol=0, atol=1e-14)
+
+
+def test_termination_depths_by_hand():
+    # t = 1, 2, 4, far 6: stretches [1, 1.5], [1.5, 3], [3, 6].
+    # sigma 0: a ray stops uniformly within the stretch: its middle, 1.25, 2.25, 4.5.
+    # sigma 1e6 (opaque): at the stretch start plus the mean free path 1e-6.
+    # sigma ln2 / 1.5 over [1.5, 3]: tau = ln2, g = 1/ln2 - 1/(2 - 1).
+    t, far = t64([[1.0, 2.0, 4.0]]), t64([6.0])
+    assert torch.allclose(termination_depths(t64([[0.0, 0.0, 0.0]]), t, far), t64([[1.25, 2.25, 4.5]]), rtol=0, atol=1e-15)
+    opaque = termination_depths(t64([[1e6, 1e6, 1e6]]), t, far)
+    assert torch.allclose(opaque, t64([[1.0, 1.5, 3.0]]) + 1e-6, rtol=0, atol=1e-12)
+    middle = termination_depths(t64([[0.0, LN2 / 1.5, 0.0]]), t, far)
+    assert torch.allclose(middle[0, 1], t64(1.5 + 1.5 * (1 / LN2 - 1)), rtol=0, atol=1e-14)
+
+
+def test_termination_depths_small_optical_depth_is_smooth_float32():
+    # the series branch (tau < 0.1) and the exact branch meet without a jump, and tiny densities do not
+    # lose the result to cancellation: g(tau) -> 1/2 - tau/12
+    t = torch.tensor([[0.0, 1.0]])
+    far = torch.tensor([2.0])
+    sigmas = torch.tensor([[1e-9, 0.0], [0.099 / 0.5, 0.0], [0.101 / 0.5, 0.0]])
+    z = termination_depths(sigmas, t.expand(3, 2), far.expand(3))[:, 0]  # stretch [0, 0.5]
+    tau = torch.tensor([1e-9 * 0.5, 0.099, 0.101])
+    expected = 0.5 * (0.5 - tau / 12 + tau**3 / 720)
+    assert torch.allclose(z, expected, rtol=0, atol=1e-6)
 
 
 def test_composite_per_ray_background():

@@ -152,7 +152,8 @@ def test_huge_density_first_sample_takes_all():
 
 
 def test_huge_density_behind_empty_space():
-    # empty up to sample 5, then 1e10: sample 5 takes all the weight, depth is its t.
+    # empty up to sample 5, then 1e10: sample 5 takes all the weight; depth is where its stretch of ray
+    # starts, halfway from sample 4, plus the mean free path 1e-10.
     sigmas, colors, t, far, background = scene(0.0)
     sigmas = sigmas.detach().clone()
     sigmas[:, 5:] = 1e10
@@ -160,7 +161,7 @@ def test_huge_density_behind_empty_space():
     result = composite(sigmas, colors, t, far, background)
     assert torch.equal(result.weights.argmax(-1), torch.full((3,), 5))
     assert torch.allclose(result.weights[:, 5], torch.ones(3), rtol=0, atol=0)
-    assert torch.allclose(result.depth, t[:, 5], rtol=0, atol=1e-6)
+    assert torch.allclose(result.depth, 0.5 * (t[:, 4] + t[:, 5]), rtol=0, atol=1e-6)
     loss_of(result).backward()
     assert_finite_grads(sigmas, colors, background)
 
@@ -242,7 +243,9 @@ def test_one_sample_per_ray(perturb):
     result = composite(sigmas, colors, t, far, torch.zeros(3))
     assert torch.allclose(result.acc, torch.full((2,), 0.5), rtol=1e-6)
     assert torch.allclose(result.rgb, torch.full((2, 3), 0.5), rtol=1e-6)
-    assert torch.equal(result.depth, t[:, 0])
+    # the one stretch is [t, far] with optical depth ln 2: depth = t + (far - t) (1/ln2 - 1/(2 - 1))
+    expected = t[:, 0] + (far - t[:, 0]) * (1 / math.log(2.0) - 1)
+    assert torch.allclose(result.depth, expected, rtol=1e-6, atol=0)
     loss_of(result).backward()
     assert_finite_grads(sigmas, colors)
     # one bin for inverse transform sampling: [near, far]
@@ -431,12 +434,14 @@ def test_depth_and_disparity_of_an_empty_ray(density):
 
 def test_depth_just_above_the_hit_threshold():
     # sigma 1e-8 on deltas of 1: acc about 4e-8, above ACC_EPS: depth is the weighted mean, inside [t_1, far].
+    # Equal weights, each on a nearly transparent stretch, stopping in its middle: the stretches are
+    # [1, 1.5], [1.5, 2.5], [2.5, 3.5], [3.5, 5], so depth = (1.25 + 2 + 3 + 4.25) / 4 = 2.625.
     sigmas = torch.full((1, 4), 1e-8, requires_grad=True)
     t = torch.tensor([[1.0, 2.0, 3.0, 4.0]])
     result = composite(sigmas, torch.rand(1, 4, 3), t, torch.tensor([5.0]))
     assert result.acc.item() > 1e-10
-    assert result.depth.item() == pytest.approx(2.5, rel=1e-4)  # equal weights: the mean of t
-    assert result.disparity.item() == pytest.approx(0.4, rel=1e-4)
+    assert result.depth.item() == pytest.approx(2.625, rel=1e-4)
+    assert result.disparity.item() == pytest.approx(1 / 2.625, rel=1e-4)
     (result.depth.sum() + result.disparity.sum()).backward()
     assert_finite_grads(sigmas)
 
