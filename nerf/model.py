@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from nerfpipe.nerf.field import FieldConfig, NerfField
-from nerfpipe.nerf.rays import camera_rays, intersect_box, ndc_rays, pixel_centers
+from nerfpipe.nerf.rays import camera_rays, intersect_box, ndc_points, ndc_points_inverse, ndc_rays, pixel_centers
 from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
 
 
@@ -35,14 +35,17 @@ class RaySpace:
     ndc_near: float = 1.0
     box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
+    def _reference(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        ref = torch.as_tensor(self.ndc_c2w, dtype=like.dtype, device=like.device)
+        flip = torch.tensor([1.0, -1.0, -1.0], dtype=like.dtype, device=like.device)  # OpenCV -> OpenGL
+        return ref[:3, :3], ref[:3, 3], flip
+
     def rays(self, uv: Tensor, intrinsics: Tensor, c2w: Tensor, near: Tensor, far: Tensor) -> RayBatch:
         """Rays for pixel positions ``uv`` (R, 2) of cameras (R, 4) / (R, 4, 4) with depth bounds (R,)."""
         origins, directions = camera_rays(uv, intrinsics, c2w)
         viewdirs = torch.nn.functional.normalize(directions, dim=-1)
         if self.ndc:
-            ref = torch.as_tensor(self.ndc_c2w, dtype=origins.dtype, device=origins.device)
-            rotation, center = ref[:3, :3], ref[:3, 3]
-            flip = torch.tensor([1.0, -1.0, -1.0], dtype=origins.dtype, device=origins.device)  # OpenCV -> OpenGL
+            rotation, center, flip = self._reference(origins)
             o = ((origins - center) @ rotation) * flip
             d = (directions @ rotation) * flip
             o, d = ndc_rays(o, d, self.ndc_focal, self.ndc_size[0], self.ndc_size[1], self.ndc_near)
@@ -58,6 +61,50 @@ class RaySpace:
             near = torch.where(miss, far, near_c)
             far = torch.where(miss, far, far_c)
         return RayBatch(origins, directions, viewdirs, near, far)
+
+    def camera_depth(self, origins: Tensor, directions: Tensor, t: Tensor) -> Tensor:
+        """Depth along the camera axis, in world units, of the point at ray parameter ``t`` of this space.
+
+        World rays (``camera_rays``: unit z component in the camera) already measure it. An NDC ray's t'
+        lies on the reference camera's z = -near / (1 - t') (OpenGL), which the world ray o + s d reaches
+        at s = (z - o_z) / d_z in that frame.
+
+        Args:
+            origins, directions: (R, 3) world rays from ``camera_rays``; t: (R,).
+        Returns:
+            (R,); infinite where an NDC t' reaches 1.
+        """
+        if not self.ndc:
+            return t
+        rotation, center, flip = self._reference(origins)
+        o_z = (((origins - center) @ rotation) * flip)[..., 2]
+        d_z = ((directions @ rotation) * flip)[..., 2]
+        z = -self.ndc_near / (1.0 - t)
+        return (z - o_z) / d_z
+
+    def to_field(self, points: Tensor) -> Tensor:
+        """World points (..., 3) where the field is queried: themselves, or their NDC coordinates."""
+        if not self.ndc:
+            return points
+        rotation, center, flip = self._reference(points)
+        local = ((points - center) @ rotation) * flip
+        return ndc_points(local, self.ndc_focal, self.ndc_size[0], self.ndc_size[1], self.ndc_near)
+
+    def from_field(self, points: Tensor) -> Tensor:
+        """The inverse of ``to_field``: field coordinates (..., 3) back to world points."""
+        if not self.ndc:
+            return points
+        rotation, center, flip = self._reference(points)
+        local = ndc_points_inverse(points, self.ndc_focal, self.ndc_size[0], self.ndc_size[1], self.ndc_near)
+        return (local * flip) @ rotation.T + center
+
+    def field_box(self, far: float | None = None) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+        """The box of field coordinates that holds the scene: the scene box, or NDC's [-1, 1]^3 cut at the
+        depth ``far`` of the reference camera (z' = 1 - 2 near / far), as z' = 1 lies at infinity."""
+        if self.ndc:
+            z_max = 1.0 - 2.0 * self.ndc_near / far if far is not None else 1.0
+            return (-1.0, -1.0, -1.0), (1.0, 1.0, z_max)
+        return self.box
 
 
 @dataclass
@@ -84,7 +131,9 @@ class RadianceModel:
     ) -> dict[str, Tensor]:
         """Render a whole pinhole view. Returns rgb (H, W, 3), depth, disparity, acc (H, W), on the CPU.
 
-        ``depth`` is along the camera axis in world units, except in NDC where it is the NDC t' in [0, 1].
+        ``depth`` is the expected depth along the camera axis in world units, and ``disparity`` its
+        inverse. In NDC the expected t' is mapped to world depth (``RaySpace.camera_depth``), capped at
+        ``far``, since t' near 1 lies near infinity.
         """
         device = self.device
         uv = pixel_centers(width, height, device)
@@ -96,6 +145,11 @@ class RadianceModel:
         if self.fine is not None:
             self.fine.eval()
         out = render_chunked(self.coarse, self.fine, rays, self.sampling, self.background_tensor(), chunk)
+        if self.ray_space.ndc:
+            origins, directions = camera_rays(uv, k, pose)
+            depth = self.ray_space.camera_depth(origins, directions, out["depth"].to(origins))
+            depth = torch.where(torch.isfinite(depth) & (depth > 0), depth, torch.full_like(depth, far)).clamp(max=far)
+            out["depth"], out["disparity"] = depth, 1.0 / depth.clamp_min(1e-12)
         shapes = {"rgb": (height, width, 3)}
         return {key: value.reshape(shapes.get(key, (height, width))).cpu() for key, value in out.items()}
 

@@ -88,6 +88,33 @@ def ndc_rays(
     return o, d
 
 
+def ndc_points(points: Tensor, focal: float, width: int, height: int, near: float = 1.0) -> Tensor:
+    """Points of the reference camera's frame (OpenGL: looking down -z, z < 0 in front) in NDC: the
+    projection ``ndc_rays`` applies to ray origins, (-f/(W/2) x/z, -f/(H/2) y/z, 1 + 2 near / z).
+
+    Args:
+        points: (..., 3) with z < 0.
+    Returns:
+        (..., 3); z' runs from -1 on the near plane to 1 at infinity.
+    """
+    x, y, z = points.unbind(-1)
+    ax, ay = -focal / (width / 2.0), -focal / (height / 2.0)
+    return torch.stack([ax * x / z, ay * y / z, 1.0 + 2.0 * near / z], dim=-1)
+
+
+def ndc_points_inverse(points: Tensor, focal: float, width: int, height: int, near: float = 1.0) -> Tensor:
+    """The inverse of ``ndc_points``: z = 2 near / (z' - 1), x = -x' z (W/2) / f, y = -y' z (H/2) / f.
+
+    Args:
+        points: (..., 3) NDC points with z' < 1.
+    Returns:
+        (..., 3) points of the reference camera's frame (OpenGL).
+    """
+    xn, yn, zn = points.unbind(-1)
+    z = 2.0 * near / (zn - 1.0)
+    return torch.stack([-xn * z * (width / 2.0) / focal, -yn * z * (height / 2.0) / focal, z], dim=-1)
+
+
 def intersect_box(origins: Tensor, directions: Tensor, box_min: Tensor, box_max: Tensor) -> tuple[Tensor, Tensor]:
     """Entry and exit parameters of rays through an axis-aligned box (the slab method).
 

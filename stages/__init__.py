@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from nerfpipe.pipeline.stage import Stage
 from nerfpipe.stages.bounds import BoundsParams, BoundsStage
+from nerfpipe.stages.export_depth import ExportDepthParams, ExportDepthStage
+from nerfpipe.stages.export_mesh import ExportMeshParams, ExportMeshStage
+from nerfpipe.stages.export_points import ExportPointsParams, ExportPointsStage
 from nerfpipe.stages.ingest import IngestParams, IngestStage
 from nerfpipe.stages.scene import SceneParams, SceneStage
 from nerfpipe.stages.sfm import SfmParams, SfmStage
@@ -13,10 +16,14 @@ from nerfpipe.stages.undistort import UndistortParams, UndistortStage
 
 def default_stages() -> list[Stage]:
     """The stages `nerfpipe run` chains, in declaration order."""
-    return [IngestStage(), SfmStage(), UndistortStage(), BoundsStage(), SceneStage(), TrainStage()]
+    return [
+        IngestStage(), SfmStage(), UndistortStage(), BoundsStage(), SceneStage(), TrainStage(),
+        ExportDepthStage(), ExportPointsStage(), ExportMeshStage(),
+    ]
 
 
 __all__ = [
-    "BoundsParams", "BoundsStage", "IngestParams", "IngestStage", "SceneParams", "SceneStage", "SfmParams",
+    "BoundsParams", "BoundsStage", "ExportDepthParams", "ExportDepthStage", "ExportMeshParams", "ExportMeshStage",
+    "ExportPointsParams", "ExportPointsStage", "IngestParams", "IngestStage", "SceneParams", "SceneStage", "SfmParams",
     "SfmStage", "TrainParams", "TrainStage", "UndistortParams", "UndistortStage", "default_stages",
 ]

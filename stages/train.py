@@ -5,7 +5,8 @@ rays in NDC for forward-facing captures (Section 6.1's real scenes), rays clippe
 inward 360° captures, depth sampling linear in disparity for unbounded ones; compositing onto the
 background colour for photos with alpha or a constant backdrop; sRGB previews of linear RAW renders.
 
-Writes ``model.pt`` / ``model.json`` (``nerfpipe.nerf.model.RadianceModel``), ``checkpoints/``,
+Writes ``model.pt`` / ``model.json`` (``nerfpipe.nerf.model.RadianceModel``), ``views.json`` (which
+frames trained it and which were held out), ``checkpoints/``,
 ``metrics.jsonl`` (loss and PSNR against wall time), ``metrics.json`` (PSNR and SSIM on held-out views)
 and ``eval/`` (each held-out view rendered, beside its ground truth).
 
@@ -152,7 +153,7 @@ class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
     name = "train"
-    version = 1
+    version = 2
     Params = TrainParams
     presets = {
         # Section 5.3 and Fig. 7: the model, sampling and optimizer of the paper
@@ -162,7 +163,8 @@ class TrainStage(Stage):
         "cpu": {},
     }
     requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")
-    provides = {"model": "model.pt", "model_json": "model.json", "metrics": "metrics.json", "eval": "eval"}
+    provides = {"model": "model.pt", "model_json": "model.json", "metrics": "metrics.json", "eval": "eval",
+                "views": "views.json"}
     libraries = ("torch", "kornia", "numpy")
     resumable = True
 
@@ -206,6 +208,8 @@ class TrainStage(Stage):
         for line in decisions:
             ctx.log.info("train: %s", line)
         ctx.log.info("train: %d training images, %d held out (%s)", len(views.train), len(views.heldout), views.rule)
+        write_json_atomic(out / "views.json", {"train": [f.name for f in views.train],
+                                               "heldout": [f.name for f in views.heldout], "rule": views.rule})
 
         pixels = loader.pixel_set(views.train)
         config = TrainConfig(

@@ -1,0 +1,364 @@
+"""Meshes of a radiance field: marching cubes on its density, TSDF fusion of its depth maps, Poisson
+reconstruction from its point cloud; cleaning, simplification, and PLY / OBJ / GLB files."""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
+
+# (M, 3) float32 tensor of field coordinates -> (M,) density
+DensityFn = Callable[[Any], Any]
+
+
+@dataclass
+class Mesh:
+    """vertices (V, 3) float64, triangles (F, 3) int64, colours (V, 3) in [0, 1] or None."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    colors: np.ndarray | None = None
+
+    @property
+    def faces(self) -> int:
+        return len(self.triangles)
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A lattice over a box: ``cells`` voxels of edge ``voxel`` per axis from ``origin``; grid points sit on
+    voxel corners, so there are cells + 1 per axis."""
+
+    origin: np.ndarray
+    voxel: float
+    cells: tuple[int, int, int]
+
+    @staticmethod
+    def over(box_min: Sequence[float], box_max: Sequence[float], resolution: int) -> "Grid":
+        """Cubic voxels, ``resolution`` of them along the box's longest side."""
+        lo, hi = np.asarray(box_min, dtype=np.float64), np.asarray(box_max, dtype=np.float64)
+        voxel = float((hi - lo).max()) / resolution
+        cells = tuple(max(1, int(math.ceil((h - l) / voxel - 1e-9))) for l, h in zip(lo, hi))
+        return Grid(lo, voxel, cells)  # type: ignore[arg-type]
+
+    def blocks(self, size: int) -> Iterator[tuple[tuple[int, int, int], tuple[int, int, int]]]:
+        """(start, count) in cells of each block of at most ``size`` cells per axis."""
+        for i in range(0, self.cells[0], size):
+            for j in range(0, self.cells[1], size):
+                for k in range(0, self.cells[2], size):
+                    start = (i, j, k)
+                    yield start, tuple(min(size, c - s) for c, s in zip(self.cells, start))  # type: ignore[misc]
+
+    def points(self, start: Sequence[int], count: Sequence[int]) -> np.ndarray:
+        """(n0 + 1, n1 + 1, n2 + 1, 3) grid point positions of a block."""
+        axes = [self.origin[a] + self.voxel * np.arange(start[a], start[a] + count[a] + 1) for a in range(3)]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
+
+
+def evaluate_density(density: DensityFn, points: np.ndarray, chunk: int = 65536, device: Any = "cpu") -> np.ndarray:
+    """``density`` at (..., 3) points, ``chunk`` points at a time, without gradients."""
+    import torch
+
+    flat = points.reshape(-1, 3)
+    out = np.empty(len(flat), dtype=np.float32)
+    with torch.no_grad():
+        for s in range(0, len(flat), chunk):
+            x = torch.as_tensor(flat[s:s + chunk], dtype=torch.float32, device=device)
+            out[s:s + chunk] = density(x).float().cpu().numpy().reshape(-1)
+    return out.reshape(points.shape[:-1])
+
+
+def marching_cubes(density: DensityFn, grid: Grid, threshold: float, block: int = 64, chunk: int = 65536,
+                   device: Any = "cpu") -> Mesh:
+    """The surface where the density crosses ``threshold``, by marching cubes (Open3D's flying-edges
+    implementation) on the density sampled at the grid points.
+
+    The grid is processed in blocks of ``block``^3 voxels, each sampled with one layer of overlap and
+    contoured on its own, so memory is bounded by the block, whatever the resolution; vertices on shared
+    block faces come out identical in both blocks and are merged. Triangles face outward (away from
+    high density).
+    """
+    import open3d as o3d
+
+    vertices, triangles, offset = [], [], 0
+    for start, count in grid.blocks(block):
+        values = evaluate_density(density, grid.points(start, count), chunk, device)
+        if not ((values >= threshold).any() and (values < threshold).any()):
+            continue
+        surface = o3d.t.geometry.TriangleMesh.create_isosurfaces(o3d.core.Tensor(values), [float(threshold)])
+        if surface.is_empty():
+            continue
+        # Open3D returns (k, j, i) lattice coordinates; its triangles face increasing values, i.e. inward
+        index = surface.vertex.positions.numpy()[:, ::-1].astype(np.float64)
+        faces = surface.triangle.indices.numpy().astype(np.int64)[:, ::-1]
+        vertices.append(grid.origin + grid.voxel * (index + np.asarray(start)))
+        triangles.append(faces + offset)
+        offset += len(index)
+    if not vertices:
+        return Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    return merge_vertices(Mesh(np.concatenate(vertices), np.concatenate(triangles)), grid.voxel * 1e-4)
+
+
+def merge_vertices(mesh: Mesh, tolerance: float) -> Mesh:
+    """Weld vertices closer than ``tolerance`` (quantized to it), dropping triangles that collapse."""
+    keys = np.round(mesh.vertices / tolerance).astype(np.int64)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    triangles = inverse[mesh.triangles]
+    ok = (triangles[:, 0] != triangles[:, 1]) & (triangles[:, 1] != triangles[:, 2]) & (triangles[:, 0] != triangles[:, 2])
+    colors = None if mesh.colors is None else mesh.colors[first]
+    return Mesh(mesh.vertices[first], triangles[ok], colors)
+
+
+def vertex_normals(mesh: Mesh) -> np.ndarray:
+    """Area-weighted vertex normals (V, 3), unit length (0 for isolated vertices)."""
+    v, f = mesh.vertices, mesh.triangles
+    face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    normals = np.zeros_like(v)
+    for corner in range(3):
+        np.add.at(normals, f[:, corner], face_n)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    return np.where(length > 0, normals / np.maximum(length, 1e-30), 0.0)
+
+
+def to_open3d(mesh: Mesh) -> Any:
+    import open3d as o3d
+
+    out = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(mesh.vertices.astype(np.float64)),
+                                    o3d.utility.Vector3iVector(mesh.triangles.astype(np.int32)))
+    if mesh.colors is not None:
+        out.vertex_colors = o3d.utility.Vector3dVector(np.clip(mesh.colors, 0.0, 1.0).astype(np.float64))
+    return out
+
+
+def from_open3d(mesh: Any) -> Mesh:
+    colors = np.asarray(mesh.vertex_colors).copy() if mesh.has_vertex_colors() else None
+    return Mesh(np.asarray(mesh.vertices).copy(), np.asarray(mesh.triangles).astype(np.int64), colors)
+
+
+def tsdf_fusion(views: Sequence[tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]],
+                box: tuple[Sequence[float], Sequence[float]], voxel: float, truncation: float, acc_threshold: float,
+                depth_max: float) -> Mesh:
+    """TSDF fusion (Curless and Levoy 1996; Open3D's UniformTSDFVolume over the cube that holds ``box``) of
+    rendered depth and colour, then marching cubes on the fused distance.
+
+    Memory grows with the cube of (box side / voxel): about 20 bytes a voxel, 340 MB at 256^3.
+
+    Args:
+        views: (rendered {depth, acc (H, W), rgb (H, W, 3) in [0, 1]}, K (3, 3), c2w (4, 4)) per view;
+            pixels below ``acc_threshold`` carry no depth.
+    """
+    import open3d as o3d
+
+    lo, hi = np.asarray(box[0], dtype=np.float64), np.asarray(box[1], dtype=np.float64)
+    length = float((hi - lo).max())
+    volume = o3d.pipelines.integration.UniformTSDFVolume(
+        length=length, resolution=max(2, int(math.ceil(length / voxel))), sdf_trunc=truncation,
+        color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8, origin=lo.reshape(3, 1))
+    for rendered, K, c2w in views:
+        depth = np.where(rendered["acc"] >= acc_threshold, rendered["depth"], 0.0).astype(np.float32)
+        depth = np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)
+        h, w = depth.shape
+        colour = np.ascontiguousarray(np.round(np.clip(rendered["rgb"], 0, 1) * 255).astype(np.uint8))
+        rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
+            o3d.geometry.Image(colour), o3d.geometry.Image(depth), depth_scale=1.0, depth_trunc=depth_max,
+            convert_rgb_to_intensity=False)
+        intrinsic = o3d.camera.PinholeCameraIntrinsic(w, h, K[0, 0], K[1, 1], K[0, 2] - 0.5, K[1, 2] - 0.5)
+        volume.integrate(rgbd, intrinsic, np.linalg.inv(np.asarray(c2w, dtype=np.float64)))
+    return from_open3d(volume.extract_triangle_mesh())
+
+
+def poisson(points: Any, depth: int = 8, density_quantile: float = 0.05,
+            box: tuple[Sequence[float], Sequence[float]] | None = None) -> Mesh:
+    """Screened Poisson reconstruction (Kazhdan and Hoppe 2013, Open3D) of an oriented point cloud; the
+    vertices least supported by points (the lowest ``density_quantile`` of Poisson's density) and those
+    outside ``box`` are dropped, as the method closes surfaces the points never showed."""
+    import open3d as o3d
+
+    mesh, support = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(points, depth=depth)
+    support = np.asarray(support)
+    drop = support < np.quantile(support, density_quantile) if len(support) else np.zeros(0, dtype=bool)
+    if box is not None:
+        v = np.asarray(mesh.vertices)
+        drop |= ~np.all((v >= np.asarray(box[0])) & (v <= np.asarray(box[1])), axis=1)
+    mesh.remove_vertices_by_mask(drop)
+    return from_open3d(mesh)
+
+
+@dataclass(frozen=True)
+class CleanReport:
+    faces_before: int
+    components: int
+    components_kept: int
+    faces_after_cleaning: int
+    faces_after_simplification: int
+
+
+def clean(mesh: Mesh, min_component: float, target_faces: int) -> tuple[Mesh, CleanReport]:
+    """Drop connected pieces with fewer than ``min_component`` times the largest piece's triangles, then
+    quadric decimation (Garland and Heckbert 1997) down to ``target_faces`` (0: keep all)."""
+    o = to_open3d(mesh)
+    o.remove_duplicated_vertices()
+    o.remove_degenerate_triangles()
+    o.remove_unreferenced_vertices()
+    before = len(o.triangles)
+    components = kept = 0
+    if before:
+        labels, sizes, _ = o.cluster_connected_triangles()
+        labels, sizes = np.asarray(labels), np.asarray(sizes)
+        components = len(sizes)
+        small = sizes < min_component * sizes.max()
+        kept = int((~small).sum())
+        o.remove_triangles_by_mask(small[labels])
+        o.remove_unreferenced_vertices()
+    cleaned = len(o.triangles)
+    if target_faces and cleaned > target_faces:
+        o = o.simplify_quadric_decimation(target_number_of_triangles=target_faces)
+        o.remove_unreferenced_vertices()
+    out = from_open3d(o)
+    return out, CleanReport(before, components, kept, cleaned, out.faces)
+
+
+def transformed(mesh: Mesh, transform: Sequence[Sequence[float]]) -> Mesh:
+    """The mesh under a 4x4 similarity (a positive scale keeps the triangles' orientation)."""
+    m = np.asarray(transform, dtype=np.float64)
+    return Mesh(mesh.vertices @ m[:3, :3].T + m[:3, 3], mesh.triangles, mesh.colors)
+
+
+# -- files -------------------------------------------------------------------------------------------
+def write_mesh(mesh: Mesh, path: Path) -> None:
+    """PLY (binary) or OBJ through Open3D, with vertex colours and normals; GLB with ``write_glb``."""
+    import open3d as o3d
+
+    if path.suffix.lower() == ".glb":
+        write_glb(path, mesh)
+        return
+    o = to_open3d(mesh)
+    o.compute_vertex_normals()
+    if not o3d.io.write_triangle_mesh(str(path), o, write_ascii=False, write_vertex_colors=mesh.colors is not None):
+        raise OSError(f"open3d could not write {path}")
+
+
+def read_mesh(path: Path) -> Mesh:
+    import open3d as o3d
+
+    if path.suffix.lower() == ".glb":
+        return read_glb(path)
+    return from_open3d(o3d.io.read_triangle_mesh(str(path)))
+
+
+_FLOAT, _UINT = 5126, 5125  # glTF component types
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+
+
+def write_glb(path: Path, mesh: Mesh) -> None:
+    """A binary glTF 2.0 file with one triangle mesh: POSITION, NORMAL, COLOR_0 (when coloured) and
+    uint32 indices, which Blender, three.js and most viewers open. Written by hand: Open3D 0.20 writes a
+    GLB its own reader cannot read back."""
+    vertices = mesh.vertices.astype(np.float32)
+    normals = vertex_normals(mesh).astype(np.float32)
+    attributes = [("POSITION", vertices), ("NORMAL", normals)]
+    if mesh.colors is not None:
+        attributes.append(("COLOR_0", np.clip(mesh.colors, 0, 1).astype(np.float32)))
+    indices = mesh.triangles.astype(np.uint32).reshape(-1)
+
+    blob, views, accessors = bytearray(), [], []
+
+    def add(data: np.ndarray, target: int) -> int:
+        while len(blob) % 4:
+            blob.append(0)
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": data.nbytes, "target": target})
+        blob.extend(data.tobytes())
+        return len(views) - 1
+
+    primitive: dict[str, Any] = {"attributes": {}, "mode": 4}
+    for name, data in attributes:
+        view = add(data, _ARRAY_BUFFER)
+        accessor = {"bufferView": view, "componentType": _FLOAT, "count": len(data), "type": "VEC3"}
+        if name == "POSITION" and len(data):
+            accessor.update(min=data.min(axis=0).tolist(), max=data.max(axis=0).tolist())
+        accessors.append(accessor)
+        primitive["attributes"][name] = len(accessors) - 1
+    view = add(indices, _ELEMENT_ARRAY_BUFFER)
+    accessors.append({"bufferView": view, "componentType": _UINT, "count": len(indices), "type": "SCALAR"})
+    primitive["indices"] = len(accessors) - 1
+    while len(blob) % 4:
+        blob.append(0)
+    doc = {
+        "asset": {"version": "2.0", "generator": "nerfpipe"},
+        "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [primitive]}],
+        "buffers": [{"byteLength": len(blob)}], "bufferViews": views, "accessors": accessors,
+    }
+    header = json.dumps(doc, separators=(",", ":")).encode()
+    header += b" " * (-len(header) % 4)
+    total = 12 + 8 + len(header) + 8 + len(blob)
+    with open(path, "wb") as f:
+        f.write(struct.pack("<4sII", b"glTF", 2, total))
+        f.write(struct.pack("<I4s", len(header), b"JSON") + header)
+        f.write(struct.pack("<I4s", len(blob), b"BIN\x00") + bytes(blob))
+
+
+def read_glb(path: Path) -> Mesh:
+    """The first primitive of a GLB written by ``write_glb`` (float VEC3 attributes, uint32 indices)."""
+    data = Path(path).read_bytes()
+    magic, version, total = struct.unpack_from("<4sII", data, 0)
+    if magic != b"glTF" or version != 2 or total != len(data):
+        raise ValueError(f"{path} is not a glTF 2.0 binary file")
+    json_len, _ = struct.unpack_from("<I4s", data, 12)
+    doc = json.loads(data[20:20 + json_len])
+    bin_start = 20 + json_len + 8
+    primitive = doc["meshes"][0]["primitives"][0]
+
+    def accessor(index: int, dtype: Any, width: int) -> np.ndarray:
+        acc = doc["accessors"][index]
+        view = doc["bufferViews"][acc["bufferView"]]
+        start = bin_start + view["byteOffset"]
+        return np.frombuffer(data, dtype=dtype, count=acc["count"] * width, offset=start).reshape(acc["count"], width)
+
+    vertices = accessor(primitive["attributes"]["POSITION"], np.float32, 3).astype(np.float64)
+    triangles = accessor(primitive["indices"], np.uint32, 1).reshape(-1, 3).astype(np.int64)
+    colors = None
+    if "COLOR_0" in primitive["attributes"]:
+        colors = accessor(primitive["attributes"]["COLOR_0"], np.float32, 3).astype(np.float64)
+    return Mesh(vertices, triangles, colors)
+
+
+def surface_colors(model: Any, vertices: np.ndarray, normals: np.ndarray, offset: float, chunk: int = 8192) -> np.ndarray:
+    """The radiance field's colour of each vertex, as seen looking at it against its normal: a short ray
+    from ``offset`` outside the surface to ``offset`` inside is rendered and its colour normalized by
+    its opacity (the colour a camera there would see). A vertex whose ray stays transparent takes the
+    field's colour at the vertex.
+
+    Args:
+        model: a ``RadianceModel``; vertices, normals: (V, 3) world coordinates, outward unit normals.
+    Returns:
+        (V, 3) colours in [0, 1].
+    """
+    import torch
+
+    from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
+
+    device = model.device
+    space = model.ray_space
+    v = torch.as_tensor(vertices, dtype=torch.float32, device=device)
+    n = torch.as_tensor(normals, dtype=torch.float32, device=device)
+    # both ray ends go to field coordinates: NDC maps straight lines to straight lines
+    start = space.to_field(v + offset * n)
+    end = space.to_field(v - offset * n)
+    count = len(v)
+    rays = RayBatch(start, end - start, -n, torch.zeros(count, device=device), torch.ones(count, device=device))
+    out = render_chunked(model.coarse, model.fine, rays, SamplingConfig(32, 32), None, chunk)
+    acc = out["acc"].unsqueeze(-1)
+    colors = out["rgb"] / acc.clamp_min(1e-6)
+    with torch.no_grad():
+        field = model.fine if model.fine is not None else model.coarse
+        at_vertex = torch.cat([field(space.to_field(v[s:s + chunk]), -n[s:s + chunk])[0] for s in range(0, count, chunk)]) \
+            if count else torch.zeros(0, 3, device=device)
+    colors = torch.where(acc > 0.05, colors, at_vertex)
+    return colors.clamp(0.0, 1.0).cpu().numpy().astype(np.float64)

@@ -1,0 +1,125 @@
+"""export_depth: depth, opacity and disparity maps of the trained field, for every training and held-out view.
+
+Per view, in ``depth/``: ``<view>.depth.npy`` (expected depth along the camera axis, float32),
+``<view>.acc.npy`` (accumulated opacity), ``<view>.disparity.npy``, ``<view>.depth.png`` (16-bit, with
+``<view>.depth.json`` giving its scale), ``<view>.preview.png`` (colour-mapped disparity) and
+``<view>.rgb.png`` (the rendered colour, which points and TSDF fusion take their colours from).
+``depth.json`` lists the views with their cameras at the exported resolution. Units are those of the
+normalized world; ``to_sfm`` there and in every sidecar maps them back to the SfM frame.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from nerfpipe.geometry.cameras import CameraSet
+from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
+from nerfpipe.stages.train import resolve_device, view_file_stem
+
+
+@dataclass(frozen=True)
+class ExportDepthParams:
+    scale: float = field(default=0.25, metadata={"help": "render at this fraction of each camera's resolution (1: full)"})
+    views: Literal["all", "train", "heldout"] = field(default="all", metadata={"help": "which views: the training views, the held-out ones, or both"})
+    acc_threshold: float = field(default=0.5, metadata={"help": "accumulated opacity below which a pixel has no depth in the 16-bit PNG and preview"})
+    chunk: int = field(default=4096, metadata={"help": "rays per chunk"})
+    device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
+
+    def __post_init__(self) -> None:
+        if not 0 < self.scale <= 1:
+            raise ValueError(f"scale must be in (0, 1], got {self.scale}")
+        if not 0 <= self.acc_threshold <= 1:
+            raise ValueError(f"acc_threshold must be in [0, 1], got {self.acc_threshold}")
+        if self.chunk < 1:
+            raise ValueError(f"chunk must be >= 1, got {self.chunk}")
+
+
+def scaled_size(width: int, height: int, scale: float) -> tuple[int, int]:
+    return max(1, round(width * scale)), max(1, round(height * scale))
+
+
+class ExportDepthStage(Stage):
+    """Depth, opacity and disparity maps (.npy, 16-bit PNG, preview) of every training and held-out view."""
+
+    name = "export_depth"
+    version = 1
+    Params = ExportDepthParams
+    presets = {
+        "preview": {"scale": 0.125},
+        # full resolution: what other tools want, at 16x the rendering time of the default
+        "full": {"scale": 1.0},
+    }
+    requires = ("model", "model_json", "views", "world", "bounds")
+    provides = {"depth": "depth", "depth_index": "depth.json"}
+    libraries = ("torch", "numpy", "opencv-contrib-python-headless", "matplotlib")
+
+    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
+        s = manifest.get("summary", {})
+        if "views" not in s:
+            return []
+        return [f"{s['views']} views ({s['train_views']} training, {s['heldout_views']} held out) at "
+                f"{s['width']}x{s['height']}, {s['seconds_per_view']:.1f} s each; mean opacity {s['mean_acc']:.2f}"]
+
+    def run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:
+        import numpy as np
+
+        from nerfpipe.export.depth import DepthIndex, DepthView, png_scale_for, write_view
+        from nerfpipe.nerf.cpu import flush_denormals
+        from nerfpipe.nerf.model import RadianceModel
+
+        device = resolve_device(params.device)
+        model = RadianceModel.load(inputs["model"].parent, device)
+        world = CameraSet.load(inputs["world"])
+        bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
+        split = json.loads(inputs["views"].read_text(encoding="utf-8"))
+        near_far = {f["name"]: (f["near"], f["far"]) for f in bounds["frames"]}
+        by_name = {f.name: f for f in world.frames}
+        wanted = [("train", n) for n in split["train"]] * (params.views in ("all", "train"))
+        wanted += [("heldout", n) for n in split["heldout"]] * (params.views in ("all", "heldout"))
+        missing = [n for _, n in wanted if n not in by_name]
+        if missing:
+            raise StageError(f"export_depth: views {missing[:3]} of the trained model are not in the world cameras; "
+                             "rerun with --force train")
+
+        folder = out / "depth"
+        folder.mkdir()
+        png_scale = png_scale_for(max(far for _, far in near_far.values()))
+        views, accs = [], []
+        started = time.perf_counter()
+        with contextlib.ExitStack() as stack:
+            if device.type == "cpu":
+                stack.enter_context(flush_denormals())
+            advance = stack.enter_context(ctx.progress(len(wanted), "export depth"))
+            for role, name in wanted:
+                frame = by_name[name]
+                camera = world.camera_of(frame)
+                width, height = scaled_size(camera.width, camera.height, params.scale)
+                sx, sy = width / camera.width, height / camera.height
+                intrinsics = (camera.fx * sx, camera.fy * sy, camera.cx * sx, camera.cy * sy)
+                near, far = near_far[name]
+                rendered = {k: v.numpy() for k, v in
+                            model.render_image(intrinsics, frame.c2w, width, height, near, far, params.chunk).items()}
+                view = DepthView(name, view_file_stem(name), role, width, height, intrinsics,
+                                 tuple(map(tuple, np.asarray(frame.c2w).tolist())), near, far)
+                write_view(folder, view, rendered, png_scale, params.acc_threshold, bounds["to_sfm"])
+                views.append(view)
+                accs.append(float(rendered["acc"].mean()))
+                advance(1, info=name)
+        DepthIndex(views, png_scale, bounds["to_sfm"], params.acc_threshold).save(out / "depth.json")
+        seconds = time.perf_counter() - started
+        ctx.log.info("export_depth: %d views in %.0f s -> %s", len(views), seconds, folder)
+        return {
+            "views": len(views),
+            "train_views": sum(v.role == "train" for v in views),
+            "heldout_views": sum(v.role == "heldout" for v in views),
+            "width": views[0].width if views else 0,
+            "height": views[0].height if views else 0,
+            "seconds_per_view": round(seconds / max(len(views), 1), 3),
+            "mean_acc": round(float(np.mean(accs)), 4) if accs else 0.0,
+        }

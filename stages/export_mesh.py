@@ -1,0 +1,147 @@
+"""export_mesh: a coloured triangle mesh of the trained field, as PLY, OBJ and GLB in the original SfM frame.
+
+Methods:
+
+- ``marching_cubes`` (default): the surface where the density crosses ``density_threshold``, on a grid of
+  ``resolution`` voxels along the longest side of the scene box (of the NDC cube for forward-facing
+  captures), evaluated block by block so memory stays bounded; vertex colours are rendered from the
+  field, looking at each vertex against its normal.
+- ``tsdf``: TSDF fusion of the rendered depth and colour of the training views (Open3D).
+
+With ``poisson``, a screened Poisson surface of the exported point cloud is written beside it
+(``mesh_poisson.*``). Every mesh loses its small disconnected pieces and is simplified to ``target_faces``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
+from nerfpipe.stages.train import resolve_device
+
+FORMATS = (".ply", ".obj", ".glb")
+
+
+@dataclass(frozen=True)
+class ExportMeshParams:
+    method: Literal["marching_cubes", "tsdf"] = field(default="marching_cubes", metadata={"help": "marching cubes on the density, or TSDF fusion of the rendered depth"})
+    resolution: int = field(default=256, metadata={"help": "voxels along the longest side of the box (both methods)"})
+    density_threshold: float = field(default=25.0, metadata={"help": "marching cubes: the density of the surface (per normalized unit)"})
+    block: int = field(default=64, metadata={"help": "marching cubes: voxels per block side; memory grows with its cube, not the resolution's"})
+    truncation: float = field(default=4.0, metadata={"help": "tsdf: truncation distance in voxels"})
+    acc_threshold: float = field(default=0.9, metadata={"help": "tsdf: fuse pixels whose accumulated opacity reaches this"})
+    poisson: bool = field(default=False, metadata={"help": "also a screened Poisson surface of the point cloud (mesh_poisson.*)"})
+    poisson_depth: int = field(default=8, metadata={"help": "Poisson octree depth"})
+    min_component: float = field(default=0.05, metadata={"help": "drop connected pieces with fewer triangles than this fraction of the largest"})
+    target_faces: int = field(default=200_000, metadata={"help": "simplify to at most this many triangles (0: keep all)"})
+    device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
+
+    def __post_init__(self) -> None:
+        for name in ("resolution", "block", "poisson_depth"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("density_threshold", "truncation", "min_component", "target_faces"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not 0 <= self.acc_threshold <= 1:
+            raise ValueError(f"acc_threshold must be in [0, 1], got {self.acc_threshold}")
+
+
+class ExportMeshStage(Stage):
+    """Triangle mesh (marching cubes or TSDF fusion; optional Poisson) as PLY, OBJ and GLB in the SfM frame."""
+
+    name = "export_mesh"
+    version = 1
+    Params = ExportMeshParams
+    presets = {
+        "preview": {"resolution": 128, "target_faces": 50_000},
+        "fine": {"resolution": 512, "target_faces": 1_000_000},
+        "tsdf": {"method": "tsdf"},
+    }
+    requires = ("model", "model_json", "bounds", "depth", "depth_index", "points")
+    provides = {"mesh": "mesh.ply", "mesh_obj": "mesh.obj", "mesh_glb": "mesh.glb"}
+    libraries = ("torch", "numpy", "open3d")
+
+    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
+        s = manifest.get("summary", {})
+        if "faces" not in s:
+            return []
+        lines = [f"{s['method']}: {s['faces']} triangles, {s['vertices']} vertices ({s['components_kept']} of "
+                 f"{s['components']} pieces kept) at voxel {s['voxel']:.4g}, {s['seconds']:.0f} s"]
+        if s.get("poisson_faces") is not None:
+            lines.append(f"poisson: {s['poisson_faces']} triangles")
+        return lines
+
+    def run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext) -> dict[str, Any]:
+        from nerfpipe.export.depth import DepthIndex, read_view
+        from nerfpipe.export.mesh import (
+            Grid, clean, marching_cubes, poisson, surface_colors, transformed, tsdf_fusion, vertex_normals, write_mesh,
+        )
+        from nerfpipe.export.points import apply_similarity, read_ply, rotate_normals, to_open3d
+        from nerfpipe.nerf.cpu import flush_denormals
+        from nerfpipe.nerf.model import RadianceModel
+
+        import torch
+
+        started = time.perf_counter()
+        bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
+        lo, hi = np.asarray(bounds["scene_box"][0]), np.asarray(bounds["scene_box"][1])
+        device = resolve_device(params.device)
+        model = RadianceModel.load(inputs["model"].parent, device)
+        far = max(f["far"] for f in bounds["frames"])
+        with flush_denormals() if device.type == "cpu" else contextlib.nullcontext():
+            if params.method == "marching_cubes":
+                box = model.ray_space.field_box(far) or (tuple(lo), tuple(hi))
+                grid = Grid.over(box[0], box[1], params.resolution)
+                field = model.fine if model.fine is not None else model.coarse
+                ctx.log.info("export_mesh: marching cubes on %s voxels of %.4g at density %g",
+                             "x".join(map(str, grid.cells)), grid.voxel, params.density_threshold)
+                mesh = marching_cubes(field.query_density, grid, params.density_threshold, params.block, device=device)
+                if model.ray_space.ndc:
+                    mesh.vertices = model.ray_space.from_field(torch.as_tensor(mesh.vertices)).numpy()
+                # NDC voxels vary in world size: the scene box's share stands in for them
+                voxel = float((hi - lo).max()) / params.resolution if model.ray_space.ndc else grid.voxel
+            else:
+                index = DepthIndex.load(inputs["depth_index"])
+                views = [(read_view(inputs["depth"], v), v.K(), np.asarray(v.c2w)) for v in index.views if v.role == "train"]
+                voxel = float((hi - lo).max()) / params.resolution
+                ctx.log.info("export_mesh: TSDF fusion of %d views at voxel %.4g", len(views), voxel)
+                mesh = tsdf_fusion(views, (lo, hi), voxel, params.truncation * voxel, params.acc_threshold, far)
+            if mesh.faces == 0:
+                raise StageError(f"export_mesh: {params.method} found no surface; "
+                                 + ("lower export_mesh.density_threshold" if params.method == "marching_cubes"
+                                    else "lower export_mesh.acc_threshold") + " or train longer")
+            mesh, report = clean(mesh, params.min_component, params.target_faces)
+            if params.method == "marching_cubes":
+                mesh.colors = surface_colors(model, mesh.vertices, vertex_normals(mesh), 2 * voxel)
+        in_sfm = transformed(mesh, bounds["to_sfm"])
+        for suffix in FORMATS:
+            write_mesh(in_sfm, out / f"mesh{suffix}")
+        summary: dict[str, Any] = {
+            "method": params.method, "faces": mesh.faces, "vertices": len(mesh.vertices), "voxel": voxel,
+            "components": report.components, "components_kept": report.components_kept,
+            "faces_before_cleaning": report.faces_before, "poisson_faces": None,
+        }
+        if params.poisson:
+            points = read_ply(inputs["points"])
+            to_world = bounds["to_world"]
+            points.xyz = apply_similarity(to_world, points.xyz)
+            if points.normals is not None:
+                points.normals = rotate_normals(to_world, points.normals)
+            surface = poisson(to_open3d(points), params.poisson_depth, box=(lo, hi))
+            surface, _ = clean(surface, params.min_component, params.target_faces)
+            for suffix in FORMATS:
+                write_mesh(transformed(surface, bounds["to_sfm"]), out / f"mesh_poisson{suffix}")
+            summary["poisson_faces"] = surface.faces
+        summary["seconds"] = round(time.perf_counter() - started, 2)
+        ctx.log.info("export_mesh: %d triangles -> %s", mesh.faces, out / "mesh.ply")
+        return summary
+

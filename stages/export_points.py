@@ -1,0 +1,98 @@
+"""export_points: a coloured, oriented point cloud from the rendered depth of the training views, and the
+SfM sparse cloud, both as PLY in the original SfM frame.
+
+Pixels whose accumulated opacity reaches ``acc_threshold`` are back-projected with their expected depth
+and rendered colour; the union is down-sampled on a voxel grid (grown until at most ``target_points``
+remain), cleared of statistical outliers, and given normals from its neighbours, oriented towards the
+cameras that saw them (Open3D).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nerfpipe.geometry.cameras import CameraSet
+from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
+
+
+@dataclass(frozen=True)
+class ExportPointsParams:
+    acc_threshold: float = field(default=0.9, metadata={"help": "back-project pixels whose accumulated opacity reaches this"})
+    voxel: float = field(default=0.0, metadata={"help": "smallest down-sampling voxel in normalized units (0: scene box diagonal / 1000)"})
+    target_points: int = field(default=200_000, metadata={"help": "grow the voxel until at most this many points remain (0: no limit)"})
+    outlier_neighbors: int = field(default=20, metadata={"help": "neighbours of the statistical outlier test"})
+    outlier_std: float = field(default=2.0, metadata={"help": "drop points whose mean neighbour distance is this many std above the mean"})
+    crop_to_box: bool = field(default=True, metadata={"help": "keep points inside the scene box only (bounded scenes)"})
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.acc_threshold <= 1:
+            raise ValueError(f"acc_threshold must be in [0, 1], got {self.acc_threshold}")
+        for name in ("voxel", "outlier_std"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("target_points", "outlier_neighbors"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+
+
+class ExportPointsStage(Stage):
+    """Point cloud from rendered depth (PLY, SfM frame), plus the SfM sparse cloud."""
+
+    name = "export_points"
+    version = 1
+    Params = ExportPointsParams
+    presets = {"dense": {"target_points": 1_000_000}, "preview": {"target_points": 50_000}}
+    requires = ("depth", "depth_index", "bounds", "scene", "sfm_model")
+    provides = {"points": "points.ply"}
+    libraries = ("numpy", "open3d")
+
+    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
+        s = manifest.get("summary", {})
+        if "points" not in s:
+            return []
+        sparse = f"; SfM sparse cloud: {s['sparse_points']} points" if s.get("sparse_points") else "; no SfM sparse points"
+        return [f"{s['points']} points from {s['views']} training views ({s['raw_points']} back-projected, voxel "
+                f"{s['voxel']:.4g}){sparse}"]
+
+    def run(self, inputs: StageInputs, out: Path, params: ExportPointsParams, ctx: StageContext) -> dict[str, Any]:
+        from nerfpipe.export.depth import DepthIndex, read_view
+        from nerfpipe.export.points import Cloud, clean_cloud, cloud_to_sfm, views_to_points, write_ply
+
+        index = DepthIndex.load(inputs["depth_index"])
+        bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
+        scene = json.loads(inputs["scene"].read_text(encoding="utf-8"))
+        train = [v for v in index.views if v.role == "train"]
+        if not train:
+            raise StageError("export_points: the depth export holds no training views; "
+                             "run it with --set export_depth.views=all")
+        views = [(read_view(inputs["depth"], v), v.K(), np.asarray(v.c2w)) for v in train]
+        box = bounds["scene_box"] if params.crop_to_box and scene["layout"]["value"] == "inward360" else None
+        cloud, _ = views_to_points(views, params.acc_threshold, box)
+        if len(cloud) == 0:
+            raise StageError(f"export_points: no pixel of {len(train)} views reaches opacity {params.acc_threshold}; "
+                             "lower export_points.acc_threshold or train longer")
+        lo, hi = np.asarray(bounds["scene_box"][0]), np.asarray(bounds["scene_box"][1])
+        voxel = params.voxel or float(np.linalg.norm(hi - lo)) / 1000
+        cleaned, report = clean_cloud(cloud, voxel, params.target_points, params.outlier_neighbors, params.outlier_std)
+        write_ply(out / "points.ply", cloud_to_sfm(cleaned, bounds["to_sfm"]))
+        ctx.log.info("export_points: %d points (%d back-projected from %d views) -> %s", len(cleaned), len(cloud),
+                     len(train), out / "points.ply")
+
+        sparse = CameraSet.load(inputs["sfm_model"]).points
+        sparse_count = 0
+        if sparse is not None and len(sparse.xyz):
+            rgb = np.asarray(sparse.rgb, dtype=np.float64)
+            write_ply(out / "sparse.ply", Cloud(np.asarray(sparse.xyz, dtype=np.float64), rgb / 255.0 if rgb.max() > 1 else rgb))
+            sparse_count = len(sparse.xyz)
+        else:
+            ctx.log.info("export_points: the poses came without sparse points, so there is no sparse.ply")
+        return {
+            "points": len(cleaned), "raw_points": len(cloud), "views": len(train), "voxel": report.voxel,
+            "after_voxel": report.after_voxel, "sparse_points": sparse_count, "acc_threshold": params.acc_threshold,
+        }
