@@ -145,6 +145,59 @@ def status(
                 out_console.print(f"{s.name}: {escape(line)}", highlight=False, soft_wrap=True)
 
 
+VIEW_KINDS = ("mesh", "points", "cameras")
+
+
+@app.command()
+def view(
+    run_dir: Path = typer.Argument(..., help="Run directory of an earlier `nerfpipe run`."),
+    kind: str = typer.Argument(
+        "mesh", metavar="mesh|points|cameras",
+        help="The exported mesh, the exported point cloud, or the SfM cameras and sparse points; frusta always.",
+    ),
+    debug: bool = DebugOption,
+) -> None:
+    """Look at a run's mesh, point cloud or cameras; with no display, write RUN_DIR/view_<kind>.png instead."""
+    _setup_logging(debug)
+    import difflib
+
+    from nerfpipe.export import screenshot as shot
+    from nerfpipe.geometry.cameras import CameraSet
+    from nerfpipe.pipeline import Committed, InputError, ParamError
+
+    with _user_errors(debug):
+        if kind not in VIEW_KINDS:
+            close = difflib.get_close_matches(kind, VIEW_KINDS, n=1)
+            hint = f"did you mean {close[0]}?" if close else f"choose one of {', '.join(VIEW_KINDS)}"
+            raise ParamError(f"unknown view {kind!r}; {hint}")
+        pipe = Pipeline.from_run_dir(default_stages(), run_dir)
+
+        def result_of(stage: str, what: str) -> Committed:
+            # export stages may be missing from this nerfpipe (older version): say so rather than "unknown stage"
+            result = pipe.result(stage) if stage in pipe.dag.stages else None
+            if result is None:
+                raise InputError(
+                    run_dir, f"has no {what} for its current settings",
+                    f"run `nerfpipe run {pipe.source} --out {run_dir} --until {stage}` first",
+                )
+            return result
+
+        sfm = CameraSet.load(result_of("sfm", "SfM cameras").path / "model")
+        mesh = points = None
+        if kind == "mesh":
+            found = result_of("export_mesh", "exported mesh")
+            mesh = shot.load_mesh(found.path / pipe.dag.stages["export_mesh"].provides["mesh"])
+        elif kind == "points":
+            found = result_of("export_points", "exported point cloud")
+            points = shot.load_points(found.path / pipe.dag.stages["export_points"].provides["points"])
+        else:
+            points = shot.sparse_points(sfm)
+        path = shot.show(mesh, points, shot.cameras_of(sfm), screenshot_path=run_dir / f"view_{kind}.png",
+                         title=f"nerfpipe {kind}: {run_dir}")
+    if path is not None:
+        out_console.print(f"no display: wrote a screenshot to {escape(str(path))}", highlight=False, soft_wrap=True)
+
+
 @app.command()
 def stages() -> None:
     """The stage graph, with each stage's parameters, defaults and presets."""

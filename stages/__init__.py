@@ -8,6 +8,7 @@ from nerfpipe.stages.export_depth import ExportDepthParams, ExportDepthStage
 from nerfpipe.stages.export_mesh import ExportMeshParams, ExportMeshStage
 from nerfpipe.stages.export_points import ExportPointsParams, ExportPointsStage
 from nerfpipe.stages.ingest import IngestParams, IngestStage
+from nerfpipe.stages.render import RenderParams, RenderStage
 from nerfpipe.stages.scene import SceneParams, SceneStage
 from nerfpipe.stages.sfm import SfmParams, SfmStage
 from nerfpipe.stages.train import TrainParams, TrainStage
@@ -18,12 +19,12 @@ def default_stages() -> list[Stage]:
     """The stages `nerfpipe run` chains, in declaration order."""
     return [
         IngestStage(), SfmStage(), UndistortStage(), BoundsStage(), SceneStage(), TrainStage(),
-        ExportDepthStage(), ExportPointsStage(), ExportMeshStage(),
+        ExportDepthStage(), ExportPointsStage(), ExportMeshStage(), RenderStage(),
     ]
 
 
 __all__ = [
     "BoundsParams", "BoundsStage", "ExportDepthParams", "ExportDepthStage", "ExportMeshParams", "ExportMeshStage",
-    "ExportPointsParams", "ExportPointsStage", "IngestParams", "IngestStage", "SceneParams", "SceneStage", "SfmParams",
+    "ExportPointsParams", "ExportPointsStage", "RenderParams", "RenderStage", "IngestParams", "IngestStage", "SceneParams", "SceneStage", "SfmParams",
     "SfmStage", "TrainParams", "TrainStage", "UndistortParams", "UndistortStage", "default_stages",
 ]

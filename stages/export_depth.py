@@ -67,10 +67,16 @@ class ExportDepthStage(Stage):
                 f"{s['width']}x{s['height']}, {s['seconds_per_view']:.1f} s each; mean opacity {s['mean_acc']:.2f}"]
 
     def run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:
+        from nerfpipe.nerf.cpu import flush_denormals
+
+        # before any torch work, so that its CPU threads flush denormals too (see nerf.cpu)
+        with flush_denormals() if resolve_device(params.device).type == "cpu" else contextlib.nullcontext():
+            return self._run(inputs, out, params, ctx)
+
+    def _run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:
         import numpy as np
 
         from nerfpipe.export.depth import DepthIndex, DepthView, png_scale_for, write_view
-        from nerfpipe.nerf.cpu import flush_denormals
         from nerfpipe.nerf.model import RadianceModel
 
         device = resolve_device(params.device)
@@ -92,10 +98,7 @@ class ExportDepthStage(Stage):
         png_scale = png_scale_for(max(far for _, far in near_far.values()))
         views, accs = [], []
         started = time.perf_counter()
-        with contextlib.ExitStack() as stack:
-            if device.type == "cpu":
-                stack.enter_context(flush_denormals())
-            advance = stack.enter_context(ctx.progress(len(wanted), "export depth"))
+        with ctx.progress(len(wanted), "export depth") as advance:
             for role, name in wanted:
                 frame = by_name[name]
                 camera = world.camera_of(frame)

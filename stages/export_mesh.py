@@ -81,12 +81,18 @@ class ExportMeshStage(Stage):
         return lines
 
     def run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext) -> dict[str, Any]:
+        from nerfpipe.nerf.cpu import flush_denormals
+
+        # before any torch work, so that its CPU threads flush denormals too (see nerf.cpu)
+        with flush_denormals() if resolve_device(params.device).type == "cpu" else contextlib.nullcontext():
+            return self._run(inputs, out, params, ctx)
+
+    def _run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext) -> dict[str, Any]:
         from nerfpipe.export.depth import DepthIndex, read_view
         from nerfpipe.export.mesh import (
             Grid, clean, marching_cubes, poisson, surface_colors, transformed, tsdf_fusion, vertex_normals, write_mesh,
         )
         from nerfpipe.export.points import apply_similarity, read_ply, rotate_normals, to_open3d
-        from nerfpipe.nerf.cpu import flush_denormals
         from nerfpipe.nerf.model import RadianceModel
 
         import torch
@@ -97,31 +103,30 @@ class ExportMeshStage(Stage):
         device = resolve_device(params.device)
         model = RadianceModel.load(inputs["model"].parent, device)
         far = max(f["far"] for f in bounds["frames"])
-        with flush_denormals() if device.type == "cpu" else contextlib.nullcontext():
-            if params.method == "marching_cubes":
-                box = model.ray_space.field_box(far) or (tuple(lo), tuple(hi))
-                grid = Grid.over(box[0], box[1], params.resolution)
-                field = model.fine if model.fine is not None else model.coarse
-                ctx.log.info("export_mesh: marching cubes on %s voxels of %.4g at density %g",
-                             "x".join(map(str, grid.cells)), grid.voxel, params.density_threshold)
-                mesh = marching_cubes(field.query_density, grid, params.density_threshold, params.block, device=device)
-                if model.ray_space.ndc:
-                    mesh.vertices = model.ray_space.from_field(torch.as_tensor(mesh.vertices)).numpy()
-                # NDC voxels vary in world size: the scene box's share stands in for them
-                voxel = float((hi - lo).max()) / params.resolution if model.ray_space.ndc else grid.voxel
-            else:
-                index = DepthIndex.load(inputs["depth_index"])
-                views = [(read_view(inputs["depth"], v), v.K(), np.asarray(v.c2w)) for v in index.views if v.role == "train"]
-                voxel = float((hi - lo).max()) / params.resolution
-                ctx.log.info("export_mesh: TSDF fusion of %d views at voxel %.4g", len(views), voxel)
-                mesh = tsdf_fusion(views, (lo, hi), voxel, params.truncation * voxel, params.acc_threshold, far)
-            if mesh.faces == 0:
-                raise StageError(f"export_mesh: {params.method} found no surface; "
-                                 + ("lower export_mesh.density_threshold" if params.method == "marching_cubes"
-                                    else "lower export_mesh.acc_threshold") + " or train longer")
-            mesh, report = clean(mesh, params.min_component, params.target_faces)
-            if params.method == "marching_cubes":
-                mesh.colors = surface_colors(model, mesh.vertices, vertex_normals(mesh), 2 * voxel)
+        if params.method == "marching_cubes":
+            box = model.ray_space.field_box(far) or (tuple(lo), tuple(hi))
+            grid = Grid.over(box[0], box[1], params.resolution)
+            field = model.fine if model.fine is not None else model.coarse
+            ctx.log.info("export_mesh: marching cubes on %s voxels of %.4g at density %g",
+                         "x".join(map(str, grid.cells)), grid.voxel, params.density_threshold)
+            mesh = marching_cubes(field.query_density, grid, params.density_threshold, params.block, device=device)
+            if model.ray_space.ndc:
+                mesh.vertices = model.ray_space.from_field(torch.as_tensor(mesh.vertices)).numpy()
+            # NDC voxels vary in world size: the scene box's share stands in for them
+            voxel = float((hi - lo).max()) / params.resolution if model.ray_space.ndc else grid.voxel
+        else:
+            index = DepthIndex.load(inputs["depth_index"])
+            views = [(read_view(inputs["depth"], v), v.K(), np.asarray(v.c2w)) for v in index.views if v.role == "train"]
+            voxel = float((hi - lo).max()) / params.resolution
+            ctx.log.info("export_mesh: TSDF fusion of %d views at voxel %.4g", len(views), voxel)
+            mesh = tsdf_fusion(views, (lo, hi), voxel, params.truncation * voxel, params.acc_threshold, far)
+        if mesh.faces == 0:
+            raise StageError(f"export_mesh: {params.method} found no surface; "
+                             + ("lower export_mesh.density_threshold" if params.method == "marching_cubes"
+                                else "lower export_mesh.acc_threshold") + " or train longer")
+        mesh, report = clean(mesh, params.min_component, params.target_faces)
+        if params.method == "marching_cubes":
+            mesh.colors = surface_colors(model, mesh.vertices, vertex_normals(mesh), 2 * voxel)
         in_sfm = transformed(mesh, bounds["to_sfm"])
         for suffix in FORMATS:
             write_mesh(in_sfm, out / f"mesh{suffix}")

@@ -63,7 +63,6 @@ def rendered_views() -> list[tuple[dict[str, np.ndarray], np.ndarray, np.ndarray
 
 
 def test_exported_depth_is_the_ray_sphere_intersection_within_half_a_sample_spacing(rendered_views, tmp_path):
-    model = sphere_model(n_fine=0)
     spacing = (FAR - NEAR) / N_COARSE  # box clipping only shortens rays, so samples are at least this dense
     for rendered, _, c2w in rendered_views[:3]:
         truth = analytic_depth(c2w)

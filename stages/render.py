@@ -1,0 +1,247 @@
+"""render: novel views of the trained model along a path that suits the scene, as PNG frames and MP4s.
+
+A forward-facing capture is only seen from the front, so its video follows LLFF's spiral around the mean
+camera (the path of the NeRF paper's forward-facing videos); a 360° capture gets an orbit around the scene
+box centre at the distance and elevation of its photos (``nerfpipe.export.paths``). Each frame is rendered
+with the first training camera's intrinsics, scaled by ``scale``: far from every photo, a new view is still
+seen through the lens the model was trained on.
+
+Writes ``frames/rgb_0000.png`` ... and ``frames/depth_0000.png`` ... (depth coloured as
+``nerfpipe.export.video`` documents), ``render.mp4`` and ``depth.mp4``, and ``camera_path.json``: the
+intrinsics and every pose, in the normalized world and in the SfM frame (through bounds' ``to_sfm``), so
+the same path can be rendered again or brought into another tool. Linear RAW models are sRGB-encoded on
+the way out, as their previews in train are.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator, Literal
+
+import numpy as np
+
+from nerfpipe.geometry.cameras import Camera, CameraSet
+from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
+from nerfpipe.pipeline.store import write_json_atomic
+
+# Percentiles of the first frame's depth (over pixels with a surface) that set the colour range of the
+# depth video: one range for all frames, so a colour means the same depth throughout, without the far
+# bound of an unbounded scene squeezing the object into one colour. The same rule serves whatever depth
+# ``render_image`` gives (world depth, or a forward-facing model's NDC t' = 1 - near / z, coloured as is):
+# both grow with distance, so near stays red and far blue.
+DEPTH_RANGE_PERCENTILES = (2.0, 98.0)
+
+
+@dataclass(frozen=True)
+class RenderParams:
+    frames: int = field(default=40, metadata={"help": "frames along the path"})
+    fps: float = field(default=20.0, metadata={"help": "frames per second of the videos"})
+    scale: float = field(default=0.5, metadata={"help": "render size relative to the first training camera (0.5: half width and height)"})
+    max_side: int = field(default=160, metadata={"help": "cap on the longest side of the render in pixels, after scale (0: none)"})
+    path: Literal["auto", "spiral", "orbit"] = field(
+        default="auto", metadata={"help": "camera path; auto: spiral for forward-facing scenes, orbit for 360° ones"}
+    )
+    n_rotations: float = field(default=2.0, metadata={"help": "spiral: turns around the mean camera (LLFF: 2)"})
+    elevation: str = field(default="auto", metadata={"help": "orbit: degrees above the target, or auto (the cameras' mean)"})
+    chunk: int = field(default=4096, metadata={"help": "rays per chunk while rendering"})
+    device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
+
+    def __post_init__(self) -> None:
+        for name in ("frames", "chunk"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not self.fps > 0:
+            raise ValueError(f"fps must be > 0, got {self.fps}")
+        if not 0 < self.scale <= 4:
+            raise ValueError(f"scale must be in (0, 4], got {self.scale}")
+        if self.max_side < 0 or self.max_side == 1:
+            raise ValueError(f"max_side must be 0 (no cap) or at least 2, got {self.max_side}")
+        if not self.n_rotations > 0:
+            raise ValueError(f"n_rotations must be > 0, got {self.n_rotations}")
+        if self.elevation != "auto":
+            try:
+                degrees = float(self.elevation)
+            except ValueError:
+                raise ValueError(f"elevation must be auto or degrees, got {self.elevation!r}") from None
+            if not -90 < degrees < 90:
+                raise ValueError(f"elevation must be in (-90, 90) degrees, got {degrees}")
+
+    def elevation_degrees(self) -> float | None:
+        return None if self.elevation == "auto" else float(self.elevation)
+
+
+# The defaults keep a CPU render short: the train stage's cpu-preset model (4 x 128 MLP, 32 + 64 samples)
+# renders about 3,500 pixels a second on 2 cores, so 40 frames of at most 160 x 120 take about 4 minutes
+# (half of 1600 px photos, ingest's default, would be 800 x 600: over two minutes a frame).
+# The preview: 12 frames of at most 96 x 72, about half a minute.
+PREVIEW = {"frames": 12, "scale": 0.25, "max_side": 96}
+FULL = {"frames": 120, "scale": 1.0, "max_side": 0}
+
+
+def render_size(camera: Camera, scale: float, max_side: int = 0) -> tuple[int, int]:
+    """(width, height) of the renders: the camera's size times ``scale``, shrunk to fit ``max_side`` (0: no
+    cap) with its aspect kept, rounded to even numbers (MPEG-4 encodes 2x2 chroma blocks and would
+    otherwise crop or pad the video), at least 2 x 2."""
+    width, height = camera.width * scale, camera.height * scale
+    if max_side and max(width, height) > max_side:
+        shrink = max_side / max(width, height)
+        width, height = width * shrink, height * shrink
+    return (max(2, 2 * round(width / 2)), max(2, 2 * round(height / 2)))
+
+
+class RenderStage(Stage):
+    """Render novel views along a spiral (forward-facing) or an orbit (360°): PNG frames, MP4s, the path."""
+
+    name = "render"
+    version = 1
+    Params = RenderParams
+    presets = {
+        "preview": PREVIEW,
+        "draft": PREVIEW,  # with ingest's and the others' draft: a quick run end to end
+        # the length of the NeRF paper's videos (120 frames), at the training resolution
+        "full": FULL,
+        "paper": FULL,
+    }
+    requires = ("model", "model_json", "world", "bounds", "scene")
+    provides = {"video": "render.mp4", "depth_video": "depth.mp4", "frames": "frames", "camera_path": "camera_path.json"}
+    libraries = ("torch", "numpy", "opencv-contrib-python-headless", "matplotlib")
+
+    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
+        s = manifest.get("summary", {})
+        if "frames" not in s:
+            return []
+        width, height = s["resolution"]
+        return [
+            (f"{s['frames']} frames of {width}x{height} at {s['fps']:g} fps, {s['seconds_per_frame']:.2f} s a frame "
+             f"on {s['device']}"),
+            f"path: {s['path']}",
+        ]
+
+    def run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext) -> dict[str, Any]:
+        import torch
+
+        from nerfpipe.nerf.cpu import flush_denormals, keep_freed_memory
+        from nerfpipe.stages.train import resolve_device
+
+        if params.device == "cuda" and not torch.cuda.is_available():
+            raise StageError("render.device=cuda but torch sees no CUDA device; use render.device=auto or cpu")
+        device = resolve_device(params.device)
+        with contextlib.ExitStack() as cpu_settings:
+            if device.type == "cpu":
+                # the same settings as train, for the same reasons: the render is the same MLP on the CPU
+                keep_freed_memory()
+                cpu_settings.enter_context(flush_denormals())
+            return self._run(inputs, out, params, ctx, device)
+
+    def _run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext, device) -> dict[str, Any]:
+        from nerfpipe.export.paths import path_for_scene, transform_poses
+        from nerfpipe.export.video import colorize_depth, write_mp4
+        from nerfpipe.nerf.model import RadianceModel
+        from nerfpipe.stages.ingest import write_png
+        from nerfpipe.stages.train import srgb_encode
+
+        # model.pt and model.json sit side by side in the train stage's folder
+        model = RadianceModel.load(inputs["model"].parent, device)
+        world = CameraSet.load(inputs["world"])
+        bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
+        scene = json.loads(inputs["scene"].read_text(encoding="utf-8"))
+        if not world.frames:
+            raise StageError("render: the normalized world has no cameras to build a path from; check the bounds stage")
+
+        layout = scene["layout"]["value"]
+        c2ws = np.array([f.c2w for f in world.frames])
+        near, far = float(bounds["near"]), float(bounds["far"])
+        lo, hi = np.asarray(bounds["scene_box"][0], dtype=np.float64), np.asarray(bounds["scene_box"][1], dtype=np.float64)
+        try:
+            poses, description = path_for_scene(layout, c2ws, near, far, (lo + hi) / 2.0, params.frames,
+                                                kind=params.path, n_rotations=params.n_rotations,
+                                                elevation=params.elevation_degrees())
+        except ValueError as err:
+            raise StageError(f"render: cannot build the {params.path} camera path of this capture: {err}") from None
+        ctx.log.info("render: %s", description)
+
+        camera = world.camera_of(world.frames[0])
+        width, height = render_size(camera, params.scale, params.max_side)
+        scaled = camera.scaled(width / camera.width, height / camera.height)
+        intrinsics = (scaled.fx, scaled.fy, scaled.cx, scaled.cy)
+        linear = model.info.get("photometric") == "linear_raw"
+        ctx.log.info("render: %d frames of %dx%d (the camera of %s scaled by %.3g) on %s", params.frames, width,
+                     height, world.frames[0].name, width / camera.width, device)
+
+        folder = out / "frames"
+        folder.mkdir(parents=True, exist_ok=True)
+        depth_range: tuple[float, float] | None = None
+        started = time.perf_counter()
+        with ctx.progress(len(poses), "render") as advance:
+            for i, c2w in enumerate(poses):
+                began = time.perf_counter()
+                result = model.render_image(intrinsics, c2w, width, height, near, far, params.chunk)
+                rgb = result["rgb"].clamp(0.0, 1.0).numpy()
+                depth, acc = result["depth"].numpy(), result["acc"].numpy()
+                if depth_range is None:
+                    depth_range = depth_colour_range(depth, acc, near, far)
+                shown = srgb_encode(rgb) if linear else rgb
+                write_png(folder / f"rgb_{i:04d}.png", np.round(np.clip(shown, 0.0, 1.0) * 255).astype(np.uint8))
+                write_png(folder / f"depth_{i:04d}.png", colorize_depth(depth, acc, *depth_range))
+                advance(1, info=f"frame {i + 1}: {time.perf_counter() - began:.1f} s")
+        seconds = time.perf_counter() - started
+
+        count = write_mp4(read_frames(folder, "rgb", len(poses)), out / "render.mp4", params.fps)
+        write_mp4(read_frames(folder, "depth", len(poses)), out / "depth.mp4", params.fps)
+
+        to_sfm = np.asarray(model.info.get("to_sfm", bounds["to_sfm"]), dtype=np.float64)
+        sfm_poses = transform_poses(poses, to_sfm)
+        write_json_atomic(out / "camera_path.json", {
+            "convention": "opencv c2w (x right, y down, z forward); COLMAP intrinsics, pixel centres at +0.5",
+            "path": description,
+            "layout": layout,
+            "fps": params.fps,
+            "camera": scaled.to_json(),
+            "near": near,
+            "far": far,
+            "depth_colours": {"range": list(depth_range) if depth_range is not None else None,
+                              "map": "turbo, red at the range's start to blue at its end, black where acc < 0.5"},
+            "to_sfm": to_sfm.tolist(),
+            "frames": [
+                {"rgb": f"frames/rgb_{i:04d}.png", "depth": f"frames/depth_{i:04d}.png", "c2w": pose.tolist(),
+                 "c2w_sfm": sfm_pose.tolist()}
+                for i, (pose, sfm_pose) in enumerate(zip(poses, sfm_poses))
+            ],
+        })
+        per_frame = seconds / max(len(poses), 1)
+        ctx.log.info("render: %d frames in %.1f s (%.2f s a frame) -> render.mp4, depth.mp4", count, seconds, per_frame)
+        return {
+            "frames": count,
+            "path": description,
+            "seconds_per_frame": round(per_frame, 3),
+            "resolution": [width, height],
+            "fps": params.fps,
+            "device": str(device),
+            "depth_range": [round(v, 6) for v in depth_range] if depth_range is not None else None,
+        }
+
+
+def depth_colour_range(depth: np.ndarray, acc: np.ndarray, near: float, far: float) -> tuple[float, float]:
+    """The colour range of a depth video from its first frame (H, W): the ``DEPTH_RANGE_PERCENTILES`` of
+    depth where there is a surface (acc >= 0.5); the bounds' [near, far] when that frame shows none."""
+    from nerfpipe.export.video import EMPTY_ACC
+
+    surface = depth[(acc >= EMPTY_ACC) & np.isfinite(depth)]
+    if surface.size:
+        lo, hi = (float(v) for v in np.percentile(surface, DEPTH_RANGE_PERCENTILES))
+        if hi > lo:
+            return lo, hi
+    return near, far
+
+
+def read_frames(folder: Path, kind: str, count: int) -> Iterator[np.ndarray]:
+    """The written PNGs ``<kind>_0000.png`` ... back, one at a time, so a video never holds every frame in memory."""
+    from nerfpipe.stages.undistort import read_png
+
+    for i in range(count):
+        yield read_png(folder / f"{kind}_{i:04d}.png")

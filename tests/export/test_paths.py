@@ -1,0 +1,187 @@
+"""Camera paths: orbits look at their target from one distance and height, upright; spirals stay within the
+spread of a forward-facing rig and look at LLFF's focus point; the layout picks the path."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from helpers import look_at
+from nerfpipe.export.paths import (
+    focus_depth,
+    orbit_of,
+    orbit_path,
+    path_for_scene,
+    spiral_path,
+    spiral_radii,
+    transform_poses,
+)
+from nerfpipe.stages.train import mean_camera
+
+
+def rotation_about(axis: np.ndarray, degrees: float) -> np.ndarray:
+    """(3, 3) Rodrigues rotation."""
+    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    a = np.radians(degrees)
+    return np.eye(3) + np.sin(a) * k + (1 - np.cos(a)) * k @ k
+
+
+def rigid(rotation: np.ndarray, translation) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = rotation
+    out[:3, 3] = translation
+    return out
+
+
+def ring(n: int = 12, radius: float = 2.0, height: float = 0.8) -> np.ndarray:
+    """(n, 4, 4) cameras on a level circle (world z up) looking at the origin."""
+    angles = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    return np.stack([look_at(np.array([radius * np.cos(a), radius * np.sin(a), height]), np.zeros(3)) for a in angles])
+
+
+def grid() -> np.ndarray:
+    """(6, 4, 4) forward-facing cameras on a 3 x 2 grid in the plane y = -3, all looking along +y (world z up)."""
+    return np.stack([look_at(np.array([x, -3.0, z]), np.array([x, 0.0, z])) for x in (-0.2, 0.0, 0.2) for z in (-0.1, 0.1)])
+
+
+def assert_rotations(poses: np.ndarray) -> None:
+    rotations = poses[:, :3, :3]
+    assert np.allclose(rotations.transpose(0, 2, 1) @ rotations, np.eye(3), atol=1e-9)
+    assert np.allclose(np.linalg.det(rotations), 1.0)
+    assert np.allclose(poses[:, 3], [0, 0, 0, 1])
+
+
+# -- orbit --------------------------------------------------------------------------------------------------
+def test_orbit_by_hand_on_a_level_ring() -> None:
+    """Ring at radius 2, height 0.8: distance sqrt(4 + 0.64) = 2.154, elevation atan(0.8 / 2) = 21.80 deg."""
+    c2ws = ring()
+    orbit = orbit_of(c2ws, np.zeros(3))
+    assert np.allclose(orbit.up, [0, 0, 1])
+    assert orbit.radius == pytest.approx(np.sqrt(4.64))
+    assert orbit.elevation == pytest.approx(np.degrees(np.arctan(0.4)))
+    poses = orbit_path(c2ws, np.zeros(3), 8)
+    # the auto orbit of a level ring is the ring itself, starting at its first camera
+    assert np.allclose(poses[0], c2ws[0], atol=1e-9)
+    assert np.allclose(poses[:, 2, 3], 0.8) and np.allclose(np.linalg.norm(poses[:, :2, 3], axis=1), 2.0)
+    # eight equal steps of 45 degrees, counter-clockwise seen from above (+z), closing the loop
+    azimuth = np.degrees(np.arctan2(poses[:, 1, 3], poses[:, 0, 3]))
+    assert np.allclose(np.diff(np.unwrap(np.radians(np.append(azimuth, azimuth[0] + 360.0)), period=2 * np.pi)),
+                       np.radians(45.0))
+
+
+@pytest.mark.parametrize("elevation", [None, 35.0, -20.0])
+def test_orbit_invariants_on_a_tilted_rig(elevation) -> None:
+    """Any rigid motion of the rig: up is found from the cameras, not assumed to be z."""
+    motion = rigid(rotation_about([1.0, -2.0, 0.5], 40.0), [0.3, -1.0, 2.0])
+    rng = np.random.default_rng(0)
+    # cameras at distances 1.5 .. 2.5 and heights 0.3 .. 1.2: the median distance is the radius
+    eyes = [np.array([r * np.cos(a), r * np.sin(a), h]) for r, a, h in
+            zip(rng.uniform(1.5, 2.5, 15), np.linspace(0, 2 * np.pi, 15, endpoint=False), rng.uniform(0.3, 1.2, 15))]
+    c2ws = np.stack([motion @ look_at(e, np.zeros(3)) for e in eyes])
+    target = motion[:3, 3]  # the world origin, moved
+    # up is minus the mean down axis: the moved z, tilted a little where the tilts of uneven cameras do not cancel
+    up = orbit_of(c2ws, target).up
+    assert up @ motion[:3, 2] > np.cos(np.radians(5.0))
+    poses = orbit_path(c2ws, target, 24, elevation)
+
+    assert poses.shape == (24, 4, 4)
+    assert_rotations(poses)
+    offsets = poses[:, :3, 3] - target
+    distances = np.linalg.norm(offsets, axis=1)
+    median = np.median([np.linalg.norm(e) for e in eyes])
+    assert np.allclose(distances, median)
+    heights = offsets @ up
+    assert np.allclose(heights, heights[0])
+    if elevation is not None:
+        assert heights[0] == pytest.approx(median * np.sin(np.radians(elevation)))
+    else:
+        mean_elevation = np.mean([np.degrees(np.arcsin((c2w[:3, 3] - target) @ up / np.linalg.norm(e)))
+                                  for c2w, e in zip(c2ws, eyes)])
+        assert heights[0] == pytest.approx(median * np.sin(np.radians(mean_elevation)))
+    # every camera's z axis points at the target
+    assert np.allclose(poses[:, :3, 2], -offsets / distances[:, None])
+    # upright: y (down in the image) has a negative component along up, and x is level
+    assert np.all(poses[:, :3, 1] @ up < -0.1)
+    assert np.allclose(poses[:, :3, 0] @ up, 0.0, atol=1e-9)
+
+
+def test_orbit_rejects_a_pole_and_bad_input() -> None:
+    with pytest.raises(ValueError, match="elevation"):
+        orbit_path(ring(), np.zeros(3), 4, elevation=90.0)
+    with pytest.raises(ValueError, match="n_frames"):
+        orbit_path(ring(), np.zeros(3), 0)
+    with pytest.raises(ValueError, match=r"\(M, 4, 4\)"):
+        orbit_path(np.eye(4), np.zeros(3), 4)
+
+
+# -- spiral -------------------------------------------------------------------------------------------------
+def test_spiral_radii_and_focus_by_hand() -> None:
+    # |x| over the grid: 0.2, 0.2, 0, 0, 0.2, 0.2 -> 90th percentile 0.2; |y| (world -z) all 0.1; z all 0
+    assert np.allclose(spiral_radii(grid()), [0.2, 0.1, 0.0])
+    assert focus_depth(1.0, 10.0) == pytest.approx(1.0 / (0.25 + 0.075))
+    with pytest.raises(ValueError, match="near"):
+        focus_depth(2.0, 1.0)
+
+
+def test_spiral_stays_near_the_mean_camera_and_looks_at_the_focus() -> None:
+    c2ws = grid()
+    near, far = 1.0, 10.0
+    poses = spiral_path(c2ws, near, far, 30, n_rotations=2)
+    mean = mean_camera(c2ws)
+    radii = spiral_radii(c2ws)
+    assert poses.shape == (30, 4, 4)
+    assert_rotations(poses)
+    local = (poses[:, :3, 3] - mean[:3, 3]) @ mean[:3, :3]
+    assert np.all(np.abs(local) <= radii + 1e-12)
+    # the first frame is at theta 0: (r_x, 0, 0) in the mean camera's frame
+    assert np.allclose(local[0], [0.2, 0.0, 0.0])
+    # it spans the radii: the x and y extremes are reached over the turns
+    assert np.abs(local[:, 0]).max() == pytest.approx(0.2) and np.abs(local[:, 1]).max() == pytest.approx(0.1, rel=0.02)
+    focus = mean[:3, 3] + focus_depth(near, far) * mean[:3, 2]
+    to_focus = focus - poses[:, :3, 3]
+    assert np.allclose(poses[:, :3, 2], to_focus / np.linalg.norm(to_focus, axis=1, keepdims=True))
+    # roughly the mean viewing axis (0.2 off-axis at depth 3.08: within 4 degrees) and the mean down axis
+    assert np.all(poses[:, :3, 2] @ mean[:3, 2] > np.cos(np.radians(4.0)))
+    assert np.all(poses[:, :3, 1] @ mean[:3, 1] > np.cos(np.radians(4.0)))
+    assert np.allclose(poses[:, :3, 0] @ mean[:3, 1], 0.0, atol=1e-9)  # x is perpendicular to the kept down axis
+
+
+def test_paths_move_with_the_rig() -> None:
+    """Two routes to one path: the path of a moved rig equals the moved path of the rig."""
+    motion = rigid(rotation_about([0.2, 1.0, -0.4], 70.0), [1.0, 2.0, -0.5])
+
+    def moved(poses: np.ndarray) -> np.ndarray:
+        return np.einsum("ij,njk->nik", motion, poses)
+
+    assert np.allclose(spiral_path(moved(grid()), 1.0, 10.0, 12), moved(spiral_path(grid(), 1.0, 10.0, 12)))
+    target = np.array([0.1, -0.2, 0.3])
+    assert np.allclose(orbit_path(moved(ring()), motion[:3, :3] @ target + motion[:3, 3], 12),
+                       moved(orbit_path(ring(), target, 12)))
+
+
+# -- choosing and moving ----------------------------------------------------------------------------------
+def test_path_for_scene_picks_per_layout() -> None:
+    poses, text = path_for_scene("forward", grid(), 1.0, 10.0, np.zeros(3), 6)
+    assert text.startswith("spiral (forward scene)") and np.allclose(poses, spiral_path(grid(), 1.0, 10.0, 6))
+    for layout in ("inward360", "unbounded360"):
+        poses, text = path_for_scene(layout, ring(), 0.5, 4.0, np.zeros(3), 6)
+        assert text.startswith(f"orbit ({layout} scene)") and np.allclose(poses, orbit_path(ring(), np.zeros(3), 6))
+    poses, text = path_for_scene("forward", grid(), 1.0, 10.0, np.zeros(3), 6, kind="orbit", elevation=10.0)
+    assert text.startswith("orbit (asked for, forward scene)") and "10.0 deg elevation (given)" in text
+    assert np.allclose(poses, orbit_path(grid(), np.zeros(3), 6, 10.0))
+    with pytest.raises(ValueError, match="layout"):
+        path_for_scene("sideways", grid(), 1.0, 10.0, np.zeros(3), 6)
+
+
+def test_transform_poses_keeps_them_rigid() -> None:
+    # to_sfm = 2 R + t: centres scale and move, rotations only rotate
+    rotation = rotation_about([0.0, 0.0, 1.0], 90.0)
+    similarity = rigid(2.0 * rotation, [1.0, 0.0, -1.0])
+    poses = ring(4)
+    out = transform_poses(poses, similarity)
+    assert_rotations(out)
+    assert np.allclose(out[:, :3, :3], rotation @ poses[:, :3, :3])
+    assert np.allclose(out[:, :3, 3], 2.0 * poses[:, :3, 3] @ rotation.T + [1.0, 0.0, -1.0])
+    back = rigid(rotation.T / 2.0, -rotation.T @ [1.0, 0.0, -1.0] / 2.0)
+    assert np.allclose(transform_poses(out, back), poses)

@@ -1,0 +1,224 @@
+"""The render stage on a model with a known answer: a solid cube built by hand into a small NerfField.
+
+Orbit (inward 360, world rays clipped to the box) and spiral (forward-facing, NDC rays): the frames, the
+videos and the camera path are all written with the right count and size, the cube shows at the centre of
+every frame in its colour (sRGB-encoded for a linear RAW model) and the corners are empty.
+(``nerf.analytic.SphereField`` cannot stand in: ``RadianceModel.save`` / ``load`` only know ``NerfField``.)
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from helpers import look_at
+from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
+from nerfpipe.nerf.field import FieldConfig, NerfField
+from nerfpipe.nerf.model import RadianceModel, RaySpace
+from nerfpipe.nerf.renderer import SamplingConfig
+from nerfpipe.pipeline.errors import ParamError, StageError
+from nerfpipe.pipeline.params import build_params
+from nerfpipe.pipeline.stage import StageContext, StageInputs
+from nerfpipe.stages.render import RenderParams, RenderStage, render_size
+from nerfpipe.stages.train import NDC_NEAR_FACTOR, mean_camera, srgb_encode
+from nerfpipe.stages.undistort import read_png
+
+COLOUR = np.array([0.8, 0.3, 0.1])
+CAMERA = Camera.pinhole(60.0, 60.0, 32.0, 24.0, 64, 48)
+NEAR, FAR = 0.5, 4.0
+
+
+def cube_field(half: tuple[float, float, float], density: float = 100.0, sharpness: float = 1000.0) -> NerfField:
+    """A NerfField that is a solid box |x_i| <= half_i of constant ``COLOUR``, set by hand.
+
+    With raw coordinates in (no encoding) one ReLU layer of six units measures how far a point is outside
+    each face, h = relu(+-x_i - half_i); sigma = relu(density - sharpness * sum(h)) is ``density`` inside and
+    0 from density / sharpness = 0.1 outside. The colour branch has zero weights and sigmoid^-1(COLOUR) as
+    the output bias.
+    """
+    config = FieldConfig(depth=1, width=6, skips=(), view_width=4, pos_freqs=0, dir_freqs=0, include_input=True,
+                         view_dependent=False, density_activation="relu")
+    field = NerfField(config)
+    with torch.no_grad():
+        for p in field.parameters():
+            p.zero_()
+        trunk = field.trunk[0]
+        for i in range(3):
+            trunk.weight[2 * i, i], trunk.weight[2 * i + 1, i] = 1.0, -1.0
+            trunk.bias[2 * i] = trunk.bias[2 * i + 1] = -half[i]
+        field.density.weight.fill_(-sharpness)
+        field.density.bias.fill_(density)
+        field.rgb.bias.copy_(torch.logit(torch.tensor(COLOUR, dtype=torch.float32)))
+    return field
+
+
+def ring() -> list[np.ndarray]:
+    """Eight cameras on a circle of radius 2 at height 0.8 (world z up), looking at the origin."""
+    return [look_at(np.array([2 * np.cos(a), 2 * np.sin(a), 0.8]), np.zeros(3)) for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)]
+
+
+def grid() -> list[np.ndarray]:
+    """Six forward-facing cameras at y = -3 looking along +y."""
+    return [look_at(np.array([x, -3.0, z]), np.array([x, 0.0, z])) for x in (-0.2, 0.0, 0.2) for z in (-0.1, 0.1)]
+
+
+# world -> SfM: scale 2, a quarter turn about z, a shift; camera_path.json must carry poses through it
+TO_SFM = np.array([[0.0, -2.0, 0.0, 1.0], [2.0, 0.0, 0.0, 2.0], [0.0, 0.0, 2.0, 3.0], [0.0, 0.0, 0.0, 1.0]])
+
+
+def write_scene(folder: Path, layout: str, photometric: str = "srgb") -> StageInputs:
+    """The five artifacts render reads, for a cube model of ``layout`` and its capture, written by hand."""
+    c2ws = grid() if layout == "forward" else ring()
+    world = CameraSet({1: CAMERA}, [Frame(f"img{i}.png", 1, c2w) for i, c2w in enumerate(c2ws)])
+    (folder / "world").mkdir(parents=True)
+    world.save(folder / "world")
+    box = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
+    bounds = {"near": NEAR, "far": FAR, "scene_box": box, "to_sfm": TO_SFM.tolist(),
+              "frames": [{"name": f.name, "near": NEAR, "far": FAR} for f in world.frames]}
+    (folder / "bounds.json").write_text(json.dumps(bounds))
+    scene = {"layout": {"value": layout}, "photometric": {"value": photometric}, "background": {"value": "none"},
+             "background_color": {"value": None}}
+    (folder / "scene.json").write_text(json.dumps(scene))
+
+    if layout == "forward":
+        # the cube sits in NDC space, where the field is queried: the middle of x', y' and most of z'
+        field = cube_field((0.3, 0.3, 0.9))
+        ray_space = RaySpace(ndc=True, ndc_c2w=tuple(map(tuple, mean_camera(np.array(c2ws)).tolist())),
+                             ndc_focal=CAMERA.fx, ndc_size=(CAMERA.width, CAMERA.height), ndc_near=NDC_NEAR_FACTOR * NEAR)
+    else:
+        field = cube_field((0.3, 0.3, 0.3))
+        ray_space = RaySpace(box=(tuple(box[0]), tuple(box[1])))
+    info = {"layout": layout, "photometric": photometric, "to_sfm": TO_SFM.tolist()}
+    model = RadianceModel(field, None, SamplingConfig(n_coarse=32, n_fine=16), ray_space, None, info)
+    (folder / "train").mkdir()
+    model.save(folder / "train")
+    artifacts = {"model": folder / "train" / "model.pt", "model_json": folder / "train" / "model.json",
+                 "world": folder / "world", "bounds": folder / "bounds.json", "scene": folder / "scene.json"}
+    return StageInputs(artifacts, source=folder)
+
+
+def count_progress(calls: list) -> object:
+    """A progress factory that records (total, description) and every advance."""
+    import contextlib
+
+    @contextlib.contextmanager
+    def progress(total: int, description: str):
+        calls.append((total, description))
+        yield lambda n=1, info=None: calls.append(n)
+
+    return progress
+
+
+def read_mp4(path: Path) -> list[np.ndarray]:
+    capture = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(frame)
+    capture.release()
+    return frames
+
+
+def run_render(tmp_path: Path, layout: str, photometric: str = "srgb", **params) -> tuple[Path, dict, list]:
+    inputs = write_scene(tmp_path / "in", layout, photometric)
+    out = tmp_path / "out"
+    out.mkdir()
+    calls: list = []
+    ctx = StageContext(log=logging.getLogger("test"), progress=count_progress(calls))
+    summary = RenderStage().run(inputs, out, RenderParams(frames=4, scale=0.5, device="cpu", **params), ctx)
+    return out, summary, calls
+
+
+def check_outputs(out: Path, summary: dict, calls: list, expected_rgb: np.ndarray) -> None:
+    width, height = 32, 24  # the 64 x 48 camera at scale 0.5
+    assert summary["frames"] == 4 and summary["resolution"] == [width, height]
+    assert calls == [(4, "render"), 1, 1, 1, 1]
+    for name in RenderStage.provides.values():
+        assert (out / name).exists()
+    assert sorted(p.name for p in (out / "frames").iterdir()) == [f"{k}_{i:04d}.png" for k in ("depth", "rgb") for i in range(4)]
+    for i in range(4):
+        rgb = read_png(out / "frames" / f"rgb_{i:04d}.png")
+        depth = read_png(out / "frames" / f"depth_{i:04d}.png")
+        assert rgb.shape == depth.shape == (height, width, 3) and rgb.dtype == np.uint8
+        # every pose looks at the cube: its colour fills the centre; the corners see nothing (black)
+        assert np.allclose(rgb[10:14, 14:18].reshape(-1, 3), expected_rgb * 255, atol=2)
+        assert np.all(depth[10:14, 14:18].max(axis=-1) > 0)
+        for corner in (rgb[0, 0], rgb[-1, -1], depth[0, 0], depth[-1, -1]):
+            assert np.all(corner == 0)
+    for video in ("render.mp4", "depth.mp4"):
+        frames = read_mp4(out / video)
+        assert len(frames) == 4 and all(f.shape == (height, width, 3) for f in frames)
+
+    path = json.loads((out / "camera_path.json").read_text())
+    assert path["camera"] == {"model": "PINHOLE", "width": 32, "height": 24, "params": [30.0, 30.0, 16.0, 12.0]}
+    assert len(path["frames"]) == 4 and path["frames"][0]["rgb"] == "frames/rgb_0000.png"
+    world = np.array([f["c2w"] for f in path["frames"]])
+    sfm = np.array([f["c2w_sfm"] for f in path["frames"]])
+    # centres through the similarity; rotations through its rotation part (the quarter turn) alone
+    assert np.allclose(sfm[:, :3, 3], world[:, :3, 3] @ TO_SFM[:3, :3].T + TO_SFM[:3, 3])
+    assert np.allclose(sfm[:, :3, :3], (TO_SFM[:3, :3] / 2.0) @ world[:, :3, :3])
+
+
+def test_orbit_of_a_360_scene(tmp_path: Path) -> None:
+    out, summary, calls = run_render(tmp_path, "inward360")
+    assert summary["path"].startswith("orbit (inward360 scene): radius 2.15")  # sqrt(2^2 + 0.8^2)
+    check_outputs(out, summary, calls, COLOUR)
+    poses = np.array([f["c2w"] for f in json.loads((out / "camera_path.json").read_text())["frames"]])
+    assert np.allclose(np.linalg.norm(poses[:, :3, 3], axis=1), np.sqrt(4.64)) and np.allclose(poses[:, 2, 3], 0.8)
+    # along the viewing axis -c / |c| (c: the camera centre, |c| = 2.154) a visible point p of the cube is
+    # |c| - p.c / |c| deep: 1.76 at the near top edge p = (0.3, 0, 0.3) of the first view, c = (2, 0, 0.8),
+    # 2.32 at the far top edge (-0.3, 0, 0.3); the soft shell adds up to 0.1 outside. The colours span that.
+    lo, hi = summary["depth_range"]
+    assert 1.6 < lo < 1.85 and 2.0 < hi < 2.35
+
+
+def test_spiral_of_a_forward_raw_scene_is_srgb_encoded(tmp_path: Path) -> None:
+    out, summary, calls = run_render(tmp_path, "forward", photometric="linear_raw")
+    assert summary["path"].startswith("spiral (forward scene): 2 turns around the mean camera")
+    check_outputs(out, summary, calls, srgb_encode(COLOUR))
+
+
+def test_path_and_elevation_can_be_chosen(tmp_path: Path) -> None:
+    out, summary, _ = run_render(tmp_path, "inward360", path="orbit", elevation="30")
+    assert "30.0 deg elevation (given)" in summary["path"]
+    poses = np.array([f["c2w"] for f in json.loads((out / "camera_path.json").read_text())["frames"]])
+    assert np.allclose(poses[:, 2, 3], np.sqrt(4.64) * 0.5)  # radius x sin 30 deg
+
+
+def test_params_presets_and_errors(tmp_path: Path) -> None:
+    for preset in RenderStage.presets:
+        build_params("render", RenderParams, RenderStage.presets, preset, {})
+    full = build_params("render", RenderParams, RenderStage.presets, "full", {})
+    assert (full.frames, full.scale, full.max_side) == (120, 1.0, 0)
+    with pytest.raises(ParamError, match="elevation"):
+        build_params("render", RenderParams, RenderStage.presets, None, {"elevation": "high"})
+    with pytest.raises(ParamError, match="elevation"):
+        build_params("render", RenderParams, RenderStage.presets, None, {"elevation": "90"})
+    with pytest.raises(ParamError, match="scale"):
+        build_params("render", RenderParams, RenderStage.presets, None, {"scale": "0"})
+    photo = Camera.pinhole(100, 100, 50, 37, 101, 75)
+    assert render_size(photo, 0.5) == (50, 38)  # even sides: 50.5 -> 50, 37.5 -> 38
+    assert render_size(photo, 2.0, max_side=80) == (80, 60)  # 202 x 150 shrunk to fit 80: 80 x 59.4 -> 60
+    assert render_size(Camera.pinhole(1e3, 1e3, 800, 600, 1600, 1200), 0.5, RenderParams().max_side) == (160, 120)
+    if not torch.cuda.is_available():
+        inputs = write_scene(tmp_path, "inward360")
+        with pytest.raises(StageError, match="render.device=cuda"):
+            RenderStage().run(inputs, tmp_path / "out", RenderParams(device="cuda"), StageContext(log=logging.getLogger("test")))
+
+
+def test_describe() -> None:
+    summary = {"frames": 40, "resolution": [200, 150], "fps": 20.0, "seconds_per_frame": 1.234, "device": "cpu",
+               "path": "orbit (inward360 scene): radius 2.15 around (0, 0, 0) at 21.8 deg elevation (the cameras' mean)"}
+    assert RenderStage().describe(Path("."), {"summary": summary}) == [
+        "40 frames of 200x150 at 20 fps, 1.23 s a frame on cpu",
+        "path: orbit (inward360 scene): radius 2.15 around (0, 0, 0) at 21.8 deg elevation (the cameras' mean)",
+    ]
+    assert RenderStage().describe(Path("."), {}) == []
