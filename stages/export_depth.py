@@ -10,7 +10,6 @@ normalized world; ``to_sfm`` there and in every sidecar maps them back to the Sf
 
 from __future__ import annotations
 
-import contextlib
 import json
 import time
 from dataclasses import dataclass, field
@@ -28,7 +27,7 @@ class ExportDepthParams:
     scale: float = field(default=0.25, metadata={"help": "render at this fraction of each camera's resolution (1: full)"})
     views: Literal["all", "train", "heldout"] = field(default="all", metadata={"help": "which views: the training views, the held-out ones, or both"})
     acc_threshold: float = field(default=0.5, metadata={"help": "accumulated opacity below which a pixel has no depth in the 16-bit PNG and preview"})
-    chunk: int = field(default=4096, metadata={"help": "rays per chunk"})
+    chunk: int = field(default=1024, metadata={"help": "rays per chunk (on CPU, small chunks stay in cache)"})
     device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
 
     def __post_init__(self) -> None:
@@ -67,10 +66,13 @@ class ExportDepthStage(Stage):
                 f"{s['width']}x{s['height']}, {s['seconds_per_view']:.1f} s each; mean opacity {s['mean_acc']:.2f}"]
 
     def run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:
-        from nerfpipe.nerf.cpu import flush_denormals
+        from nerfpipe.nerf.cpu import flush_denormals, keep_freed_memory
 
+        if resolve_device(params.device).type != "cpu":
+            return self._run(inputs, out, params, ctx)
+        keep_freed_memory()  # rendering allocates and frees large activations chunk after chunk
         # before any torch work, so that its CPU threads flush denormals too (see nerf.cpu)
-        with flush_denormals() if resolve_device(params.device).type == "cpu" else contextlib.nullcontext():
+        with flush_denormals():
             return self._run(inputs, out, params, ctx)
 
     def _run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:

@@ -14,7 +14,6 @@ With ``poisson``, a screened Poisson surface of the exported point cloud is writ
 
 from __future__ import annotations
 
-import contextlib
 import json
 import time
 from dataclasses import dataclass, field
@@ -81,10 +80,13 @@ class ExportMeshStage(Stage):
         return lines
 
     def run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext) -> dict[str, Any]:
-        from nerfpipe.nerf.cpu import flush_denormals
+        from nerfpipe.nerf.cpu import flush_denormals, keep_freed_memory
 
+        if resolve_device(params.device).type != "cpu":
+            return self._run(inputs, out, params, ctx)
+        keep_freed_memory()  # rendering allocates and frees large activations chunk after chunk
         # before any torch work, so that its CPU threads flush denormals too (see nerf.cpu)
-        with flush_denormals() if resolve_device(params.device).type == "cpu" else contextlib.nullcontext():
+        with flush_denormals():
             return self._run(inputs, out, params, ctx)
 
     def _run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext) -> dict[str, Any]:
