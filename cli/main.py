@@ -119,6 +119,11 @@ def run(
     for o in outcomes:
         table.add_row(o.name, o.action, f"{o.seconds:.1f} s", str(o.path))
     out_console.print(table)
+    with _user_errors(debug):
+        from nerfpipe.export.report import write_report
+
+        page = write_report(run_dir)
+    out_console.print(f"report: {escape(str(page))}", highlight=False, soft_wrap=True)
 
 
 @app.command()
@@ -196,6 +201,20 @@ def view(
                          title=f"nerfpipe {kind}: {run_dir}")
     if path is not None:
         out_console.print(f"no display: wrote a screenshot to {escape(str(path))}", highlight=False, soft_wrap=True)
+
+
+@app.command()
+def report(
+    run_dir: Path = typer.Argument(..., help="Run directory of an earlier `nerfpipe run`."),
+    debug: bool = DebugOption,
+) -> None:
+    """Write RUN_DIR/report/index.html: capture, SfM, scene decisions, training, depth, mesh, timings."""
+    _setup_logging(debug)
+    from nerfpipe.export.report import write_report
+
+    with _user_errors(debug):
+        page = write_report(run_dir)
+    out_console.print(f"report: {escape(str(page))}", highlight=False, soft_wrap=True)
 
 
 @app.command()

@@ -201,12 +201,15 @@ def test_resumed_training_matches_an_uninterrupted_one(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_nerfpipe_run_on_the_bundled_capture_trains_and_evaluates(tmp_path: Path) -> None:
+def test_nerfpipe_run_on_the_bundled_capture_trains_evaluates_and_exports(tmp_path: Path) -> None:
     from helpers import run_cli
 
     run_dir = tmp_path / "temple"
     args = [a.replace("ingest.max_size=32", "ingest.max_size=80").replace("eval_stride=25", "eval_stride=1")
             for a in tiny_cli_args()]
+    # exports sized for a tiny field: its densities stay low, so the mesh threshold and opacity cut are too
+    args += ["--set=export_mesh.resolution=64", "--set=export_mesh.density_threshold=2",
+             "--set=export_points.acc_threshold=0.5", "--set=render.frames=4"]
     result = run_cli("run", TEMPLE, "--out", run_dir, *args, timeout=300)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "train: held-out PSNR" in result.stderr
@@ -218,3 +221,52 @@ def test_nerfpipe_run_on_the_bundled_capture_trains_and_evaluates(tmp_path: Path
     assert any("composited onto (0.00, 0.00, 0.00)" in d for d in metrics["decisions"])  # the black backdrop
     status = run_cli("status", run_dir)
     assert "train: 300 steps in" in status.stdout and "held-out views (every 8th image): PSNR" in status.stdout
+    check_exports_report_and_view(run_dir, result.stdout)
+
+
+def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
+    """What `nerfpipe run` exports by default, the report it writes, and `nerfpipe view` without a display."""
+    import re
+
+    import cv2
+
+    from helpers import run_cli
+    from nerfpipe.export.depth import DepthIndex
+    from nerfpipe.export.mesh import read_mesh
+    from nerfpipe.export.points import read_ply
+
+    def result_of(stage: str) -> Path:
+        return run_dir / "stages" / stage / json.loads((run_dir / "stages" / stage / "latest.json").read_text())["key"]
+
+    depth = result_of("export_depth")
+    index = DepthIndex.load(depth / "depth.json")
+    assert [v.role for v in index.views].count("heldout") == 2 and len(index.views) == 16
+    view = index.views[0]
+    assert np.load(depth / "depth" / f"{view.stem}.depth.npy").shape == (view.height, view.width)
+    assert cv2.imread(str(depth / "depth" / f"{view.stem}.depth.png"), cv2.IMREAD_UNCHANGED).dtype == np.uint16
+    bounds = json.loads(next((run_dir / "stages" / "bounds").glob("*/bounds.json")).read_text())
+    assert index.to_sfm == bounds["to_sfm"]
+    assert len(read_ply(result_of("export_points") / "points.ply").xyz) > 0
+    mesh_dir = result_of("export_mesh")
+    meshes = [read_mesh(mesh_dir / f"mesh{suffix}") for suffix in (".ply", ".obj", ".glb")]
+    assert meshes[0].faces > 0 and all(m.faces == meshes[0].faces for m in meshes)
+    render = result_of("render")
+    assert (render / "render.mp4").stat().st_size > 0 and (render / "depth.mp4").stat().st_size > 0
+
+    page = run_dir / "report" / "index.html"
+    assert f"report: {page}" in run_stdout.replace("\n", "")
+    text = page.read_text()
+    sources = re.findall(r'<img src="([^"]+)"', text)
+    assert len(sources) > 20 and all((page.parent / src).is_file() for src in sources)
+    for section in ("Capture", "Scene decisions", "Training", "Depth", "Mesh and point cloud", "Novel views", "Time per stage"):
+        assert f"<h2>{section}</h2>" in text
+    assert "img/mesh.png" in sources and "img/points.png" in sources and "img/training.png" in sources
+
+    env_free = run_cli("view", run_dir, "mesh")
+    assert env_free.returncode == 0, env_free.stderr
+    shot = run_dir / "view_mesh.png"
+    assert f"wrote a screenshot to {shot}" in env_free.stdout.replace("\n", "")
+    image = cv2.imread(str(shot))
+    assert image is not None and (image < 250).any()  # something drawn on the white background
+    wrong = run_cli("view", run_dir, "meshes")
+    assert wrong.returncode == 2 and "did you mean mesh?" in wrong.stderr and "Traceback" not in wrong.stderr
