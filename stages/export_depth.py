@@ -118,7 +118,7 @@ class ExportDepthStage(Stage):
                 advance(1, info=name)
         DepthIndex(views, png_scale, bounds["to_sfm"], params.acc_threshold).save(out / "depth.json")
         seconds = time.perf_counter() - started
-        ctx.log.info("export_depth: %d views in %.0f s -> %s", len(views), seconds, folder)
+        ctx.log.info("export_depth: %d views in %.0f s (%.1f s a view)", len(views), seconds, seconds / max(len(views), 1))
         return {
             "views": len(views),
             "train_views": sum(v.role == "train" for v in views),

@@ -149,6 +149,7 @@ class ExportMeshStage(Stage):
                 write_mesh(transformed(surface, bounds["to_sfm"]), out / f"mesh_poisson{suffix}")
             summary["poisson_faces"] = surface.faces
         summary["seconds"] = round(time.perf_counter() - started, 2)
-        ctx.log.info("export_mesh: %d triangles -> %s", mesh.faces, out / "mesh.ply")
+        ctx.log.info("export_mesh: %d triangles, %d vertices -> mesh.ply, mesh.obj, mesh.glb (SfM frame)", mesh.faces,
+                     len(mesh.vertices))
         return summary
 

@@ -81,8 +81,8 @@ class ExportPointsStage(Stage):
         voxel = params.voxel or float(np.linalg.norm(hi - lo)) / 1000
         cleaned, report = clean_cloud(cloud, voxel, params.target_points, params.outlier_neighbors, params.outlier_std)
         write_ply(out / "points.ply", cloud_to_sfm(cleaned, bounds["to_sfm"]))
-        ctx.log.info("export_points: %d points (%d back-projected from %d views) -> %s", len(cleaned), len(cloud),
-                     len(train), out / "points.ply")
+        ctx.log.info("export_points: %d points (%d back-projected from %d views) -> points.ply (SfM frame)", len(cleaned),
+                     len(cloud), len(train))
 
         sparse = CameraSet.load(inputs["sfm_model"]).points
         sparse_count = 0
