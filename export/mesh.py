@@ -240,6 +240,7 @@ def write_mesh(mesh: Mesh, path: Path) -> None:
         return
     o = to_open3d(mesh)
     o.compute_vertex_normals()
+    o.triangle_normals = o3d.utility.Vector3dVector()  # OBJ cannot hold them, and Open3D warns when asked to
     if not o3d.io.write_triangle_mesh(str(path), o, write_ascii=False, write_vertex_colors=mesh.colors is not None):
         raise OSError(f"open3d could not write {path}")
 

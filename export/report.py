@@ -217,7 +217,7 @@ def write_report(run_dir: Path, stages: Sequence[Any] | None = None) -> Path:
     for stage, artifact, label in (("export_mesh", "mesh", "mesh"), ("export_points", "points", "point cloud")):
         if stage not in results:
             continue
-        from nerfpipe.export.screenshot import cameras_of, load_mesh, load_points, screenshot
+        from nerfpipe.export.screenshot import auto_view, cameras_of, load_mesh, load_points, screenshot
 
         path = results[stage].path / pipe.dag.stages[stage].provides[artifact]
         cameras = []
@@ -226,7 +226,10 @@ def write_report(run_dir: Path, stages: Sequence[Any] | None = None) -> Path:
 
             cameras = cameras_of(CameraSet.load(results["sfm"].path / pipe.dag.stages["sfm"].provides["sfm_model"]))
         geometry = {"mesh": load_mesh(path)} if artifact == "mesh" else {"points": load_points(path)}
-        _write_png(folder / "img" / f"{artifact}.png", screenshot(cameras=cameras, width=640, height=480, **geometry))
+        # framed on the geometry, seen from the cameras' side: framing the camera ring too leaves the object tiny
+        box = next(iter(geometry.values())).get_axis_aligned_bounding_box()
+        view = auto_view(np.asarray(box.min_bound), np.asarray(box.max_bound), cameras, 640, 480)
+        _write_png(folder / "img" / f"{artifact}.png", screenshot(cameras=cameras, view=view, **geometry))
         lines = pipe.dag.stages[stage].describe(results[stage].path, results[stage].manifest)
         shots.append(_img(f"img/{artifact}.png", f"{label}: " + "; ".join(lines)))
     if shots:
