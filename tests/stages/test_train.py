@@ -132,7 +132,7 @@ def lego_pipeline(run_dir: Path, **train: object) -> Pipeline:
 
 @pytest.mark.slow
 def test_training_writes_model_metrics_and_held_out_renders(tmp_path: Path) -> None:
-    outcome = lego_pipeline(tmp_path / "run").run()[-1]
+    outcome = lego_pipeline(tmp_path / "run").run(until="train")[-1]
     out = outcome.path
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["steps"] == 300 and metrics["heldout_rule"] == "the capture's val split"
@@ -167,7 +167,7 @@ def test_resumed_training_matches_an_uninterrupted_one(tmp_path: Path) -> None:
     """SIGKILL mid-training; the rerun resumes from the last checkpoint and ends at the same weights."""
     lego = shared("nerf_synthetic_lego_400")
     run_dir = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "nerfpipe", "run", str(lego), "--out", str(run_dir), *tiny_cli_args()]
+    cmd = [sys.executable, "-m", "nerfpipe", "run", str(lego), "--out", str(run_dir), "--until", "train", *tiny_cli_args()]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.time() + 120
     try:
@@ -184,14 +184,14 @@ def test_resumed_training_matches_an_uninterrupted_one(tmp_path: Path) -> None:
     last = max(int(p.stem.split("_")[1]) for p in written)
     assert last in (100, 200)
 
-    resumed = lego_pipeline(run_dir).run()[-1]
+    resumed = lego_pipeline(run_dir).run(until="train")[-1]
     assert resumed.action == "ran" and resumed.summary["resumed_from"] == last
     assert resumed.summary["steps"] == 300
     steps = [json.loads(line)["step"] for line in (resumed.path / "metrics.jsonl").read_text().splitlines()]
     assert steps == list(range(25, 301, 25))  # nothing logged twice, nothing missing
     assert not list(run_dir.glob(".work/train-*"))
 
-    straight = lego_pipeline(tmp_path / "straight").run()[-1]
+    straight = lego_pipeline(tmp_path / "straight").run(until="train")[-1]
     assert straight.summary["resumed_from"] is None
     a = torch.load(resumed.path / "model.pt", weights_only=True)["coarse"]
     b = torch.load(straight.path / "model.pt", weights_only=True)["coarse"]
