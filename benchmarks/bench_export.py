@@ -30,8 +30,9 @@ import numpy as np
 from nerfpipe import Pipeline, default_stages
 from nerfpipe.export.depth import DepthIndex
 from nerfpipe.export.mesh import read_mesh, transformed
-from nerfpipe.export.points import apply_similarity, read_ply
+from nerfpipe.export.points import read_ply
 from nerfpipe.geometry.cameras import CameraSet
+from nerfpipe.geometry.normalize import Similarity
 from nerfpipe.pipeline.params import parse_assignments
 from nerfpipe.stages.undistort import frame_image_path, read_png
 
@@ -111,7 +112,7 @@ def main() -> None:
             masks[name] = pixels[..., 3] >= (0.5 * (65535 if pixels.dtype == np.uint16 else 255))
 
         points = read_ply(pipe.result("export_points").path / "points.ply")
-        share, pairs = points_in_masks(apply_similarity(to_world, points.xyz), world, masks)
+        share, pairs = points_in_masks(Similarity.from_matrix(to_world).apply_points(points.xyz), world, masks)
         print(f"\npoints: {len(points.xyz)}; {100 * share:.2f} % of {pairs} (point, training view) pairs inside the image "
               f"land inside the view's alpha mask (target >= 95 %)")
 

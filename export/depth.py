@@ -78,16 +78,13 @@ def decode_depth_png(counts: np.ndarray, scale: float) -> np.ndarray:
 
 
 def depth_preview(depth: np.ndarray, acc: np.ndarray, near: float, far: float, acc_threshold: float = 0.5) -> np.ndarray:
-    """(H, W, 3) uint8: disparity between 1/far and 1/near through matplotlib's turbo map (near is red,
-    far is blue); black where the accumulated opacity is below ``acc_threshold``."""
-    from matplotlib import colormaps
+    """(H, W, 3) uint8: disparity between 1/far and 1/near through the turbo map of the videos (near is
+    red, far is blue); black where the accumulated opacity is below ``acc_threshold``."""
+    from nerfpipe.export.video import colorize_depth
 
-    disparity = 1.0 / np.maximum(depth, 1e-9)
-    lo, hi = 1.0 / far, 1.0 / near
-    unit = np.clip((disparity - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
-    rgb = colormaps["turbo"](unit)[..., :3]
-    rgb[acc < acc_threshold] = 0.0
-    return np.round(rgb * 255).astype(np.uint8)
+    with np.errstate(divide="ignore"):
+        negative_disparity = -1.0 / np.asarray(depth, dtype=np.float64)  # linear in disparity, red when near
+    return colorize_depth(negative_disparity, acc, -1.0 / near, -1.0 / far, acc_threshold)
 
 
 def write_view(folder: Path, view: DepthView, rendered: dict[str, np.ndarray], png_scale: float, acc_threshold: float,

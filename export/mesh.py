@@ -12,6 +12,8 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
+from nerfpipe.geometry.normalize import Similarity
+
 # (M, 3) float32 tensor of field coordinates -> (M,) density
 DensityFn = Callable[[Any], Any]
 
@@ -224,10 +226,9 @@ def clean(mesh: Mesh, min_component: float, target_faces: int) -> tuple[Mesh, Cl
     return out, CleanReport(before, components, kept, cleaned, out.faces)
 
 
-def transformed(mesh: Mesh, transform: Sequence[Sequence[float]]) -> Mesh:
+def transformed(mesh: Mesh, similarity: Sequence[Sequence[float]]) -> Mesh:
     """The mesh under a 4x4 similarity (a positive scale keeps the triangles' orientation)."""
-    m = np.asarray(transform, dtype=np.float64)
-    return Mesh(mesh.vertices @ m[:3, :3].T + m[:3, 3], mesh.triangles, mesh.colors)
+    return Mesh(Similarity.from_matrix(np.asarray(similarity)).apply_points(mesh.vertices), mesh.triangles, mesh.colors)
 
 
 # -- files -------------------------------------------------------------------------------------------

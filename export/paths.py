@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nerfpipe.geometry.normalize import Similarity
+
 # the mean camera of the train stage, so the spiral circles the very frame a forward model's NDC rays use
 from nerfpipe.stages.train import mean_camera
 
@@ -226,11 +228,7 @@ def transform_poses(c2ws: np.ndarray, similarity: np.ndarray) -> np.ndarray:
     similarity = np.asarray(similarity, dtype=np.float64)
     if similarity.shape != (4, 4):
         raise ValueError(f"similarity must be (4, 4), got {similarity.shape}")
-    linear = similarity[:3, :3]
-    scale = np.cbrt(np.linalg.det(linear))
-    if scale <= 0:
-        raise ValueError("similarity must preserve orientation (positive determinant)")
-    out = np.tile(np.eye(4), (len(c2ws), 1, 1))
-    out[:, :3, :3] = (linear / scale) @ c2ws[:, :3, :3]
-    out[:, :3, 3] = c2ws[:, :3, 3] @ linear.T + similarity[:3, 3]
-    return out
+    try:
+        return Similarity.from_matrix(similarity).apply_c2w(c2ws)
+    except ValueError:
+        raise ValueError("similarity must preserve orientation (positive determinant)") from None

@@ -7,6 +7,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from nerfpipe.geometry.normalize import Similarity
+
 
 @dataclass
 class Cloud:
@@ -35,19 +37,6 @@ def backproject(depth: np.ndarray, K: np.ndarray, c2w: np.ndarray) -> np.ndarray
     rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], axis=-1)
     cam = rays * depth[..., None]
     return cam @ np.asarray(c2w)[:3, :3].T + np.asarray(c2w)[:3, 3]
-
-
-def apply_similarity(transform: np.ndarray | Sequence[Sequence[float]], xyz: np.ndarray) -> np.ndarray:
-    """x' = s R x + t for a 4x4 similarity ``transform``; (N, 3) -> (N, 3)."""
-    m = np.asarray(transform, dtype=np.float64)
-    return xyz @ m[:3, :3].T + m[:3, 3]
-
-
-def rotate_normals(transform: np.ndarray | Sequence[Sequence[float]], normals: np.ndarray) -> np.ndarray:
-    """Normals under a similarity: rotated by its rotation part (scale and translation do not act on them)."""
-    m = np.asarray(transform, dtype=np.float64)[:3, :3]
-    rotation = m / np.cbrt(np.linalg.det(m))
-    return normals @ rotation.T
 
 
 def views_to_points(views: Sequence[tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]], acc_threshold: float,
@@ -162,7 +151,8 @@ def read_ply(path) -> Cloud:
     return from_open3d(o3d.io.read_point_cloud(str(path)))
 
 
-def cloud_to_sfm(cloud: Cloud, to_sfm: Sequence[Sequence[float]]) -> Cloud:
-    """The cloud in the SfM frame (points by the similarity, normals by its rotation)."""
-    normals = None if cloud.normals is None else rotate_normals(to_sfm, cloud.normals)
-    return Cloud(apply_similarity(to_sfm, cloud.xyz), cloud.rgb, normals)
+def transformed(cloud: Cloud, similarity: np.ndarray | Sequence[Sequence[float]]) -> Cloud:
+    """The cloud under a 4x4 similarity such as bounds' ``to_sfm``: points by it, normals by its rotation."""
+    move = Similarity.from_matrix(np.asarray(similarity))
+    normals = None if cloud.normals is None else cloud.normals @ move.rotation.T
+    return Cloud(move.apply_points(cloud.xyz), cloud.rgb, normals)

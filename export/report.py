@@ -115,8 +115,10 @@ def _plot_training(path: Path, records: list[dict[str, Any]]) -> None:
 
 def write_report(run_dir: Path, stages: Sequence[Any] | None = None) -> Path:
     """Write ``run_dir/report/index.html`` and its images; return the page's path."""
+    from nerfpipe.geometry.cameras import CameraSet
     from nerfpipe.pipeline import Pipeline
     from nerfpipe.stages import default_stages
+    from nerfpipe.stages.train import view_file_stem
 
     pipe = Pipeline.from_run_dir(list(stages) if stages is not None else default_stages(), run_dir)
     folder = run_dir / "report"
@@ -126,6 +128,9 @@ def write_report(run_dir: Path, stages: Sequence[Any] | None = None) -> Path:
     statuses = {s.name: s for s in pipe.status()}
     results = {name: s.result for name, s in statuses.items() if s.state == "fresh" and s.result is not None}
     sections: list[str] = []
+    sfm_cameras = None
+    if "sfm" in results:
+        sfm_cameras = CameraSet.load(results["sfm"].path / pipe.dag.stages["sfm"].provides["sfm_model"])
 
     def section(title: str, body: str) -> None:
         sections.append(f"<section><h2>{html.escape(title)}</h2>{body}</section>")
@@ -144,12 +149,10 @@ def write_report(run_dir: Path, stages: Sequence[Any] | None = None) -> Path:
                 f"<div class='grid'>{''.join(figures)}</div>{more}")
 
     # -- structure from motion -------------------------------------------------------------------
-    if "sfm" in results:
-        from nerfpipe.geometry.cameras import CameraSet
-
+    if sfm_cameras is not None:
         sfm = results["sfm"]
         lines = pipe.dag.stages["sfm"].describe(sfm.path, sfm.manifest)
-        cameras = CameraSet.load(sfm.path / pipe.dag.stages["sfm"].provides["sfm_model"])
+        cameras = sfm_cameras
         centers = np.array([f.center for f in cameras.frames]) if cameras.frames else np.zeros((0, 3))
         axes = np.array([np.asarray(f.c2w)[:3, 2] for f in cameras.frames]) if cameras.frames else np.zeros((0, 3))
         points = colors = None
@@ -182,7 +185,7 @@ def write_report(run_dir: Path, stages: Sequence[Any] | None = None) -> Path:
         metrics = json.loads((train.path / "metrics.json").read_text(encoding="utf-8"))
         figures = []
         for view in metrics.get("views", []):
-            stem = Path(view["name"]).with_suffix("").as_posix().replace("/", "__")
+            stem = view_file_stem(view["name"])
             pair = []
             for suffix in ("render", "gt"):
                 source = train.path / "eval" / f"{stem}.{suffix}.png"
@@ -214,17 +217,16 @@ def write_report(run_dir: Path, stages: Sequence[Any] | None = None) -> Path:
 
     # -- geometry --------------------------------------------------------------------------------
     shots = []
+    view_cameras = None
     for stage, artifact, label in (("export_mesh", "mesh", "mesh"), ("export_points", "points", "point cloud")):
         if stage not in results:
             continue
         from nerfpipe.export.screenshot import auto_view, cameras_of, load_mesh, load_points, screenshot
 
         path = results[stage].path / pipe.dag.stages[stage].provides[artifact]
-        cameras = []
-        if "sfm" in results:
-            from nerfpipe.geometry.cameras import CameraSet
-
-            cameras = cameras_of(CameraSet.load(results["sfm"].path / pipe.dag.stages["sfm"].provides["sfm_model"]))
+        if view_cameras is None:
+            view_cameras = cameras_of(sfm_cameras) if sfm_cameras is not None else []
+        cameras = view_cameras
         geometry = {"mesh": load_mesh(path)} if artifact == "mesh" else {"points": load_points(path)}
         # framed on the geometry, seen from the cameras' side: framing the camera ring too leaves the object tiny
         box = next(iter(geometry.values())).get_axis_aligned_bounding_box()

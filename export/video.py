@@ -86,8 +86,9 @@ def turbo_lut() -> np.ndarray:
     return np.round(matplotlib.colormaps["turbo"](np.linspace(0.0, 1.0, 256))[:, :3] * 255).astype(np.uint8)
 
 
-def colorize_depth(depth: np.ndarray, acc: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """Colour a depth map: turbo, red at ``lo`` to blue at ``hi`` (linear in depth), black where acc < 0.5.
+def colorize_depth(depth: np.ndarray, acc: np.ndarray, lo: float, hi: float, acc_threshold: float = EMPTY_ACC) -> np.ndarray:
+    """Colour a depth map: turbo, red at ``lo`` to blue at ``hi`` (linear in depth), black where acc is below
+    ``acc_threshold`` (0.5).
 
     Args:
         depth: (H, W) float, world depth or NDC t' (see the module docstring); non-finite values are black.
@@ -105,5 +106,5 @@ def colorize_depth(depth: np.ndarray, acc: np.ndarray, lo: float, hi: float) -> 
     finite = np.isfinite(depth)
     nearness = 1.0 - np.clip((np.where(finite, depth, hi) - lo) / (hi - lo), 0.0, 1.0)  # 1 at lo, 0 at hi
     rgb = turbo_lut()[np.round(nearness * 255).astype(np.int64)]
-    rgb[(acc < EMPTY_ACC) | ~finite] = 0
+    rgb[(acc < acc_threshold) | ~finite] = 0
     return rgb

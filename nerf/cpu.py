@@ -60,3 +60,16 @@ def flush_denormals() -> Iterator[bool]:
         yield denormals_flushed_everywhere()
     finally:
         torch.set_flush_denormal(False)
+
+
+@contextlib.contextmanager
+def cpu_rendering(device: torch.device) -> Iterator[None]:
+    """The CPU settings of training, for stages that render a trained field: freed memory kept for the
+    next chunk's activations, denormals flushed. Enter it before any torch work (see ``flush_denormals``).
+    Does nothing on other devices."""
+    if device.type != "cpu":
+        yield
+        return
+    keep_freed_memory()
+    with flush_denormals():
+        yield

@@ -66,13 +66,9 @@ class ExportDepthStage(Stage):
                 f"{s['width']}x{s['height']}, {s['seconds_per_view']:.1f} s each; mean opacity {s['mean_acc']:.2f}"]
 
     def run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:
-        from nerfpipe.nerf.cpu import flush_denormals, keep_freed_memory
+        from nerfpipe.nerf.cpu import cpu_rendering
 
-        if resolve_device(params.device).type != "cpu":
-            return self._run(inputs, out, params, ctx)
-        keep_freed_memory()  # rendering allocates and frees large activations chunk after chunk
-        # before any torch work, so that its CPU threads flush denormals too (see nerf.cpu)
-        with flush_denormals():
+        with cpu_rendering(resolve_device(params.device)):
             return self._run(inputs, out, params, ctx)
 
     def _run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:

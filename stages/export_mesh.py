@@ -80,13 +80,9 @@ class ExportMeshStage(Stage):
         return lines
 
     def run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext) -> dict[str, Any]:
-        from nerfpipe.nerf.cpu import flush_denormals, keep_freed_memory
+        from nerfpipe.nerf.cpu import cpu_rendering
 
-        if resolve_device(params.device).type != "cpu":
-            return self._run(inputs, out, params, ctx)
-        keep_freed_memory()  # rendering allocates and frees large activations chunk after chunk
-        # before any torch work, so that its CPU threads flush denormals too (see nerf.cpu)
-        with flush_denormals():
+        with cpu_rendering(resolve_device(params.device)):
             return self._run(inputs, out, params, ctx)
 
     def _run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext) -> dict[str, Any]:
@@ -94,7 +90,7 @@ class ExportMeshStage(Stage):
         from nerfpipe.export.mesh import (
             Grid, clean, marching_cubes, poisson, surface_colors, transformed, tsdf_fusion, vertex_normals, write_mesh,
         )
-        from nerfpipe.export.points import apply_similarity, read_ply, rotate_normals, to_open3d
+        from nerfpipe.export import points as point_clouds
         from nerfpipe.nerf.model import RadianceModel
 
         import torch
@@ -138,12 +134,8 @@ class ExportMeshStage(Stage):
             "faces_before_cleaning": report.faces_before, "poisson_faces": None,
         }
         if params.poisson:
-            points = read_ply(inputs["points"])
-            to_world = bounds["to_world"]
-            points.xyz = apply_similarity(to_world, points.xyz)
-            if points.normals is not None:
-                points.normals = rotate_normals(to_world, points.normals)
-            surface = poisson(to_open3d(points), params.poisson_depth, box=(lo, hi))
+            points = point_clouds.transformed(point_clouds.read_ply(inputs["points"]), bounds["to_world"])
+            surface = poisson(point_clouds.to_open3d(points), params.poisson_depth, box=(lo, hi))
             surface, _ = clean(surface, params.min_component, params.target_faces)
             for suffix in FORMATS:
                 write_mesh(transformed(surface, bounds["to_sfm"]), out / f"mesh_poisson{suffix}")

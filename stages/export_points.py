@@ -62,7 +62,7 @@ class ExportPointsStage(Stage):
 
     def run(self, inputs: StageInputs, out: Path, params: ExportPointsParams, ctx: StageContext) -> dict[str, Any]:
         from nerfpipe.export.depth import DepthIndex, read_view
-        from nerfpipe.export.points import Cloud, clean_cloud, cloud_to_sfm, views_to_points, write_ply
+        from nerfpipe.export.points import Cloud, clean_cloud, transformed, views_to_points, write_ply
 
         index = DepthIndex.load(inputs["depth_index"])
         bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
@@ -80,7 +80,7 @@ class ExportPointsStage(Stage):
         lo, hi = np.asarray(bounds["scene_box"][0]), np.asarray(bounds["scene_box"][1])
         voxel = params.voxel or float(np.linalg.norm(hi - lo)) / 1000
         cleaned, report = clean_cloud(cloud, voxel, params.target_points, params.outlier_neighbors, params.outlier_std)
-        write_ply(out / "points.ply", cloud_to_sfm(cleaned, bounds["to_sfm"]))
+        write_ply(out / "points.ply", transformed(cleaned, bounds["to_sfm"]))
         ctx.log.info("export_points: %d points (%d back-projected from %d views) -> points.ply (SfM frame)", len(cleaned),
                      len(cloud), len(train))
 

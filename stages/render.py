@@ -15,7 +15,6 @@ the way out, as their previews in train are.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import time
 from dataclasses import dataclass, field
@@ -125,17 +124,13 @@ class RenderStage(Stage):
     def run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext) -> dict[str, Any]:
         import torch
 
-        from nerfpipe.nerf.cpu import flush_denormals, keep_freed_memory
+        from nerfpipe.nerf.cpu import cpu_rendering
         from nerfpipe.stages.train import resolve_device
 
         if params.device == "cuda" and not torch.cuda.is_available():
             raise StageError("render.device=cuda but torch sees no CUDA device; use render.device=auto or cpu")
         device = resolve_device(params.device)
-        with contextlib.ExitStack() as cpu_settings:
-            if device.type == "cpu":
-                # the same settings as train, for the same reasons: the render is the same MLP on the CPU
-                keep_freed_memory()
-                cpu_settings.enter_context(flush_denormals())
+        with cpu_rendering(device):
             return self._run(inputs, out, params, ctx, device)
 
     def _run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext, device) -> dict[str, Any]:

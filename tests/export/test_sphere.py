@@ -12,7 +12,7 @@ import torch
 from helpers import look_at
 from nerfpipe.export.depth import DepthView, decode_depth_png, read_view, write_view
 from nerfpipe.export.mesh import Grid, clean, marching_cubes, read_mesh, surface_colors, transformed, tsdf_fusion, vertex_normals, write_mesh
-from nerfpipe.export.points import clean_cloud, cloud_to_sfm, views_to_points
+from nerfpipe.export.points import clean_cloud, transformed as cloud_transformed, views_to_points
 from nerfpipe.nerf.analytic import SphereField
 from nerfpipe.nerf.model import RadianceModel, RaySpace
 from nerfpipe.nerf.rays import camera_rays, pixel_centers
@@ -159,7 +159,7 @@ def test_every_exported_point_lies_within_one_voxel_of_the_sphere(rendered_views
     # to the SfM frame and back by a similarity
     to_sfm = np.diag([2.0, 2.0, 2.0, 1.0])
     to_sfm[:3, 3] = (1.0, -2.0, 3.0)
-    moved = cloud_to_sfm(cleaned, to_sfm)
+    moved = cloud_transformed(cleaned, to_sfm)
     assert np.allclose(moved.xyz, 2 * cleaned.xyz + (1.0, -2.0, 3.0))
     assert np.allclose(moved.normals, cleaned.normals)
 
