@@ -2,7 +2,7 @@
 
 Run by hand from the repository root, with ../shared beside it:
 
-    python benchmarks/bench_export.py                  # CPU preset, lego at 100x100, all exports
+    python benchmarks/bench_export.py                  # fast preset, lego at 100x100, all exports
     python benchmarks/bench_export.py --run-dir /tmp/lego-export --set export_mesh.method=tsdf
 
 Trains lego's train split with the train stage (as ``bench_train.py``), runs export_depth at full
@@ -77,7 +77,7 @@ def mesh_depth(mesh_world, K: np.ndarray, c2w: np.ndarray, width: int, height: i
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--preset", default="cpu")
+    parser.add_argument("--preset", default="fast")
     parser.add_argument("--size", type=int, default=100, help="longest image side")
     parser.add_argument("--set", action="append", default=[], help="STAGE.PARAM=VALUE, as for nerfpipe run")
     parser.add_argument("--run-dir", type=Path, default=None, help="keep the run here (default: a temporary folder)")

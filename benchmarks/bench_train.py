@@ -3,7 +3,7 @@ this machine's float32 matmul rate.
 
 Run by hand from the repository root, with ../shared beside it:
 
-    python benchmarks/bench_train.py                        # CPU preset, lego train split at 100x100
+    python benchmarks/bench_train.py                        # fast preset, lego train split at 100x100
     python benchmarks/bench_train.py --preset paper --size 400 --steps 5000     # on a GPU machine
 
 Trains lego's train split at ``--size`` pixels with the train stage (preset and ``--set`` overrides as
@@ -78,7 +78,7 @@ def paper_mlp_rate(device: torch.device, samples: int, repeats: int = 6) -> tupl
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--preset", default="cpu")
+    parser.add_argument("--preset", default="fast")
     parser.add_argument("--size", type=int, default=100, help="longest image side for training and evaluation")
     parser.add_argument("--steps", type=int, default=None, help="override train.steps")
     parser.add_argument("--set", action="append", default=[], help="STAGE.PARAM=VALUE, as for nerfpipe run")

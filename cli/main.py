@@ -218,6 +218,46 @@ def report(
 
 
 @app.command()
+def bench(
+    capture: Path = typer.Argument(..., help="Capture with held-out views (a val/test split, else every 8th image)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Run directory; the results go to OUT/bench/."),
+    configs: List[str] = typer.Option(["presets"], "--config", "-c",
+                                      help="A configuration, or a group: presets, ablations, all (repeatable)."),
+    budget: float = typer.Option(300.0, "--budget", help="Seconds of training per configuration, at most."),
+    size: Optional[int] = typer.Option(None, "--size", help="Longest image side (sets ingest.max_size)."),
+    eval_views: int = typer.Option(0, "--eval-views", help="Evaluate this many held-out views, evenly spaced (0: all)."),
+    set_: List[str] = SetOption,
+    debug: bool = DebugOption,
+) -> None:
+    """Train each configuration for a time budget; held-out PSNR/SSIM at 30 s, 1, 2, 3, 5, 10 min, speed, memory."""
+    _setup_logging(debug)
+    from nerfpipe.bench.configs import CONFIGS, GROUPS, select
+    from nerfpipe.bench.run import run_bench
+
+    with _user_errors(debug):
+        try:
+            chosen = select(configs)
+        except KeyError as err:
+            raise typer.BadParameter(f"unknown configuration {err.args[0]!r}; choose from {', '.join([*GROUPS, 'all', *CONFIGS])}",
+                                     param_hint="--config") from None
+        if budget <= 0:
+            raise typer.BadParameter(f"must be > 0, got {budget}", param_hint="--budget")
+        overrides = parse_assignments(set_)
+        if size is not None:
+            overrides.setdefault("ingest", {})["max_size"] = str(size)
+        overrides.setdefault("train", {}).setdefault("eval_stride", "4")
+        folder = run_bench(capture, out, chosen, budget, overrides, eval_views,
+                           on_result=lambda r: out_console.print(
+                               f"{r['name']}: {r['points'][-1]['psnr']:.2f} dB after {r['train_seconds']:.0f} s "
+                               f"({r['samples_per_ray']:.1f} samples/ray, {r['samples_per_s']:,} samples/s)", highlight=False))
+        from nerfpipe.export.report import write_report
+
+        page = write_report(out)
+    out_console.print((folder / "bench.md").read_text(), highlight=False, soft_wrap=True)
+    out_console.print(f"bench: {escape(str(folder))}\nreport: {escape(str(page))}", highlight=False, soft_wrap=True)
+
+
+@app.command()
 def stages() -> None:
     """The stage graph, with each stage's parameters, defaults and presets."""
     pipe_stages = default_stages()

@@ -254,6 +254,28 @@ def write_report(run_dir: Path, stages: Sequence[Any] | None = None) -> Path:
                 body += f'<p><a href="{video}">{video}</a></p>'
         section("Novel views", body)
 
+    # -- benchmark (nerfpipe bench) ---------------------------------------------------------------
+    bench = run_dir / "bench" / "bench.json"
+    if bench.is_file():
+        from nerfpipe.bench.report import psnr_at
+
+        doc = json.loads(bench.read_text(encoding="utf-8"))
+        marks = doc["checkpoints"]
+        header = ("configuration", *(f"{m:.0f} s" for m in marks), "samples/ray", "samples/s", "render s/image", "peak memory")
+        rows = []
+        for r in doc["results"]:
+            cells = [psnr_at(r, m) for m in marks]
+            rows.append((r["name"], *("–" if c is None else f"{c['psnr']:.2f} dB / {c['ssim']:.3f}" for c in cells),
+                         f"{r['samples_per_ray']:.1f}", f"{r['samples_per_s']:,}",
+                         "–" if r["render_seconds_per_image"] is None else f"{r['render_seconds_per_image']:.2f}",
+                         f"{r['peak_memory_bytes'] / 2**30:.2f} GiB"))
+        body = "<p>held-out PSNR / SSIM after each training time (nerfpipe bench)</p>" + _table(header, rows)
+        plot = bench.parent / "psnr_time.png"
+        if plot.is_file():
+            shutil.copyfile(plot, folder / "img" / "bench_psnr_time.png")
+            body += _img("img/bench_psnr_time.png", "held-out PSNR against training time")
+        section("What accuracy costs in time", body)
+
     # -- timings ---------------------------------------------------------------------------------
     rows = []
     for name in pipe.dag.order:

@@ -15,6 +15,8 @@ import torch
 from torch import Tensor
 
 from nerfpipe.nerf.field import FieldConfig, NerfField
+from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
+from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid, render_marched_segments
 from nerfpipe.nerf.rays import camera_rays, intersect_box, ndc_points, ndc_points_inverse, ndc_rays, pixel_centers
 from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
 
@@ -107,16 +109,53 @@ class RaySpace:
         return self.box
 
 
+Field = NerfField | GridField
+
+
 @dataclass
 class RadianceModel:
-    """Coarse (and fine) fields plus how to sample and composite them."""
+    """Coarse (and fine) fields plus how to sample and composite them.
 
-    coarse: NerfField
-    fine: NerfField | None
+    With an ``occupancy`` grid (and its ``marching`` settings), rays march through the grid's occupied
+    cells (``nerfpipe.nerf.occupancy``) and ``coarse`` is the only field; otherwise they are sampled as in
+    Section 5.2 (``sampling``: N_c stratified, N_f hierarchical).
+    """
+
+    coarse: Field
+    fine: Field | None
     sampling: SamplingConfig
     ray_space: RaySpace
     background: tuple[float, float, float] | None
     info: dict[str, Any] = field(default_factory=dict)
+    occupancy: OccupancyGrid | None = None
+    marching: MarchingConfig | None = None
+
+    def fields(self) -> list[Field]:
+        return [self.coarse] + ([self.fine] if self.fine is not None else [])
+
+    def render_batch(self, rays: RayBatch, chunk: int = 8192) -> dict[str, Tensor]:
+        """Deterministic rendering of rays without gradients: rgb (R, 3), depth, disparity, acc (R,), in the
+        ray space's own depth (t, or NDC t'); and ``samples``, the field evaluations per ray on average."""
+        for f in self.fields():
+            f.eval()
+        if self.occupancy is None:
+            out = render_chunked(self.coarse, self.fine, rays, self.sampling, self.background_tensor(), chunk)
+            s = self.sampling
+            out["samples"] = torch.tensor(float(s.n_coarse + (s.n_coarse + s.n_fine if s.n_fine else 0)))
+            return out
+        parts: dict[str, list[Tensor]] = {"rgb": [], "depth": [], "disparity": [], "acc": []}
+        evaluated = 0
+        background = self.background_tensor()
+        for start in range(0, len(rays), chunk):
+            r = rays.slice(start, start + chunk)
+            out, n = render_marched_segments(self.coarse, r.origins, r.directions, r.viewdirs, r.near, r.far,
+                                             self.occupancy, self.marching, background)
+            evaluated += n
+            for key in parts:
+                parts[key].append(out[key])
+        result = {key: torch.cat(values) if values else torch.zeros(0) for key, values in parts.items()}
+        result["samples"] = torch.tensor(evaluated / max(len(rays), 1))
+        return result
 
     @property
     def device(self) -> torch.device:
@@ -141,10 +180,8 @@ class RadianceModel:
         k = torch.tensor(intrinsics, dtype=torch.float32, device=device).expand(n, 4)
         pose = torch.as_tensor(np.asarray(c2w), dtype=torch.float32, device=device)
         rays = self.ray_space.rays(uv, k, pose, torch.full((n,), near, device=device), torch.full((n,), far, device=device))
-        self.coarse.eval()
-        if self.fine is not None:
-            self.fine.eval()
-        out = render_chunked(self.coarse, self.fine, rays, self.sampling, self.background_tensor(), chunk)
+        out = self.render_batch(rays, chunk)
+        out.pop("samples")
         if self.ray_space.ndc:
             origins, directions = camera_rays(uv, k, pose)
             depth = self.ray_space.camera_depth(origins, directions, out["depth"].to(origins))
@@ -154,14 +191,33 @@ class RadianceModel:
         return {key: value.reshape(shapes.get(key, (height, width))).cpu() for key, value in out.items()}
 
     # -- files ---------------------------------------------------------------------------------
-    def save(self, folder: Path) -> None:
+    def state(self) -> dict[str, Any]:
+        """Every tensor of the model: the fields' weights and the occupancy grid."""
         weights = {"coarse": self.coarse.state_dict()}
         if self.fine is not None:
             weights["fine"] = self.fine.state_dict()
-        torch.save(weights, folder / "model.pt")
+        if self.occupancy is not None:
+            weights["occupancy"] = self.occupancy.state_dict()
+        return weights
+
+    def load_state(self, weights: dict[str, Any]) -> None:
+        self.coarse.load_state_dict(weights["coarse"])
+        if self.fine is not None:
+            self.fine.load_state_dict(weights["fine"])
+        if self.occupancy is not None:
+            self.occupancy.load_state_dict(weights["occupancy"])
+
+    def save(self, folder: Path) -> None:
+        torch.save(self.state(), folder / "model.pt")
+        grid = isinstance(self.coarse, GridField)
         doc = {
+            "field_kind": "grid" if grid else "mlp",
             "field": asdict(self.coarse.config),
+            "field_box": [self.coarse.lo.tolist(), self.coarse.hi.tolist()] if grid else None,
             "fine_network": self.fine is not None,
+            "occupancy": None if self.occupancy is None else {
+                "resolution": self.occupancy.resolution, "box": [self.occupancy.lo.tolist(), self.occupancy.hi.tolist()],
+                "marching": asdict(self.marching)},
             "sampling": asdict(self.sampling),
             "ray_space": asdict(self.ray_space),
             "background": None if self.background is None else list(self.background),
@@ -172,14 +228,21 @@ class RadianceModel:
     @staticmethod
     def load(folder: Path, device: torch.device | str = "cpu") -> "RadianceModel":
         doc = json.loads((folder / "model.json").read_text())
-        config = field_config_from_json(doc["field"])
         weights = torch.load(folder / "model.pt", map_location=device, weights_only=True)
-        coarse = NerfField(config).to(device)
-        coarse.load_state_dict(weights["coarse"])
-        fine = None
-        if doc["fine_network"]:
-            fine = NerfField(config).to(device)
-            fine.load_state_dict(weights["fine"])
+
+        def make_field() -> Field:
+            if doc.get("field_kind", "mlp") == "grid":
+                lo, hi = doc["field_box"]
+                return GridField(tuple(lo), tuple(hi), GridFieldConfig(**doc["field"])).to(device)
+            return NerfField(field_config_from_json(doc["field"])).to(device)
+
+        coarse = make_field()
+        fine = make_field() if doc["fine_network"] else None
+        occupancy = marching = None
+        if doc.get("occupancy"):
+            occ = doc["occupancy"]
+            occupancy = OccupancyGrid(tuple(occ["box"][0]), tuple(occ["box"][1]), occ["resolution"]).to(device)
+            marching = MarchingConfig(**occ["marching"])
         rs = doc["ray_space"]
         ray_space = RaySpace(
             ndc=rs["ndc"],
@@ -188,7 +251,10 @@ class RadianceModel:
             box=None if rs["box"] is None else (tuple(rs["box"][0]), tuple(rs["box"][1])),
         )
         background = None if doc["background"] is None else tuple(doc["background"])
-        return RadianceModel(coarse, fine, SamplingConfig(**doc["sampling"]), ray_space, background, doc.get("info", {}))
+        model = RadianceModel(coarse, fine, SamplingConfig(**doc["sampling"]), ray_space, background, doc.get("info", {}),
+                              occupancy, marching)
+        model.load_state(weights)
+        return model
 
 
 def field_config_from_json(d: dict[str, Any]) -> FieldConfig:

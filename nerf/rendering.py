@@ -116,6 +116,19 @@ def termination_depths(sigmas: Tensor, t: Tensor, far: Tensor) -> Tensor:
     mid = 0.5 * (t[..., 1:] + t[..., :-1])
     start = torch.cat([t[..., :1], mid], dim=-1)
     end = torch.cat([mid, torch.maximum(far.unsqueeze(-1), t[..., -1:])], dim=-1)
+    return interval_stop_depths(sigmas, start, end)
+
+
+def interval_stop_depths(sigmas: Tensor, starts: Tensor, ends: Tensor) -> Tensor:
+    """Mean stopping depth of a ray that terminates in the interval [start_i, end_i] of constant density
+    sigma_i: start + L (1/tau - 1/(e^tau - 1)) with L = end - start, tau = sigma_i L (``termination_depths``).
+
+    Args:
+        sigmas, starts, ends: (R, N).
+    Returns:
+        (R, N) depths, start_i <= depth_i <= end_i.
+    """
+    start, end = _float(starts), _float(ends)
     length = (end - start).clamp_min(0.0)
     # not optical_depth: its cap (1e4) would put an opaque stretch's stop at L / 1e4 rather than 1 / sigma
     tau = _float(sigmas).clamp(0.0, 1e30) * length
@@ -153,6 +166,7 @@ def composite(
     far: Tensor,
     background: Tensor | None = None,
     deltas: Tensor | None = None,
+    intervals: tuple[Tensor, Tensor] | None = None,
 ) -> Composite:
     """C = sum_i T_i (1 - exp(-sigma_i delta_i)) c_i, Eq. 3, plus (1 - sum_i w_i) times the background.
 
@@ -164,11 +178,18 @@ def composite(
         sigmas: (R, N) densities; colors: (R, N, 3); t: (R, N) sorted sample depths; far: (R,).
         background: (3,) or (R, 3) colour, or None.
         deltas: (R, N) interval lengths, if not the spacing of ``t`` (``sample_deltas``).
+        intervals: (starts, ends), each (R, N): the stretch of ray each sample stands for, when the samples
+            do not tile [t_1, far] (marching through an occupancy grid leaves gaps, and pads rays with
+            empty intervals, start = end). Sets the deltas and where a ray stopping at a sample stops.
     Returns:
         Composite.
     """
     t = _float(t)
-    deltas = sample_deltas(t, far) if deltas is None else _float(deltas)
+    if intervals is not None:
+        starts, ends = _float(intervals[0]), _float(intervals[1])
+        deltas = (ends - starts).clamp_min(0.0)
+    else:
+        deltas = sample_deltas(t, far) if deltas is None else _float(deltas)
     weights = compositing_weights(sigmas, deltas)
     acc = weights.sum(dim=-1)
     rgb = (weights.unsqueeze(-1) * _float(colors)).sum(dim=-2)
@@ -176,7 +197,7 @@ def composite(
         rgb = rgb + (1.0 - acc).clamp_min(0.0).unsqueeze(-1) * _float(background).to(rgb.device)
     hit = acc > ACC_EPS
     safe_acc = torch.where(hit, acc, torch.ones_like(acc))
-    stops = termination_depths(sigmas, t, far)
+    stops = termination_depths(sigmas, t, far) if intervals is None else interval_stop_depths(sigmas, starts, ends)
     depth = torch.where(hit, (weights * stops).sum(dim=-1) / safe_acc, _float(far).expand_as(acc))
     depth = torch.minimum(torch.maximum(depth, t[..., 0]), torch.maximum(_float(far), t[..., -1]))
     positive = depth > 0

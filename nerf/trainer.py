@@ -15,8 +15,8 @@ from typing import Callable
 import torch
 from torch import Tensor
 
-from nerfpipe.nerf.field import NerfField
-from nerfpipe.nerf.model import RadianceModel
+from nerfpipe.nerf.model import Field, RadianceModel
+from nerfpipe.nerf.occupancy import render_marched
 from nerfpipe.nerf.renderer import render_rays
 
 log = logging.getLogger("nerfpipe.nerf.trainer")
@@ -30,6 +30,8 @@ class TrainConfig:
     lr: float = 5e-4
     lr_final: float = 5e-5
     adam_eps: float = 1e-7
+    adam_beta2: float = 0.999
+    batch_samples: int = 0  # with an occupancy grid: rays per batch adapt to about this many samples (0: fixed)
     density_noise: float = 0.0
     seed: int = 0
     checkpoint_every: int = 500
@@ -70,12 +72,10 @@ def checkpoints(folder: Path) -> list[Path]:
 
 
 def save_checkpoint(folder: Path, step: int, elapsed: float, model: RadianceModel, optimizer: torch.optim.Optimizer,
-                    keep: int) -> Path:
+                    keep: int, extra: dict | None = None) -> Path:
     """Write ``step_<n>.pt`` atomically (a killed write leaves only a temp file), then prune old ones."""
     folder.mkdir(parents=True, exist_ok=True)
-    state = {"step": step, "elapsed": elapsed, "coarse": model.coarse.state_dict(), "optimizer": optimizer.state_dict()}
-    if model.fine is not None:
-        state["fine"] = model.fine.state_dict()
+    state = {"step": step, "elapsed": elapsed, **model.state(), "optimizer": optimizer.state_dict(), **(extra or {})}
     path = folder / f"step_{step:07d}.pt"
     tmp = folder / f".{path.name}.tmp"
     torch.save(state, tmp)
@@ -109,13 +109,20 @@ class Trainer:
 
     def __init__(self, model: RadianceModel, pixels: PixelSet, config: TrainConfig, out: Path, device: torch.device) -> None:
         self.model, self.pixels, self.config, self.out, self.device = model, pixels.to(device), config, out, device
-        params = list(model.coarse.parameters()) + (list(model.fine.parameters()) if model.fine is not None else [])
-        self.optimizer = torch.optim.Adam(params, lr=config.lr, betas=(0.9, 0.999), eps=config.adam_eps)
+        params = [p for f in model.fields() for p in f.parameters()]
+        # fused Adam: one pass over each tensor, which matters for grids of millions of values on a CPU
+        fused = device.type in ("cpu", "cuda") and all(p.dtype == torch.float32 for p in params)
+        self.optimizer = torch.optim.Adam(params, lr=config.lr, betas=(0.9, config.adam_beta2), eps=config.adam_eps,
+                                          fused=fused)
         self.scaler = torch.amp.GradScaler(device.type, enabled=config.autocast == "fp16")
         self.step = 0
         self.elapsed = 0.0
         self.resumed_from: int | None = None
         self.background = model.background_tensor()
+        self.rays_per_batch = float(config.batch_rays)  # adapted to ``batch_samples`` while marching
+        self.samples = 0  # field evaluations of the last step
+        self.total_samples = 0
+        self.total_rays = 0
 
     @property
     def checkpoint_dir(self) -> Path:
@@ -126,11 +133,11 @@ class Trainer:
         state = load_latest_checkpoint(self.checkpoint_dir, self.device)
         if state is None:
             return None
-        self.model.coarse.load_state_dict(state["coarse"])
-        if self.model.fine is not None:
-            self.model.fine.load_state_dict(state["fine"])
+        self.model.load_state(state)
         self.optimizer.load_state_dict(state["optimizer"])
         self.step, self.elapsed = int(state["step"]), float(state["elapsed"])
+        self.rays_per_batch = float(state.get("rays_per_batch", self.config.batch_rays))
+        self.total_samples, self.total_rays = int(state.get("total_samples", 0)), int(state.get("total_rays", 0))
         self.resumed_from = self.step
         self._truncate_metrics(self.step)
         return self.step
@@ -146,8 +153,19 @@ class Trainer:
         """Ray indices and target colours of ``step``: a function of (seed, step) only, so a resumed run
         draws exactly the batches an uninterrupted one would."""
         generator = torch.Generator(device=self.device).manual_seed(self.config.seed * 1_000_003 + step)
-        index = torch.randint(self.pixels.rgb.shape[0], (self.config.batch_rays,), generator=generator, device=self.device)
+        index = torch.randint(self.pixels.rgb.shape[0], (int(self.rays_per_batch),), generator=generator, device=self.device)
         return index, generator
+
+    def update_occupancy(self, step: int, generator: torch.Generator) -> None:
+        """Refresh the occupancy grid from the field's density every ``update_every`` steps."""
+        grid, marching = self.model.occupancy, self.model.marching
+        if grid is None or step % marching.update_every:
+            return
+        was_training = self.model.coarse.training
+        self.model.coarse.eval()
+        grid.update(self.model.coarse.query_density, grid.diagonal / marching.steps, marching.threshold,
+                    step < marching.warmup, generator)
+        self.model.coarse.train(was_training)
 
     def train_step(self, step: int) -> tuple[float, float]:
         """One optimization step; returns (loss, PSNR of the final rendering on this batch)."""
@@ -158,16 +176,29 @@ class Trainer:
         target = px.rgb[index]
         noise = self.config.density_noise
 
-        def field(fn: NerfField) -> Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]:
+        def field(fn: Field) -> Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]:
             return lambda x, d: fn(x, d, noise)
 
         if noise > 0:  # the noise, too, is a function of (seed, step): resuming does not change it
             torch.manual_seed(self.config.seed * 1_000_003 + step)
         for group in self.optimizer.param_groups:
             group["lr"] = learning_rate(self.config, step)
+        model = self.model
         with _autocast(self.device, self.config.autocast):
-            out = render_rays(field(self.model.coarse), None if self.model.fine is None else field(self.model.fine),
-                              rays, self.model.sampling, self.background, randomized=True, generator=generator)
+            if model.occupancy is not None:
+                self.update_occupancy(step, generator)
+                final, self.samples = render_marched(
+                    field(model.coarse), model.coarse.query_density, rays.origins, rays.directions, rays.viewdirs,
+                    rays.near, rays.far, model.occupancy, model.marching, self.background, True, generator)
+                out = {"coarse": final}
+                if self.config.batch_samples > 0:  # Instant-NGP: keep the samples per batch about constant
+                    per_ray = max(self.samples / len(index), 1.0)
+                    wanted = min(max(self.config.batch_samples / per_ray, 256.0), 16.0 * self.config.batch_rays)
+                    self.rays_per_batch = 0.8 * self.rays_per_batch + 0.2 * wanted
+            else:
+                out = render_rays(field(model.coarse), None if model.fine is None else field(model.fine),
+                                  rays, model.sampling, self.background, randomized=True, generator=generator)
+                self.samples = self.samples_per_step(len(index))
         # Eq. 6: squared error of the coarse and the fine rendering (a mean rather than a sum over the batch)
         losses = {name: torch.mean((c.rgb - target) ** 2) for name, c in out.items()}
         loss = sum(losses.values())
@@ -178,41 +209,62 @@ class Trainer:
         final = losses.get("fine", losses["coarse"])
         return float(loss.detach()), mse_to_psnr(float(final.detach()))
 
-    def samples_per_step(self) -> int:
+    def samples_per_step(self, rays: int | None = None) -> int:
+        """Field evaluations of a step of ``rays`` rays with Section 5.2's sampling: N_c, then N_c + N_f."""
         s = self.model.sampling
         coarse = s.n_coarse
         fine = s.n_coarse + s.n_fine if s.n_fine > 0 else 0
-        return self.config.batch_rays * (coarse + fine)
+        return (self.config.batch_rays if rays is None else rays) * (coarse + fine)
 
-    def run(self, advance: Callable[..., None] = lambda n=1, info=None: None) -> None:
-        """Train from ``self.step`` to ``config.steps``."""
+    def run(self, advance: Callable[..., None] = lambda n=1, info=None: None,
+            after_step: Callable[["Trainer"], bool] | None = None) -> None:
+        """Train from ``self.step`` to ``config.steps``.
+
+        ``after_step(trainer)`` runs after every step, off the clock (``elapsed`` counts training only), and
+        stops training by returning True.
+        """
         config = self.config
-        self.model.coarse.train()
-        if self.model.fine is not None:
-            self.model.fine.train()
-        started = time.perf_counter() - self.elapsed
-        window_start, window_steps = time.perf_counter(), 0
+        for f in self.model.fields():
+            f.train()
+        window_start, window_steps, window_samples, window_rays = self.elapsed, 0, 0, 0
         with open(self.out / "metrics.jsonl", "a", encoding="utf-8") as metrics:
             while self.step < config.steps:
+                started = time.perf_counter()
+                rays = int(self.rays_per_batch)
                 loss, psnr = self.train_step(self.step)
                 if not math.isfinite(loss):
                     raise FloatingPointError(f"training loss became {loss} at step {self.step}")
+                if self.device.type == "cuda":
+                    torch.cuda.synchronize(self.device)
                 self.step += 1
                 window_steps += 1
-                self.elapsed = time.perf_counter() - started
+                window_samples += self.samples
+                window_rays += rays
+                self.total_samples += self.samples
+                self.total_rays += rays
                 if self.step % config.log_every == 0 or self.step == config.steps:
-                    now = time.perf_counter()
-                    rate = window_steps / max(now - window_start, 1e-9)
-                    window_start, window_steps = now, 0
+                    self.elapsed += time.perf_counter() - started
+                    started = time.perf_counter()
+                    span = max(self.elapsed - window_start, 1e-9)
+                    rate = window_steps / span
                     record = {"step": self.step, "wall": round(self.elapsed, 3), "loss": loss, "psnr": round(psnr, 4),
                               "lr": learning_rate(config, self.step), "steps_per_s": round(rate, 3),
-                              "samples_per_s": round(rate * self.samples_per_step())}
+                              "samples_per_s": round(window_samples / span),
+                              "samples_per_ray": round(window_samples / max(window_rays, 1), 2),
+                              "rays_per_batch": rays}
+                    window_start, window_steps, window_samples, window_rays = self.elapsed, 0, 0, 0
+                    if self.model.occupancy is not None:
+                        record["occupancy"] = round(self.model.occupancy.occupancy(), 4)
                     metrics.write(json.dumps(record) + "\n")
                     metrics.flush()
                     advance(config.log_every if self.step % config.log_every == 0 else self.step % config.log_every,
                             info=f"loss {loss:.4f}  PSNR {psnr:.2f} dB  {rate:.1f} steps/s")
                 if self.step % config.checkpoint_every == 0 or self.step == config.steps:
                     save_checkpoint(self.checkpoint_dir, self.step, self.elapsed, self.model, self.optimizer,
-                                    config.keep_checkpoints)
+                                    config.keep_checkpoints, {"rays_per_batch": self.rays_per_batch,
+                                    "total_samples": self.total_samples, "total_rays": self.total_rays})
                     log.info("train: step %d/%d, loss %.5f, batch PSNR %.2f dB, %.0f s", self.step, config.steps,
                              loss, psnr, self.elapsed)
+                self.elapsed += time.perf_counter() - started
+                if after_step is not None and after_step(self):
+                    break

@@ -31,56 +31,79 @@ from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
 from nerfpipe.stages.undistort import frame_image_path, read_png
 
+param = field  # TrainParams has a parameter named ``field``, which shadows dataclasses.field in its body
+
 NDC_NEAR_FACTOR = 0.75  # the NDC near plane at 0.75 x the nearest bound, as LLFF's bd_factor places it
 
 
 @dataclass(frozen=True)
 class TrainParams:
-    steps: int = field(default=1500, metadata={"help": "optimization steps (the paper: 100-300k, Section 5.3)"})
-    batch_rays: int = field(default=512, metadata={"help": "rays per batch (the paper: 4096)"})
-    n_coarse: int = field(default=32, metadata={"help": "N_c stratified samples per ray (the paper: 64)"})
-    n_fine: int = field(default=64, metadata={"help": "N_f samples from the coarse weights (the paper: 128; 0: no hierarchical sampling)"})
-    hierarchical: bool = field(default=True, metadata={"help": "hierarchical sampling; false is Table 2's 'No Hierarchical' (N_c samples only)"})
-    fine_network: bool = field(default=False, metadata={"help": "a separate fine network (the paper); false reuses the coarse one"})
-    depth: int = field(default=4, metadata={"help": "layers of the MLP trunk (the paper: 8)"})
-    width: int = field(default=128, metadata={"help": "channels per trunk layer (the paper: 256)"})
-    view_width: int = field(default=64, metadata={"help": "channels of the view-direction layer (the paper: 128)"})
-    skip_after: int = field(default=0, metadata={"help": "concatenate the encoded input to this layer's activation (the paper: 5; 0: none)"})
-    positional_encoding: bool = field(default=True, metadata={"help": "encode x and d with Eq. 4; false is Table 2's 'No Pos. Encoding'"})
-    pos_freqs: int = field(default=10, metadata={"help": "L for positions (Section 5.1: 10)"})
-    dir_freqs: int = field(default=4, metadata={"help": "L for directions (Section 5.1: 4)"})
-    include_input: bool = field(default=True, metadata={"help": "feed the raw coordinates beside their encoding (the authors' code does)"})
-    view_dependence: bool = field(default=True, metadata={"help": "colour depends on the viewing direction; false is Table 2's 'No View Dependence'"})
-    density_activation: Literal["relu", "softplus"] = field(default="softplus", metadata={"help": "relu (the paper) or softplus"})
-    lr: float = field(default=3e-3, metadata={"help": "initial Adam learning rate (the paper: 5e-4)"})
-    lr_final: float = field(default=5e-5, metadata={"help": "learning rate at the last step, reached by exponential decay (the paper: 5e-5)"})
-    adam_eps: float = field(default=1e-7, metadata={"help": "Adam epsilon (the paper: 1e-7)"})
-    density_noise: str = field(default="auto", metadata={"help": "std of noise on raw density: auto (1.0 for forward-facing real captures, else 0) or a number"})
-    lindisp: Literal["auto", "true", "false"] = field(default="auto", metadata={"help": "sample linearly in disparity; auto: for unbounded scenes"})
-    clip_to_box: bool = field(default=True, metadata={"help": "inward 360: clip each ray to the scene box"})
-    train_images: int = field(default=0, metadata={"help": "train on this many images, evenly spaced (Table 2 rows 5-6); 0: all"})
-    holdout_every: int = field(default=8, metadata={"help": "without a val/test split, hold out every n-th image (the paper: 8)"})
-    eval_stride: int = field(default=1, metadata={"help": "evaluate every n-th held-out view"})
-    checkpoint_every: int = field(default=500, metadata={"help": "write a checkpoint every n steps (a killed run resumes from the last)"})
-    keep_checkpoints: int = field(default=2, metadata={"help": "checkpoints kept (0: all)"})
-    seed: int = field(default=0, metadata={"help": "seed of initialization, batches and samples"})
-    device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
-    tf32: bool = field(default=False, metadata={"help": "CUDA: TF32 matmuls"})
-    autocast: Literal["none", "bf16", "fp16"] = field(default="none", metadata={"help": "mixed precision for the MLP (compositing stays float32)"})
-    chunk: int = field(default=2048, metadata={"help": "rays per chunk when rendering whole views"})
+    """The defaults are the ``fast`` preset: the grid field with empty-space skipping."""
+
+    steps: int = param(default=2000, metadata={"help": "optimization steps (the paper: 100-300k, Section 5.3)"})
+    field: Literal["grid", "mlp"] = param(default="grid", metadata={"help": "grid: dense feature grids + a small MLP (fast); mlp: the paper's MLP (Fig. 7)"})
+    batch_rays: int = param(default=4096, metadata={"help": "rays per batch (the paper: 4096); with batch_samples, the starting and largest / 16 batch"})
+    batch_samples: int = param(default=32768, metadata={"help": "while marching, adapt the rays per batch to about this many samples (Instant-NGP); 0: fixed batch_rays"})
+    occupancy: Literal["auto", "true", "false"] = param(default="auto", metadata={"help": "empty-space skipping with an occupancy grid; auto: with the grid field"})
+    occupancy_resolution: int = param(default=64, metadata={"help": "cells a side of the occupancy grid"})
+    march_steps: int = param(default=128, metadata={"help": "marching steps along the field box's diagonal (about one per image pixel at 100 px lego)"})
+    early_stop: float = param(default=1e-4, metadata={"help": "stop a marched ray once its transmittance is below this (0: never)"})
+    occupancy_threshold: float = param(default=0.01, metadata={"help": "a cell is occupied when one step through it is this optically thick"})
+    grid_levels: int = param(default=2, metadata={"help": "grid field: levels of the multiresolution grid"})
+    grid_min_resolution: int = param(default=32, metadata={"help": "grid field: cells a side of the coarsest level"})
+    grid_max_resolution: int = param(default=96, metadata={"help": "grid field: cells a side of the finest level"})
+    grid_features: int = param(default=4, metadata={"help": "grid field: features per vertex and level"})
+    grid_hidden: int = param(default=64, metadata={"help": "grid field: width of its MLPs"})
+    n_coarse: int = param(default=32, metadata={"help": "N_c stratified samples per ray (the paper: 64); without the occupancy grid"})
+    n_fine: int = param(default=64, metadata={"help": "N_f samples from the coarse weights (the paper: 128; 0: no hierarchical sampling)"})
+    hierarchical: bool = param(default=True, metadata={"help": "hierarchical sampling; false is Table 2's 'No Hierarchical' (N_c samples only)"})
+    fine_network: bool = param(default=False, metadata={"help": "a separate fine network (the paper); false reuses the coarse one"})
+    depth: int = param(default=4, metadata={"help": "mlp: layers of the trunk (the paper: 8)"})
+    width: int = param(default=128, metadata={"help": "mlp: channels per trunk layer (the paper: 256)"})
+    view_width: int = param(default=64, metadata={"help": "mlp: channels of the view-direction layer (the paper: 128)"})
+    skip_after: int = param(default=0, metadata={"help": "mlp: concatenate the encoded input to this layer's activation (the paper: 5; 0: none)"})
+    positional_encoding: bool = param(default=True, metadata={"help": "encode x and d with Eq. 4; false is Table 2's 'No Pos. Encoding'"})
+    pos_freqs: int = param(default=10, metadata={"help": "L for positions (Section 5.1: 10)"})
+    dir_freqs: int = param(default=4, metadata={"help": "L for directions (Section 5.1: 4)"})
+    include_input: bool = param(default=True, metadata={"help": "feed the raw coordinates beside their encoding (the authors' code does)"})
+    view_dependence: bool = param(default=True, metadata={"help": "colour depends on the viewing direction; false is Table 2's 'No View Dependence'"})
+    density_activation: Literal["relu", "softplus"] = param(default="softplus", metadata={"help": "mlp: relu (the paper) or softplus"})
+    lr: float = param(default=1e-2, metadata={"help": "initial Adam learning rate (the paper: 5e-4)"})
+    lr_final: float = param(default=1e-3, metadata={"help": "learning rate at the last step, reached by exponential decay (the paper: 5e-5)"})
+    adam_eps: float = param(default=1e-15, metadata={"help": "Adam epsilon (the paper: 1e-7)"})
+    adam_beta2: float = param(default=0.99, metadata={"help": "Adam beta2 (the paper: 0.999; Instant-NGP: 0.99)"})
+    density_noise: str = param(default="auto", metadata={"help": "std of noise on raw density: auto (1.0 for forward-facing real captures, else 0) or a number"})
+    lindisp: Literal["auto", "true", "false"] = param(default="auto", metadata={"help": "sample linearly in disparity; auto: for unbounded scenes"})
+    clip_to_box: bool = param(default=True, metadata={"help": "inward 360: clip each ray to the scene box"})
+    train_images: int = param(default=0, metadata={"help": "train on this many images, evenly spaced (Table 2 rows 5-6); 0: all"})
+    holdout_every: int = param(default=8, metadata={"help": "without a val/test split, hold out every n-th image (the paper: 8)"})
+    eval_stride: int = param(default=1, metadata={"help": "evaluate every n-th held-out view"})
+    checkpoint_every: int = param(default=500, metadata={"help": "write a checkpoint every n steps (a killed run resumes from the last)"})
+    keep_checkpoints: int = param(default=2, metadata={"help": "checkpoints kept (0: all)"})
+    seed: int = param(default=0, metadata={"help": "seed of initialization, batches and samples"})
+    device: Literal["auto", "cpu", "cuda"] = param(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
+    tf32: bool = param(default=False, metadata={"help": "CUDA: TF32 matmuls"})
+    autocast: Literal["none", "bf16", "fp16"] = param(default="none", metadata={"help": "mixed precision for the MLP (compositing stays float32)"})
+    chunk: int = param(default=2048, metadata={"help": "rays per chunk when rendering whole views"})
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_rays", "n_coarse", "depth", "width", "view_width", "holdout_every", "eval_stride",
-                     "checkpoint_every", "chunk"):
+                     "checkpoint_every", "chunk", "occupancy_resolution", "march_steps", "grid_levels",
+                     "grid_min_resolution", "grid_max_resolution", "grid_features", "grid_hidden"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("n_fine", "pos_freqs", "dir_freqs", "train_images", "keep_checkpoints", "skip_after"):
+        for name in ("n_fine", "pos_freqs", "dir_freqs", "train_images", "keep_checkpoints", "skip_after", "batch_samples",
+                     "occupancy_threshold"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.skip_after > self.depth - 1:
             raise ValueError(f"skip_after must be below depth ({self.depth}), got {self.skip_after}")
-        if not (0 < self.lr_final <= self.lr) or self.adam_eps <= 0:
-            raise ValueError("need 0 < lr_final <= lr and adam_eps > 0")
+        if not (0 < self.lr_final <= self.lr) or self.adam_eps <= 0 or not (0 < self.adam_beta2 < 1):
+            raise ValueError("need 0 < lr_final <= lr, adam_eps > 0 and 0 < adam_beta2 < 1")
+        if not (0 <= self.early_stop < 1):
+            raise ValueError(f"early_stop must be in [0, 1), got {self.early_stop}")
+        if self.grid_min_resolution > self.grid_max_resolution:
+            raise ValueError("grid_min_resolution must not exceed grid_max_resolution")
         if self.density_noise != "auto":
             try:
                 noise = float(self.density_noise)
@@ -90,10 +113,29 @@ class TrainParams:
                 raise ValueError(f"density_noise must be >= 0, got {noise}")
 
 
+# Section 5.3 and Fig. 7: the model, sampling and optimizer of the paper, without empty-space skipping
 PAPER = {
-    "steps": 200_000, "batch_rays": 4096, "n_coarse": 64, "n_fine": 128, "fine_network": True, "depth": 8,
-    "width": 256, "view_width": 128, "skip_after": 5, "include_input": False, "density_activation": "relu",
-    "lr": 5e-4, "lr_final": 5e-5, "adam_eps": 1e-7, "checkpoint_every": 10_000,
+    "field": "mlp", "occupancy": "false", "steps": 200_000, "batch_rays": 4096, "batch_samples": 0, "n_coarse": 64,
+    "n_fine": 128, "fine_network": True, "depth": 8, "width": 256, "view_width": 128, "skip_after": 5,
+    "include_input": False, "density_activation": "relu", "lr": 5e-4, "lr_final": 5e-5, "adam_eps": 1e-7,
+    "adam_beta2": 0.999, "checkpoint_every": 10_000,
+}
+# the MLP of the CPU-scale NeRF (4x128, one network for both passes, softplus density, lr 3e-3) with the
+# paper's sampling (32 + 64): the "complete model" the Table 2 ablations of ``nerfpipe bench`` vary
+MLP_CPU = {
+    "field": "mlp", "occupancy": "false", "steps": 1500, "batch_rays": 512, "batch_samples": 0, "lr": 3e-3,
+    "lr_final": 5e-5, "adam_eps": 1e-7, "adam_beta2": 0.999,
+}
+PRESETS = {
+    # about 1 minute on 2 CPU cores at 100 px: coarse grids, a rough look
+    "draft": {"steps": 500, "grid_levels": 1, "grid_max_resolution": 64, "occupancy_resolution": 32},
+    # about 5 minutes on 2 CPU cores at 100 px (about 28 dB on lego): the default
+    "fast": {},
+    # the 4x128 MLP of Section 3 with the occupancy grid: slower, smoother, about 20 minutes
+    "balanced": {**MLP_CPU, "occupancy": "true", "steps": 6000, "batch_rays": 1024, "batch_samples": 32768,
+                 "lr_final": 1e-4},
+    # one to two days on a V100 (Section 5.3), out of reach on a CPU
+    "paper": PAPER,
 }
 
 
@@ -153,15 +195,9 @@ class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
     name = "train"
-    version = 2
+    version = 3
     Params = TrainParams
-    presets = {
-        # Section 5.3 and Fig. 7: the model, sampling and optimizer of the paper
-        "paper": PAPER,
-        # the defaults: a 4x128 MLP, one network for both passes, 32 + 64 samples, 512 rays a batch at a
-        # learning rate of 3e-3: about 6 minutes on 2 CPU cores
-        "cpu": {},
-    }
+    presets = PRESETS
     requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")
     provides = {"model": "model.pt", "model_json": "model.json", "metrics": "metrics.json", "eval": "eval",
                 "views": "views.json"}
@@ -214,7 +250,8 @@ class TrainStage(Stage):
         pixels = loader.pixel_set(views.train)
         config = TrainConfig(
             steps=params.steps, batch_rays=params.batch_rays, lr=params.lr, lr_final=params.lr_final,
-            adam_eps=params.adam_eps, density_noise=density_noise(params, scene), seed=params.seed,
+            adam_eps=params.adam_eps, adam_beta2=params.adam_beta2, batch_samples=params.batch_samples,
+            density_noise=density_noise(params, scene), seed=params.seed,
             checkpoint_every=params.checkpoint_every, keep_checkpoints=params.keep_checkpoints, autocast=params.autocast,
         )
         trainer = Trainer(model, pixels, config, out, device)
@@ -225,11 +262,14 @@ class TrainStage(Stage):
             trainer.run(advance)
         model.save(out)
         evaluation = evaluate(model, loader, views.heldout, out / "eval", params.chunk, ctx)
-        samples_per_s = trainer.samples_per_step() * params.steps / max(trainer.elapsed, 1e-9)
+        samples_per_s = trainer.total_samples / max(trainer.elapsed, 1e-9)
         summary = {
             "steps": params.steps,
             "train_seconds": round(trainer.elapsed, 2),
             "samples_per_s": round(samples_per_s),
+            "samples_per_ray": round(trainer.total_samples / max(trainer.total_rays, 1), 2),
+            "field": field_kind(params, loader.scene),
+            "occupancy": None if model.occupancy is None else round(model.occupancy.occupancy(), 4),
             "device": str(device),
             "train_images": len(views.train),
             "heldout": len(views.heldout),
@@ -254,16 +294,24 @@ def resolve_device(choice: str):
 
 
 def density_noise(params: TrainParams, scene: dict[str, Any]) -> float:
-    """The authors regularize real forward-facing scenes with noise of std 1 on the raw density; not synthetic ones."""
+    """The authors regularize real forward-facing scenes with noise of std 1 on the raw density; not synthetic
+    ones. The MLP's raw density only: the grid field has no such regularizer."""
     if params.density_noise != "auto":
         return float(params.density_noise)
-    return 1.0 if scene["layout"]["value"] == "forward" else 0.0
+    return 1.0 if scene["layout"]["value"] == "forward" and field_kind(params, scene) == "mlp" else 0.0
+
+
+def field_kind(params: TrainParams, scene: dict[str, Any]) -> str:
+    """The grid field needs a bounded box to hold its grids: unbounded 360 scenes train the MLP."""
+    return "mlp" if scene["layout"]["value"] == "unbounded360" else params.field
 
 
 def build_model(params: TrainParams, scene: dict[str, Any], world: CameraSet, bounds: dict[str, Any], device):
     """The fields, sampling, ray space and background this scene calls for, and a sentence per choice."""
     from nerfpipe.nerf.field import FieldConfig, NerfField
+    from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
     from nerfpipe.nerf.model import RadianceModel, RaySpace
+    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
     from nerfpipe.nerf.renderer import SamplingConfig
 
     import torch
@@ -277,8 +325,6 @@ def build_model(params: TrainParams, scene: dict[str, Any], world: CameraSet, bo
         dir_freqs=params.dir_freqs if params.positional_encoding else 0, include_input=params.include_input,
         view_dependent=params.view_dependence, density_activation=params.density_activation,
     )
-    coarse = NerfField(config).to(device)
-    fine = NerfField(config).to(device) if params.fine_network and params.hierarchical and params.n_fine > 0 else None
     lindisp = layout == "unbounded360" if params.lindisp == "auto" else params.lindisp == "true"
     sampling = SamplingConfig(params.n_coarse, params.n_fine if params.hierarchical else 0, lindisp)
 
@@ -299,6 +345,35 @@ def build_model(params: TrainParams, scene: dict[str, Any], world: CameraSet, bo
         what = "unbounded 360: world rays over each image's near/far" if layout == "unbounded360" else "world rays over each image's near/far"
         decisions.append(what + (", samples linear in disparity" if lindisp else ""))
 
+    kind = field_kind(params, scene)
+    field_box = ray_space.field_box(max(f["far"] for f in bounds["frames"]) if bounds["frames"] else None)
+    if field_box is None and layout != "unbounded360":
+        field_box = (tuple(bounds["scene_box"][0]), tuple(bounds["scene_box"][1]))
+    if kind == "grid":
+        grid_config = GridFieldConfig(
+            levels=params.grid_levels, min_resolution=params.grid_min_resolution,
+            max_resolution=params.grid_max_resolution, features=params.grid_features, hidden=params.grid_hidden,
+            dir_freqs=params.dir_freqs if params.positional_encoding else 0, view_dependent=params.view_dependence,
+        )
+        coarse, fine = GridField(*field_box, grid_config).to(device), None
+        decisions.append(f"grid field: {grid_config.levels} levels of {grid_config.resolutions()} cells a side, "
+                         f"{grid_config.features} features each, and a {grid_config.hidden}-wide MLP")
+    else:
+        coarse = NerfField(config).to(device)
+        fine = NerfField(config).to(device) if params.fine_network and params.hierarchical and params.n_fine > 0 else None
+        if params.field == "grid":
+            decisions.append("unbounded 360: the grid field needs a bounded box, so the MLP (Fig. 7) is trained")
+    use_grid = params.occupancy == "true" or (params.occupancy == "auto" and kind == "grid")
+    occupancy = marching = None
+    if use_grid and field_box is not None:
+        occupancy = OccupancyGrid(*field_box, params.occupancy_resolution).to(device)
+        marching = MarchingConfig(steps=params.march_steps, threshold=params.occupancy_threshold,
+                                  early_stop=params.early_stop)
+        decisions.append(f"empty-space skipping: a {params.occupancy_resolution}^3 occupancy grid over the field box, "
+                         f"{params.march_steps} marching steps along its diagonal, rays stop at transmittance "
+                         f"{params.early_stop:g} (instead of N_c + N_f samples per ray)")
+    elif use_grid:
+        decisions.append("no occupancy grid: an unbounded scene has no box to grid; Section 5.2's sampling instead")
     background_kind = scene["background"]["value"]
     color = scene["background_color"]["value"]
     if background_kind in ("alpha", "color") and color is not None:
@@ -313,7 +388,7 @@ def build_model(params: TrainParams, scene: dict[str, Any], world: CameraSet, bo
     if noise:
         decisions.append(f"noise of std {noise:g} on raw density while training")
     info = {"layout": layout, "photometric": scene["photometric"]["value"], "to_sfm": bounds["to_sfm"]}
-    return RadianceModel(coarse, fine, sampling, ray_space, background, info), decisions
+    return RadianceModel(coarse, fine, sampling, ray_space, background, info, occupancy, marching), decisions
 
 
 class ImageLoader:

@@ -451,3 +451,86 @@ def test_disparity_of_zero_depth_is_finite():
     result = composite(torch.ones(1, 2), torch.rand(1, 2, 3), torch.zeros(1, 2), torch.zeros(1))
     assert result.depth.item() == 0.0
     assert result.disparity.item() == 0.0
+
+
+# -- empty-space skipping and early termination -----------------------------------------------------
+
+
+class _Constant(nn.Module):
+    """A field of one density and colour everywhere, with gradients to both."""
+
+    def __init__(self, density: float) -> None:
+        super().__init__()
+        self.raw = nn.Parameter(torch.tensor(float(density)))
+        self.color = nn.Parameter(torch.tensor([0.2, 0.5, 0.8]))
+
+    def forward(self, x, d=None, density_noise=0.0):
+        return self.color.expand(len(x), 3) * torch.ones_like(x[:, :1]), self.raw.expand(len(x)) * torch.ones_like(x[:, 0])
+
+    def query_density(self, x):
+        return self(x)[1]
+
+
+def _box_rays(n: int = 16):
+    from nerfpipe.nerf.rays import intersect_box
+
+    g = torch.Generator().manual_seed(0)
+    o = torch.tensor([0.0, 0.0, 3.0]).expand(n, 3).clone()
+    d = torch.nn.functional.normalize(torch.rand((n, 3), generator=g) * torch.tensor([0.4, 0.4, 0.0]) - torch.tensor([0.2, 0.2, 1.0]), dim=-1)
+    enter, exit_ = intersect_box(o, d, -torch.ones(3), torch.ones(3))
+    return o, d, enter, exit_
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("density", EXTREME_DENSITIES)
+def test_marching_keeps_bounds_and_gradients_at_extreme_densities(mode: str, density: float) -> None:
+    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid, render_marched, render_marched_segments
+
+    field = _Constant(density)
+    grid = OccupancyGrid((-1.0,) * 3, (1.0,) * 3, 8)
+    config = MarchingConfig(steps=64, early_stop=1e-4)
+    o, d, near, far = _box_rays()
+    white = torch.ones(3)
+    with precision(mode):
+        result, evaluated = render_marched(field, field.query_density, o, d, d, near, far, grid, config, white,
+                                           generator=torch.Generator().manual_seed(0))
+    assert_sane(result, white)
+    result.rgb.sum().backward()
+    assert torch.isfinite(field.raw.grad) and bool(torch.isfinite(field.color.grad).all())
+    # early termination: an opaque field stops each ray after its first sample or two; a clear one never
+    if density >= 1e6:
+        assert evaluated <= 2 * len(o)
+    elif density <= 1e-8:
+        assert evaluated > 60 * len(o) // 2
+    with torch.no_grad(), precision(mode):
+        rendered, _ = render_marched_segments(field, o, d, d, near, far, grid, config, white)
+    assert bool(torch.isfinite(rendered["rgb"]).all()) and bool(((rendered["acc"] >= 0) & (rendered["acc"] <= 1 + 1e-6)).all())
+    assert bool(((rendered["depth"] >= near - 1e-5) & (rendered["depth"] <= far + 1e-5)).all())
+    torch.testing.assert_close(rendered["acc"], result.acc.detach(), atol=2e-4, rtol=0)
+
+
+def test_marching_degenerate_rays_give_the_background() -> None:
+    """Zero-length rays (near == far), rays outside the box and an all-empty grid: no samples, the
+    background colour, zero opacity, depth at far, and no NaN anywhere, gradients included."""
+    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid, render_marched, render_marched_segments
+
+    field = _Constant(10.0)
+    grid = OccupancyGrid((-1.0,) * 3, (1.0,) * 3, 4)
+    config = MarchingConfig(steps=32)
+    o = torch.tensor([[0.0, 0.0, 3.0], [5.0, 5.0, 5.0], [0.0, 0.0, 0.5]])
+    d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
+    near = torch.tensor([2.0, 1.0, 0.0])
+    far = torch.tensor([2.0, 1.0, 1.0])  # zero length; outside the box; inside but the grid is empty
+    grid.occupied.zero_()
+    grey = torch.tensor([0.5, 0.5, 0.5])
+    result, evaluated = render_marched(field, field.query_density, o, d, d, near, far, grid, config, grey)
+    assert evaluated == 0
+    torch.testing.assert_close(result.rgb, grey.expand(3, 3))
+    assert result.acc.tolist() == [0.0, 0.0, 0.0] and torch.equal(result.depth, far)
+    result.rgb.sum().backward()
+    assert field.color.grad is None or bool(torch.isfinite(field.color.grad).all())
+    rendered, n = render_marched_segments(field, o, d, d, near, far, grid, config, grey)
+    assert n == 0 and torch.equal(rendered["depth"], far) and torch.allclose(rendered["rgb"], grey.expand(3, 3))
+    # and an empty batch
+    none, n = render_marched_segments(field, o[:0], d[:0], d[:0], near[:0], far[:0], grid, config, grey)
+    assert n == 0 and none["rgb"].shape == (0, 3)

@@ -15,6 +15,7 @@ import torch
 
 from helpers import TEMPLE, shared
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
+from nerfpipe.nerf.field import NerfField
 from nerfpipe.pipeline import Pipeline, param_specs
 from nerfpipe.pipeline.errors import ParamError
 from nerfpipe.pipeline.params import build_params
@@ -24,7 +25,7 @@ from nerfpipe.stages.train import build_model, split_views
 # a training small enough for a test: lego at 32 px, a 2x32 MLP, 16 + 16 samples
 TINY = {
     "ingest": {"max_size": 32},
-    "train": {"steps": 300, "batch_rays": 256, "n_coarse": 16, "n_fine": 16, "depth": 2, "width": 32, "view_width": 16,
+    "train": {"field": "mlp", "steps": 300, "batch_rays": 256, "n_coarse": 16, "n_fine": 16, "depth": 2, "width": 32, "view_width": 16,
               "checkpoint_every": 100, "eval_stride": 25, "lr": 5e-3, "keep_checkpoints": 0,
               "density_noise": 0.3},  # noise on, so resuming is shown to redraw the same noise too
 }
@@ -92,7 +93,7 @@ def scene_json(layout: str, background: str = "none", color=None, photometric: s
     ],
 )
 def test_ablation_switches_build_the_tables_models(overrides, first_in, view_in, n_fine, fine) -> None:
-    params = TrainParams(**overrides)
+    params = TrainParams(field="mlp", **overrides)
     bounds = {"scene_box": [[-1] * 3, [1] * 3], "to_sfm": np.eye(4).tolist(), "frames": []}
     model, _ = build_model(params, scene_json("inward360"), world_of([None]), bounds, torch.device("cpu"))
     assert model.coarse.trunk[0].in_features == first_in
@@ -110,16 +111,42 @@ def test_scene_decisions_choose_the_ray_space_and_background() -> None:
     assert inward.ray_space.box == ((-1, -1, -1), (1, 1, 1)) and not inward.ray_space.ndc
     assert inward.background == (1.0, 1.0, 1.0) and not inward.sampling.lindisp
     assert any("clipped to the scene box" in line for line in said)
-    forward, said = build_model(TrainParams(), scene_json("forward"), world, bounds, cpu)
+    forward, said = build_model(TrainParams(field="mlp"), scene_json("forward"), world, bounds, cpu)
     assert forward.ray_space.ndc and forward.ray_space.ndc_near == pytest.approx(0.75 * 2.0)
     assert forward.ray_space.ndc_focal == 50 and forward.ray_space.ndc_size == (40, 30) and forward.background is None
     assert any("noise of std 1" in line for line in said)  # the authors' regularizer for real forward scenes
-    unbounded, _ = build_model(TrainParams(), scene_json("unbounded360"), world, bounds, cpu)
+    assert forward.occupancy is None  # the paper's sampler unless asked
+    unbounded, _ = build_model(TrainParams(field="mlp"), scene_json("unbounded360"), world, bounds, cpu)
     assert unbounded.sampling.lindisp and unbounded.ray_space.box is None
 
 
+def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:
+    from nerfpipe.nerf.grid_field import GridField
+
+    bounds = {"scene_box": [[-1] * 3, [1] * 3], "to_sfm": np.eye(4).tolist(), "frames": [{"near": 2.0, "far": 9.0}]}
+    world = CameraSet({1: Camera.pinhole(50, 50, 20, 15, 40, 30)}, [Frame("a.png", 1, np.eye(4))])
+    cpu = torch.device("cpu")
+    inward, said = build_model(TrainParams(), scene_json("inward360", "alpha", [1, 1, 1]), world, bounds, cpu)
+    assert isinstance(inward.coarse, GridField) and inward.fine is None
+    assert inward.occupancy is not None and inward.occupancy.resolution == 64
+    assert inward.occupancy.lo.tolist() == [-1] * 3 and inward.coarse.hi.tolist() == [1] * 3
+    assert any("empty-space skipping" in line for line in said)
+    forward, said = build_model(TrainParams(), scene_json("forward"), world, bounds, cpu)
+    # NDC's [-1, 1]^2 x [-1, 1 - 2 near / far]: the frustum out to the farthest bound
+    z_max = 1 - 2 * (0.75 * 2.0) / 9.0
+    assert forward.occupancy.hi.tolist() == pytest.approx([1, 1, z_max]) and forward.occupancy.lo.tolist() == [-1] * 3
+    assert not any("noise" in line for line in said)  # a regularizer of the MLP's raw density only
+    unbounded, said = build_model(TrainParams(), scene_json("unbounded360"), world, bounds, cpu)
+    assert isinstance(unbounded.coarse, NerfField) and unbounded.occupancy is None
+    assert any("needs a bounded box" in line for line in said)
+    mlp_grid, _ = build_model(TrainParams(field="mlp", occupancy="true"), scene_json("inward360"), world, bounds, cpu)
+    assert isinstance(mlp_grid.coarse, NerfField) and mlp_grid.occupancy is not None
+
+
 def test_bad_train_values_are_parameter_errors() -> None:
-    for overrides in ({"density_noise": "loud"}, {"steps": "0"}, {"lr_final": "1e-2"}, {"skip_after": "4", "depth": "4"}):
+    for overrides in ({"density_noise": "loud"}, {"steps": "0"}, {"lr_final": "1"}, {"skip_after": "4", "depth": "4"},
+                      {"early_stop": "1"}, {"grid_min_resolution": "128", "grid_max_resolution": "64"},
+                      {"occupancy": "maybe"}, {"field": "hash"}, {"adam_beta2": "1"}, {"march_steps": "0"}):
         with pytest.raises(ParamError):
             build_params("train", TrainParams, TrainStage.presets, None, overrides)
     assert any(spec.name == "autocast" for spec in param_specs(TrainParams))

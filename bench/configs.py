@@ -1,0 +1,62 @@
+"""What ``nerfpipe bench`` compares: the train presets, and the ablations of Table 2 of the NeRF paper."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from nerfpipe.stages.train import MLP_CPU, PRESETS
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """One line of the benchmark: a train preset and overrides of train parameters."""
+
+    name: str
+    group: str  # "presets" or "ablations"
+    preset: str | None
+    train: dict[str, Any] = field(default_factory=dict)
+    note: str = ""
+
+    def overrides(self) -> dict[str, Any]:
+        """The train parameters this configuration sets: the preset's, then its own."""
+        return {**(PRESETS[self.preset] if self.preset else {}), **self.train}
+
+
+PRESET_CONFIGS = [
+    BenchConfig("draft", "presets", "draft", note="grid field, one 64^3 level"),
+    BenchConfig("fast", "presets", "fast", note="grid field, 32^3 + 96^3 levels (the default)"),
+    BenchConfig("balanced", "presets", "balanced", note="4x128 MLP with the occupancy grid"),
+    BenchConfig("paper", "presets", "paper", note="8x256 coarse + fine MLPs, 64 + 128 samples (Section 5.3)"),
+    BenchConfig("paper+occupancy", "presets", "paper", {"occupancy": "true", "batch_samples": 32768},
+                note="the paper's MLP marching the occupancy grid"),
+]
+
+# Table 2 of the paper: each row changes one thing of the complete model. The complete model here is the
+# CPU-scale MLP (4x128, one network for both passes) with the paper's sampling (32 + 64 samples).
+ABLATION_CONFIGS = [
+    BenchConfig("complete", "ablations", None, dict(MLP_CPU), note="Table 2 row 9: L = 10, view dependence, hierarchical"),
+    BenchConfig("no PE", "ablations", None, {**MLP_CPU, "positional_encoding": False}, note="row 1: raw x and d"),
+    BenchConfig("no view dependence", "ablations", None, {**MLP_CPU, "view_dependence": False}, note="row 2"),
+    BenchConfig("no hierarchical", "ablations", None, {**MLP_CPU, "hierarchical": False}, note="row 3: N_c samples only"),
+    BenchConfig("far fewer images", "ablations", None, {**MLP_CPU, "train_images": 25}, note="row 4: 25 images"),
+    BenchConfig("fewer images", "ablations", None, {**MLP_CPU, "train_images": 50}, note="row 5: 50 images"),
+    BenchConfig("fewer frequencies", "ablations", None, {**MLP_CPU, "pos_freqs": 5}, note="row 6: L = 5"),
+    BenchConfig("more frequencies", "ablations", None, {**MLP_CPU, "pos_freqs": 15}, note="row 7: L = 15"),
+]
+
+CONFIGS = {c.name: c for c in PRESET_CONFIGS + ABLATION_CONFIGS}
+GROUPS = {"presets": [c.name for c in PRESET_CONFIGS], "ablations": [c.name for c in ABLATION_CONFIGS]}
+
+
+def select(names: list[str]) -> list[BenchConfig]:
+    """Configurations by name or group ("presets", "ablations", "all"); raises KeyError naming the unknown."""
+    chosen: list[BenchConfig] = []
+    for name in names:
+        expanded = GROUPS["presets"] + GROUPS["ablations"] if name == "all" else GROUPS.get(name, [name])
+        for n in expanded:
+            if n not in CONFIGS:
+                raise KeyError(n)
+            if CONFIGS[n] not in chosen:
+                chosen.append(CONFIGS[n])
+    return chosen

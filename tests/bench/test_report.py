@@ -1,0 +1,54 @@
+"""The benchmark's tables and plot from a hand-made result, and the choice of configurations."""
+
+from __future__ import annotations
+
+import pytest
+
+from nerfpipe.bench.configs import CONFIGS, select
+from nerfpipe.bench.report import markdown, psnr_at, write_outputs
+
+
+def result(name: str, group: str, points: list[tuple[float | None, float, float]], finished: bool) -> dict:
+    return {
+        "name": name, "group": group, "finished": finished, "steps": 100, "train_seconds": points[-1][1],
+        "samples_per_ray": 12.345, "samples_per_s": 123456, "render_seconds_per_image": 0.5,
+        "peak_memory_bytes": 3 * 2**29, "train_images": 100, "heldout": 5, "image_size": [100, 100], "device": "CPU",
+        "points": [{"mark": m, "seconds": s, "step": 10, "psnr": p, "ssim": p / 100} for m, s, p in points],
+    }
+
+
+def test_psnr_at_takes_the_checkpoint_or_the_finished_model() -> None:
+    slow = result("slow", "presets", [(30.0, 30.4, 20.0), (60.0, 60.2, 22.0)], finished=False)
+    quick = result("quick", "presets", [(30.0, 30.1, 21.0), (None, 45.0, 24.0)], finished=True)
+    assert psnr_at(slow, 30.0)["psnr"] == 20.0 and psnr_at(slow, 60.0)["psnr"] == 22.0
+    assert psnr_at(slow, 120.0) is None  # the budget stopped it: no figure, not the last one
+    assert psnr_at(quick, 60.0)["psnr"] == 24.0 and psnr_at(quick, 30.0)["psnr"] == 21.0
+
+
+def test_markdown_and_plot(tmp_path) -> None:
+    doc = {"capture": "lego", "budget": 60.0, "checkpoints": [30.0, 60.0], "results": [
+        result("fast", "presets", [(30.0, 30.4, 20.0), (60.0, 60.2, 22.5)], finished=False),
+        result("no PE", "ablations", [(30.0, 30.1, 18.0), (None, 45.0, 19.0)], finished=True),
+    ]}
+    text = markdown(doc)
+    assert "| configuration | 30 s | 1 min | steps |" in text
+    assert "| fast | 20.00 / 0.200 | 22.50 / 0.225 | 100 | 12.3 | 123,456 | 0.50 | 1.50 GiB |" in text
+    assert "| no PE | 18.00 / 0.180 | 19.00 / 0.190 | 100 (done at 45 s) |" in text
+    assert text.index("**presets**") < text.index("**ablations**")
+    write_outputs(tmp_path, doc)
+    assert (tmp_path / "bench.md").read_text() == text
+    assert (tmp_path / "psnr_time.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_select_expands_groups_and_refuses_unknown_names() -> None:
+    assert [c.name for c in select(["fast", "presets"])][:2] == ["fast", "draft"]
+    ablations = select(["ablations"])
+    assert len(ablations) == 8 and ablations[0].name == "complete"
+    # each ablation changes one thing of the complete model
+    base = CONFIGS["complete"].overrides()
+    for config in ablations[1:]:
+        changed = {k for k, v in config.overrides().items() if base.get(k) != v}
+        assert len(changed) == 1, (config.name, changed)
+    with pytest.raises(KeyError, match="turbo"):
+        select(["turbo"])
