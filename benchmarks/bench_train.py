@@ -127,9 +127,7 @@ def main() -> None:
         print("|---:|---:|---:|---:|")
         for path in sorted((train.path / "checkpoints").glob("step_*.pt")):
             state = torch.load(path, map_location=device, weights_only=True)
-            model.coarse.load_state_dict(state["coarse"])
-            if model.fine is not None:
-                model.fine.load_state_dict(state["fine"])
+            model.load_state(state)
             result = evaluate(model, loader, heldout, None, params.chunk)
             print(f"| {state['step']} | {state['elapsed']:.0f} s | {result['psnr']:.2f} dB | {result['ssim']:.3f} |", flush=True)
 

@@ -226,6 +226,8 @@ def bench(
     budget: float = typer.Option(300.0, "--budget", help="Seconds of training per configuration, at most."),
     size: Optional[int] = typer.Option(None, "--size", help="Longest image side (sets ingest.max_size)."),
     eval_views: int = typer.Option(0, "--eval-views", help="Evaluate this many held-out views, evenly spaced (0: all)."),
+    checkpoints: str = typer.Option("30,60,120,180,300,600", "--checkpoints",
+                                    help="Training times in seconds at which to evaluate, comma-separated."),
     set_: List[str] = SetOption,
     debug: bool = DebugOption,
 ) -> None:
@@ -242,11 +244,17 @@ def bench(
                                      param_hint="--config") from None
         if budget <= 0:
             raise typer.BadParameter(f"must be > 0, got {budget}", param_hint="--budget")
+        try:
+            marks = tuple(sorted(float(m) for m in checkpoints.split(",") if m.strip()))
+        except ValueError:
+            raise typer.BadParameter(f"expected seconds separated by commas, got {checkpoints!r}", param_hint="--checkpoints") from None
+        if not marks or marks[0] <= 0:
+            raise typer.BadParameter(f"expected positive seconds, got {checkpoints!r}", param_hint="--checkpoints")
         overrides = parse_assignments(set_)
         if size is not None:
             overrides.setdefault("ingest", {})["max_size"] = str(size)
         overrides.setdefault("train", {}).setdefault("eval_stride", "4")
-        folder = run_bench(capture, out, chosen, budget, overrides, eval_views,
+        folder = run_bench(capture, out, chosen, budget, overrides, eval_views, marks,
                            on_result=lambda r: out_console.print(
                                f"{r['name']}: {r['points'][-1]['psnr']:.2f} dB after {r['train_seconds']:.0f} s "
                                f"({r['samples_per_ray']:.1f} samples/ray, {r['samples_per_s']:,} samples/s)", highlight=False))
