@@ -38,13 +38,13 @@ PRESET_CONFIGS = [
 # CPU-scale MLP (4x128, one network for both passes) with the paper's sampling (32 + 64 samples).
 ABLATION_CONFIGS = [
     BenchConfig("complete", "ablations", None, dict(MLP_CPU), note="Table 2 row 9: L = 10, view dependence, hierarchical"),
-    BenchConfig("no PE", "ablations", None, {**MLP_CPU, "positional_encoding": False}, note="row 1: raw x and d"),
-    BenchConfig("no view dependence", "ablations", None, {**MLP_CPU, "view_dependence": False}, note="row 2"),
-    BenchConfig("no hierarchical", "ablations", None, {**MLP_CPU, "hierarchical": False}, note="row 3: N_c samples only"),
-    BenchConfig("far fewer images", "ablations", None, {**MLP_CPU, "train_images": 25}, note="row 4: 25 images"),
-    BenchConfig("fewer images", "ablations", None, {**MLP_CPU, "train_images": 50}, note="row 5: 50 images"),
-    BenchConfig("fewer frequencies", "ablations", None, {**MLP_CPU, "pos_freqs": 5}, note="row 6: L = 5"),
-    BenchConfig("more frequencies", "ablations", None, {**MLP_CPU, "pos_freqs": 15}, note="row 7: L = 15"),
+    BenchConfig("no PE", "ablations", None, {**MLP_CPU, "positional_encoding": False}, note="row 2: raw x and d"),
+    BenchConfig("no view dependence", "ablations", None, {**MLP_CPU, "view_dependence": False}, note="row 3"),
+    BenchConfig("no hierarchical", "ablations", None, {**MLP_CPU, "hierarchical": False}, note="row 4: N_c samples only (the paper: 256 of them)"),
+    BenchConfig("far fewer images", "ablations", None, {**MLP_CPU, "train_images": 25}, note="row 5: 25 images"),
+    BenchConfig("fewer images", "ablations", None, {**MLP_CPU, "train_images": 50}, note="row 6: 50 images"),
+    BenchConfig("fewer frequencies", "ablations", None, {**MLP_CPU, "pos_freqs": 5}, note="row 7: L = 5"),
+    BenchConfig("more frequencies", "ablations", None, {**MLP_CPU, "pos_freqs": 15}, note="row 8: L = 15"),
 ]
 
 CONFIGS = {c.name: c for c in PRESET_CONFIGS + ABLATION_CONFIGS}
