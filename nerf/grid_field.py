@@ -123,12 +123,6 @@ class GridField(nn.Module):
             nn.Linear(config.hidden, config.hidden), nn.ReLU(), nn.Linear(config.hidden, 3),
         )
 
-    def grid_parameters(self) -> list[nn.Parameter]:
-        return [self.table]
-
-    def mlp_parameters(self) -> list[nn.Parameter]:
-        return list(self.density_net.parameters()) + list(self.color_net.parameters())
-
     def encode(self, x: Tensor) -> tuple[Tensor, Tensor]:
         """(M, 3) -> features (M, levels * features) and whether each point is inside the box (M,)."""
         u = (x - self.lo) / (self.hi - self.lo)

@@ -160,8 +160,9 @@ class PackedSamples:
     def count(self) -> Tensor:
         return self.valid.sum(dim=-1)
 
-    def columns(self, width: int) -> "PackedSamples":
-        return PackedSamples(self.t[:, :width], self.starts[:, :width], self.ends[:, :width], self.valid[:, :width])
+    def columns(self, start: int, stop: int) -> "PackedSamples":
+        return PackedSamples(self.t[:, start:stop], self.starts[:, start:stop], self.ends[:, start:stop],
+                             self.valid[:, start:stop])
 
     def rows(self, index: Tensor) -> "PackedSamples":
         return PackedSamples(self.t[index], self.starts[index], self.ends[index], self.valid[index])
@@ -243,7 +244,8 @@ def visible(density_fn: DensityFn, origins: Tensor, directions: Tensor, samples:
         sigmas[samples.valid] = density_fn(points[samples.valid]).float().to(sigmas.dtype)
         keep = samples.valid & (transmittance_before(sigmas, samples) > early_stop)
     width = max(int(keep.sum(dim=-1).max()), 1)
-    return PackedSamples(samples.t[:, :width], samples.starts[:, :width], samples.ends[:, :width], keep[:, :width])
+    kept = samples.columns(0, width)
+    return PackedSamples(kept.t, kept.starts, kept.ends, keep[:, :width])
 
 
 def evaluate_packed(field: FieldFn, origins: Tensor, directions: Tensor, viewdirs: Tensor,
@@ -297,8 +299,7 @@ def render_marched_segments(field: FieldFn, origins: Tensor, directions: Tensor,
     depth_sum = torch.zeros(n_rays, dtype=dtype, device=origins.device)
     evaluated = 0
     for start in range(0, width, segment):
-        part = samples.columns(start + segment)
-        part = PackedSamples(part.t[:, start:], part.starts[:, start:], part.ends[:, start:], part.valid[:, start:])
+        part = samples.columns(start, start + segment)
         active = part.valid.any(dim=-1)
         if config.early_stop > 0:
             active &= T > config.early_stop
@@ -326,9 +327,4 @@ def render_marched_segments(field: FieldFn, origins: Tensor, directions: Tensor,
     positive = depth > 0
     disparity = torch.where(positive, 1.0 / torch.where(positive, depth, torch.ones_like(depth)), torch.zeros_like(depth))
     return {"rgb": rgb, "depth": depth, "disparity": disparity, "acc": acc}, evaluated
-
-
-def step_size(grid: OccupancyGrid, config: MarchingConfig) -> float:
-    """The marching step in field space."""
-    return grid.diagonal / config.steps
 
