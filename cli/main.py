@@ -266,6 +266,93 @@ def bench(
 
 
 @app.command()
+def batch(
+    captures_root: Path = typer.Argument(..., help="Folder with one folder of photos per capture."),
+    out: Path = typer.Option(..., "--out", "-o", help="Runs root: one run directory per capture, OUT/<capture>."),
+    executor: str = typer.Option("local", "--executor", "-e", help="local (this machine) or ray (a Ray cluster)."),
+    address: Optional[str] = typer.Option(None, "--address", help="Ray cluster address, e.g. 10.0.0.1:6379 or auto "
+                                          "[default: start Ray on this machine]."),
+    max_parallel: int = typer.Option(0, "--max-parallel", "-j", help="Captures in progress at once [default: local 1, "
+                                     "ray as many as the cluster's resources run]."),
+    max_retries: int = typer.Option(2, "--max-retries", help="Restarts of a stage whose worker or node died."),
+    preset: Optional[str] = PresetOption,
+    set_: List[str] = SetOption,
+    until: Optional[str] = typer.Option(None, "--until", help="Run the stages up to and including this one."),
+    debug: bool = DebugOption,
+) -> None:
+    """Run every capture folder inside CAPTURES_ROOT, each stage a task of the executor; same cache as `run`."""
+    _setup_logging(debug)
+    if not debug:
+        logging.getLogger("nerfpipe").handlers[0].setLevel(logging.ERROR)  # each capture's log file has the rest
+    from nerfpipe.pipeline.batch import SUMMARY, Batch, BatchSettings, find_captures
+    from nerfpipe.pipeline.executors import LocalExecutor, RayExecutor
+
+    with _user_errors(debug):
+        if executor not in ("local", "ray"):
+            raise typer.BadParameter(f"expected local or ray, got {executor!r}", param_hint="--executor")
+        if max_parallel < 0:
+            raise typer.BadParameter(f"must be 0 or more, got {max_parallel}", param_hint="--max-parallel")
+        if address is not None and executor != "ray":
+            raise typer.BadParameter("only with --executor ray", param_hint="--address")
+        sources = find_captures(captures_root)
+        settings = BatchSettings(preset=preset, overrides=parse_assignments(set_), until=until, max_parallel=max_parallel)
+        runner = LocalExecutor(max_parallel or 1, max_retries) if executor == "local" else RayExecutor(address, max_retries)
+        with runner, _batch_progress(len(sources)) as on_change:
+            states = Batch(sources, out, runner, settings, on_change).run()
+    table = Table(title=f"nerfpipe batch -> {out} ({executor})", title_justify="left")
+    for column in ("capture", "state", "ran", "cached", "time"):
+        table.add_column(column)
+    table.add_column("reason", overflow="fold")
+    for c in states:
+        reason = "" if c.error is None else f"{c.stage or 'plan'}: {c.error}" + (f" (log: {c.log})" if c.log else "")
+        style = {"done": "green", "failed": "red"}.get(c.state, "")
+        table.add_row(c.name, f"[{style}]{c.state}[/]", str(c.count("ran")), str(c.count("cached") + c.count("restored")),
+                      f"{c.seconds:.1f} s", escape(reason))
+    out_console.print(table)
+    failed = [c for c in states if c.state != "done"]
+    out_console.print(f"{len(states) - len(failed)} of {len(states)} captures done, {len(failed)} failed; "
+                      f"summary: {escape(str(out / SUMMARY))}", highlight=False, soft_wrap=True)
+    if failed:
+        raise typer.Exit(1)
+
+
+@contextlib.contextmanager
+def _batch_progress(total: int) -> Iterator[Callable]:
+    """One line per capture (state, current stage, time) and the totals: a live table on a terminal,
+    else a line whenever a capture moves on."""
+    def totals(states) -> str:
+        counts = {k: sum(1 for c in states if c.state == k) for k in ("running", "done", "failed", "queued")}
+        return ", ".join(f"{v} {k}" for k, v in counts.items()) + f" of {total}"
+
+    if not err_console.is_terminal:
+        seen: dict[str, tuple] = {}
+
+        def on_change(states) -> None:
+            for c in states:
+                now = (c.state, c.stage)
+                if seen.get(c.name) != now and c.state != "queued":
+                    seen[c.name] = now
+                    where = c.stage or ""
+                    err_console.print(f"batch: {c.name}: {c.state} {where} ({totals(states)})".replace("  ", " "),
+                                      highlight=False, soft_wrap=True)
+
+        yield on_change
+        return
+    from rich.live import Live
+
+    def render(states) -> Table:
+        table = Table(title=totals(states), title_justify="left", box=None)
+        for column in ("capture", "state", "stage", "time"):
+            table.add_column(column)
+        for c in states:
+            table.add_row(c.name, c.state, c.stage or "", f"{c.seconds:.0f} s" if c.started else "")
+        return table
+
+    with Live(console=err_console, transient=True, refresh_per_second=4) as live:
+        yield lambda states: live.update(render(states))
+
+
+@app.command()
 def stages() -> None:
     """The stage graph, with each stage's parameters, defaults and presets."""
     pipe_stages = default_stages()

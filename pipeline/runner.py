@@ -12,6 +12,7 @@ import contextlib
 import importlib.metadata
 import json
 import logging
+import os
 import platform
 import time
 from dataclasses import dataclass, field
@@ -22,7 +23,7 @@ from nerfpipe.pipeline.dag import Dag
 from nerfpipe.pipeline.errors import InputError, NerfpipeError, ParamError, UpstreamNotReadyError
 from nerfpipe.pipeline.fingerprint import Fingerprint, FingerprintCache, diff_inputs
 from nerfpipe.pipeline.hashing import cache_key
-from nerfpipe.pipeline.lock import RunLock
+from nerfpipe.pipeline.lock import RunLock, StageLock
 from nerfpipe.pipeline.params import build_params, describe_changes, params_to_dict
 from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress
 from nerfpipe.pipeline.store import ArtifactStore, Committed, write_json_atomic
@@ -120,6 +121,7 @@ class Pipeline:
         self.overrides = {k: dict(v) for k, v in (overrides or {}).items()}
         self.progress = progress
         self.debug = debug
+        self.log_path: Path | None = None  # the log file of the latest run or run_stage
         self.store = ArtifactStore(self.run_dir)
         for stage_name in self.overrides:
             self.dag.check_name(stage_name)
@@ -230,23 +232,49 @@ class Pipeline:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         with RunLock(self.run_dir), self._log_to_file():
             planned = self.plan()
-            self._save_config()
+            self.save_config()
             outcomes = []
             for name in selected:
-                outcomes.append(self._run_one(planned[name], forced=name in forced, only=only is not None))
+                outcomes.append(self._run_one(planned[name], forced=name in forced))
             return outcomes
 
-    def _run_one(self, planned: PlannedStage, forced: bool, only: bool) -> StageOutcome:
+    def run_stage(self, name: str, force: bool = False) -> StageOutcome:
+        """Run one stage whose upstream results exist, in whichever process or node this is.
+
+        What a batch executor calls for each (capture, stage). It holds no run lock (the batch's driver
+        does): only the stage lock, so stages of one capture may run at once in different processes.
+        Raises ``UpstreamNotReadyError`` when an upstream stage has no result.
+        """
+        planned = self.plan()[self.dag.check_name(name)]
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        with self._log_to_file(name):
+            return self._run_one(planned, forced=force)
+
+    def _run_one(self, planned: PlannedStage, forced: bool) -> StageOutcome:
+        # Two writers of one (stage, key), in two processes or on two nodes of a cluster: the second
+        # waits here, then finds the first one's result. A killed holder's lock goes with it.
+        with StageLock(self.run_dir, planned.name, planned.key):
+            return self._run_locked(planned, forced)
+
+    def restore(self, name: str) -> StageOutcome | None:
+        """If stage ``name`` has a result for the current settings, make it the latest and say so; else None."""
+        planned = self.plan()[self.dag.check_name(name)]
+        hit = self.store.get(name, planned.key)
+        if hit is None:
+            return None
+        latest = self.store.latest(name)
+        if latest is not None and latest.key == planned.key:
+            log.info("%s: fresh, nothing to do", name)
+            return StageOutcome(name, "cached", planned.key, hit.path, 0.0)
+        self.store.set_latest(name, planned.key)
+        log.info("%s: restored the result of an earlier run with these settings", name)
+        return StageOutcome(name, "restored", planned.key, hit.path, 0.0)
+
+    def _run_locked(self, planned: PlannedStage, forced: bool) -> StageOutcome:
         name, key = planned.name, planned.key
-        hit = self.store.get(name, key)
-        if hit is not None and not forced:
-            latest = self.store.latest(name)
-            if latest is not None and latest.key == key:
-                log.info("%s: fresh, nothing to do", name)
-                return StageOutcome(name, "cached", key, hit.path, 0.0)
-            self.store.set_latest(name, key)
-            log.info("%s: restored the result of an earlier run with these settings", name)
-            return StageOutcome(name, "restored", key, hit.path, 0.0)
+        restored = None if forced else self.restore(name)
+        if restored is not None:
+            return restored
 
         inputs = self.stage_inputs(name)
         for up in self.dag.upstream[name]:
@@ -290,17 +318,23 @@ class Pipeline:
         log.info("%s: done in %.1f s -> %s", name, finished - started, committed.path)
         return StageOutcome(name, "ran", key, committed.path, finished - started, tuple(reasons), summary)
 
-    def _save_config(self) -> None:
-        write_json_atomic(
-            self.run_dir / RUN_CONFIG,
-            {"source": str(self.source.resolve()), "preset": self.preset, "overrides": self.overrides},
-        )
+    def save_config(self) -> None:
+        """Record the capture folder and settings in run.json, for ``status``, ``report`` and ``view``."""
+        config = {"source": str(self.source.resolve()), "preset": self.preset, "overrides": self.overrides}
+        try:
+            if json.loads((self.run_dir / RUN_CONFIG).read_text(encoding="utf-8")) == config:
+                return
+        except (FileNotFoundError, ValueError):
+            pass
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(self.run_dir / RUN_CONFIG, config)
 
     @contextlib.contextmanager
-    def _log_to_file(self) -> Iterator[Path]:
+    def _log_to_file(self, label: str = "run") -> Iterator[Path]:
         logs = self.run_dir / "logs"
         logs.mkdir(parents=True, exist_ok=True)
-        path = logs / f"run-{time.strftime('%Y%m%d-%H%M%S')}-{int(time.time() * 1000) % 1000:03d}.log"
+        path = logs / f"{label}-{time.strftime('%Y%m%d-%H%M%S')}-{int(time.time() * 1000) % 1000:03d}-{os.getpid()}.log"
+        self.log_path = path
         handler = logging.FileHandler(path, encoding="utf-8")
         handler.setLevel(logging.DEBUG)
         handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)-7s %(name)s: %(message)s"))

@@ -66,6 +66,10 @@ class Stage:
     # A resumable stage keeps its work folder across interrupted attempts at the same cache key (and
     # must cope with finding a partial one there); others always start from an empty folder.
     resumable: ClassVar[bool] = False
+    # Resources a batch executor reserves for one run of the stage: CPU cores, and a GPU when the
+    # stage can use one and the cluster has one (``accelerated``).
+    cpus: ClassVar[float] = 1
+    accelerated: ClassVar[bool] = False
 
     @classmethod
     def summary(cls) -> str:

@@ -57,6 +57,7 @@ class ExportDepthStage(Stage):
     requires = ("model", "model_json", "views", "world", "bounds")
     provides = {"depth": "depth", "depth_index": "depth.json"}
     libraries = ("torch", "numpy", "opencv-contrib-python-headless", "matplotlib")
+    accelerated = True
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
         s = manifest.get("summary", {})

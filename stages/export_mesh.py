@@ -68,6 +68,7 @@ class ExportMeshStage(Stage):
     requires = ("model", "model_json", "bounds", "depth", "depth_index", "points")
     provides = {"mesh": "mesh.ply", "mesh_obj": "mesh.obj", "mesh_glb": "mesh.glb"}
     libraries = ("torch", "numpy", "open3d")
+    accelerated = True
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
         s = manifest.get("summary", {})

@@ -109,6 +109,7 @@ class RenderStage(Stage):
     requires = ("model", "model_json", "world", "bounds", "scene")
     provides = {"video": "render.mp4", "depth_video": "depth.mp4", "frames": "frames", "camera_path": "camera_path.json"}
     libraries = ("torch", "numpy", "opencv-contrib-python-headless", "matplotlib")
+    accelerated = True
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
         s = manifest.get("summary", {})

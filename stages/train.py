@@ -202,6 +202,7 @@ class TrainStage(Stage):
     provides = {"model": "model.pt", "model_json": "model.json", "metrics": "metrics.json", "eval": "eval",
                 "views": "views.json"}
     libraries = ("torch", "kornia", "numpy")
+    accelerated = True
     resumable = True
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:

@@ -107,3 +107,52 @@ class SavedCameras(Stage):
             for name, pixels in self.images.items():
                 cv2.imwrite(str(out / self.images_artifact / name), pixels)
         return {"frames": len(self.cameras.frames)}
+
+
+# -- batch and executors: module-level, so spawned worker processes and Ray workers can import them ----
+def add(a: int, b: int = 0, *upstream: int) -> int:
+    """A task: a + b + the results of the tasks it ran after."""
+    return a + b + sum(upstream)
+
+
+def fail_with(message: str) -> int:
+    raise ValueError(message)
+
+
+def die_until(marker: str, deaths: int) -> int:
+    """Kill the worker process running it, ``deaths`` times over (counted in the file ``marker``), then return 7."""
+    import signal
+
+    path = Path(marker)
+    seen = int(path.read_text()) if path.exists() else 0
+    if seen < deaths:
+        path.write_text(str(seen + 1))
+        os.kill(os.getpid(), signal.SIGKILL)
+    return 7
+
+
+@dataclass(frozen=True)
+class SlowParams:
+    seconds: float = 1.0
+
+
+class SlowCountStage(CountStage):
+    """CountStage that takes ``seconds`` first, so two processes running it overlap."""
+
+    name = "slow_count"
+    Params = SlowParams
+    presets = {}
+    provides = {"slow_count": "count.json"}
+
+    def run(self, inputs, out, params, ctx):
+        import time
+
+        (out / "started").write_text(str(os.getpid()))
+        time.sleep(params.seconds)
+        images = json.loads(inputs["images_json"].read_text())["images"]
+        (out / "count.json").write_text(json.dumps({"images": len(images)}))
+        return {"images": len(images), "pid": os.getpid()}
+
+
+def slow_stages() -> list[Stage]:
+    return [IngestStage(), SlowCountStage()]
