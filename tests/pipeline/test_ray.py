@@ -132,3 +132,19 @@ def test_a_ray_batch_matches_the_local_executor_isolates_failures_and_survives_a
     for c in again:
         if c.name != "lego_broken":
             assert c.state == "done" and c.count("ran") == 0 and not c.tasks, c.name
+
+
+def test_nerfpipe_batch_on_ray_from_the_command_line(captures, tmp_path):
+    from helpers import run_cli
+
+    out = tmp_path / "runs"
+    result = run_cli("batch", captures, "--out", out, "--executor", "ray", "--until", "scene", "--set", "ingest.max_size=40",
+                     timeout=300)
+    assert result.returncode == 1, result.stderr[-2000:]  # lego_broken fails
+    assert "3 of 4 captures done, 1 failed" in result.stdout and "Traceback" not in result.stderr
+    summary = json.loads((out / "batch.json").read_text())
+    assert summary["executor"] == "ray"
+    states = {c["capture"]: c for c in summary["captures"]}
+    assert states["lego_broken"]["stage"] == "ingest" and "is truncated" in states["lego_broken"]["error"]
+    assert all(states[n]["stages"]["scene"]["action"] == "ran" for n in ("lego", "temple_a", "temple_b"))
+    assert "train" not in states["lego"]["stages"]  # --until scene
