@@ -45,10 +45,11 @@ def test_select_expands_groups_and_refuses_unknown_names() -> None:
     assert [c.name for c in select(["fast", "presets"])][:2] == ["fast", "draft"]
     ablations = select(["ablations"])
     assert len(ablations) == 8 and ablations[0].name == "complete"
-    # each ablation changes one thing of the complete model
+    # each ablation changes one thing of the complete model; row 4 also its N_c, as in the paper's (256, -)
     base = CONFIGS["complete"].overrides()
     for config in ablations[1:]:
         changed = {k for k, v in config.overrides().items() if base.get(k) != v}
-        assert len(changed) == 1, (config.name, changed)
+        assert len(changed) == 1 or config.name == "no hierarchical", (config.name, changed)
+    assert CONFIGS["no hierarchical"].overrides()["n_coarse"] == base.get("n_coarse", 32) + (32 + 64)  # equal evaluations
     with pytest.raises(KeyError, match="turbo"):
         select(["turbo"])
