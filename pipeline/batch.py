@@ -159,6 +159,7 @@ class Batch:
             raise InputError(None, "two captures share a folder name", "give each capture folder a unique name")
         self.captures = [CaptureState(p.name, Path(p), self.runs_root / p.name) for p in map(Path, sources)]
         self._stages = load_stages(settings.stages)
+        self._owner: dict[Handle, tuple[CaptureState, str]] = {}  # each task's capture and stage
         # bad flags fail here, once, rather than once per capture
         dag = Dag(self._stages)
         if settings.until is not None:
@@ -184,12 +185,7 @@ class Batch:
                         self._settle(capture)
                     self._changed()
                 pending = [h for c in active for h in c.tasks.values() if not h.done]
-                if not pending:
-                    for capture in list(active):
-                        self._settle(capture)
-                        active.remove(capture)
-                    continue
-                for handle in self.executor.wait(pending, timeout=1.0):
+                for handle in self.executor.wait(pending, timeout=1.0) if pending else []:
                     self._record(handle)
                 for capture in [c for c in active if all(h.done for h in c.tasks.values())]:
                     self._settle(capture)
@@ -229,15 +225,15 @@ class Batch:
                     continue
             job = StageJob(capture.name, name, str(capture.source.resolve()), str(capture.run_dir.resolve()),
                            settings.stages, settings.preset, settings.overrides)
-            capture.tasks[name] = self.executor.submit(
+            capture.tasks[name] = handle = self.executor.submit(
                 run_stage_task, (job,), upstream, cpus=stage.cpus, gpus=1 if stage.accelerated else 0,
                 label=f"{capture.name}:{name}",
             )
+            self._owner[handle] = (capture, name)
         self._advance(capture)
 
     def _record(self, handle: Handle) -> None:
-        capture = next(c for c in self.captures if handle in c.tasks.values())
-        name = handle.label.rpartition(":")[2]
+        capture, name = self._owner.pop(handle)
         value = handle.value
         if isinstance(value, TaskFailure):
             value = {"ok": False, "stage": name, "error": value.reason, "lost": value.lost}

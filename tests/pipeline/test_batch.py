@@ -6,6 +6,7 @@ The same batches on a Ray instance, with the real stages, are in tests/pipeline/
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import TEMPLE, run_cli
+from helpers import TEMPLE, run_cli, slow_stages, two_stages
 from nerfpipe.pipeline import InputError, ParamError, Pipeline
 from nerfpipe.pipeline.batch import SUMMARY, Batch, BatchSettings, find_captures, run_stage_task, StageJob
 from nerfpipe.pipeline.executors import LocalExecutor
@@ -43,7 +44,7 @@ def test_a_batch_runs_each_capture_into_its_own_run_directory_and_a_rerun_does_n
     states = run_batch(sources, tmp_path / "runs")
     assert [(c.name, c.state, c.count("ran")) for c in states] == [("cap0", "done", 2), ("cap1", "done", 2), ("cap2", "done", 2)]
     for source, n in zip(sources, (2, 3, 4)):
-        result = Pipeline.from_run_dir([*__import__("helpers").two_stages()], tmp_path / "runs" / source.name).result("count")
+        result = Pipeline.from_run_dir(two_stages(), tmp_path / "runs" / source.name).result("count")
         assert json.loads((result.path / "count.json").read_text()) == {"count": n}
     summary = json.loads((tmp_path / "runs" / SUMMARY).read_text())
     assert [c["state"] for c in summary["captures"]] == ["done"] * 3 and summary["executor"] == "local"
@@ -77,8 +78,8 @@ def test_two_local_workers_give_the_same_outputs_as_one(tmp_path):
     for a, b in zip(one, two):
         assert b.state == "done"
         for stage in ("ingest", "count"):
-            out_a = Pipeline.from_run_dir(__import__("helpers").two_stages(), a.run_dir).result(stage).manifest["outputs"]
-            out_b = Pipeline.from_run_dir(__import__("helpers").two_stages(), b.run_dir).result(stage).manifest["outputs"]
+            out_a = Pipeline.from_run_dir(two_stages(), a.run_dir).result(stage).manifest["outputs"]
+            out_b = Pipeline.from_run_dir(two_stages(), b.run_dir).result(stage).manifest["outputs"]
             assert out_a == out_b
     assert {two[0].finished["ingest"]["pid"], two[1].finished["ingest"]["pid"]} - {one[0].finished["ingest"]["pid"]}
 
@@ -118,11 +119,11 @@ print(json.dumps({"action": pipe.run_stage("slow_count").action}), flush=True)
 def test_two_workers_racing_on_one_stage_leave_one_complete_result(tmp_path):
     source = make_captures(tmp_path / "captures", sizes=(3,))[0]
     run_dir = tmp_path / "shared-run"
-    Pipeline(__import__("helpers").slow_stages(), source, run_dir).run_stage("ingest")
+    Pipeline(slow_stages(), source, run_dir).run_stage("ingest")
     env_path = str(Path(__file__).resolve().parents[1])
     racers = [
         subprocess.Popen([sys.executable, "-c", RACE, str(source), str(run_dir), "-"], stdout=subprocess.PIPE, text=True,
-                         env={**__import__("os").environ, "PYTHONPATH": env_path})
+                         env={**os.environ, "PYTHONPATH": env_path})
         for _ in range(2)
     ]
     actions = sorted(json.loads(p.communicate(timeout=120)[0])["action"] for p in racers)
