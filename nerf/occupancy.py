@@ -15,7 +15,8 @@ nerfacc (Li et al. 2023) does the same in PyTorch. This module is that scheme fo
 - ``render_marched``: the samples composited with Eq. 3 (``rendering.composite`` with explicit
   intervals). A density-only pass without gradients drops the samples behind the point where
   transmittance falls below ``early_stop`` before the field is evaluated with gradients; rendering
-  without gradients marches in segments and stops each ray there.
+  without gradients marches in segments and stops each ray there. A sample budget keeps the leading rays
+  whose samples fit it, so one training step costs about the same however the grid changed.
 """
 
 from __future__ import annotations
@@ -164,7 +165,7 @@ class PackedSamples:
         return PackedSamples(self.t[:, start:stop], self.starts[:, start:stop], self.ends[:, start:stop],
                              self.valid[:, start:stop])
 
-    def rows(self, index: Tensor) -> "PackedSamples":
+    def rows(self, index: Tensor | slice) -> "PackedSamples":
         return PackedSamples(self.t[index], self.starts[index], self.ends[index], self.valid[index])
 
 
@@ -266,16 +267,33 @@ def composite_packed(rgb: Tensor, sigma: Tensor, samples: PackedSamples, far: Te
     return composite(sigma, rgb, samples.t, far, background, intervals=(samples.starts, samples.ends))
 
 
+def rays_within(samples: PackedSamples, budget: int) -> int:
+    """How many leading rays have at most ``budget`` samples together; at least one."""
+    total = torch.cumsum(samples.count, dim=0)
+    return max(int((total <= budget).sum()), 1)
+
+
 def render_marched(field: FieldFn, density_fn: DensityFn, origins: Tensor, directions: Tensor, viewdirs: Tensor,
                    near: Tensor, far: Tensor, grid: OccupancyGrid, config: MarchingConfig,
                    background: Tensor | None = None, randomized: bool = True,
-                   generator: torch.Generator | None = None) -> tuple[Composite, int]:
+                   generator: torch.Generator | None = None, max_samples: int = 0) -> tuple[Composite, int]:
     """Render rays by marching the occupancy grid, with gradients (training).
+
+    ``max_samples`` (0: no limit) bounds the work of one call, whatever the grid became since the caller
+    chose how many rays to draw: the visibility pass evaluates the leading rays with at most
+    ``4 * max_samples`` marched samples, and the field, with gradients, those of them with at most
+    ``max_samples`` visible ones. The composite is of those leading rays only (its length says how many).
 
     Returns the composite (Eq. 3 over the marched intervals) and how many samples the field evaluated.
     """
     samples = march(origins, directions, near, far, grid, config.steps, randomized, generator)
+    if max_samples > 0:
+        n = rays_within(samples, 4 * max_samples)
+        samples, origins, directions, viewdirs, far = samples.rows(slice(0, n)), origins[:n], directions[:n], viewdirs[:n], far[:n]
     samples = visible(density_fn, origins, directions, samples, config.early_stop)
+    if max_samples > 0:
+        n = rays_within(samples, max_samples)
+        samples, origins, directions, viewdirs, far = samples.rows(slice(0, n)), origins[:n], directions[:n], viewdirs[:n], far[:n]
     rgb, sigma = evaluate_packed(field, origins, directions, viewdirs, samples)
     return composite_packed(rgb, sigma, samples, far, background), int(samples.valid.sum())
 

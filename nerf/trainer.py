@@ -121,6 +121,7 @@ class Trainer:
         self.background = model.background_tensor()
         self.rays_per_batch = float(config.batch_rays)  # adapted to ``batch_samples`` while marching
         self.samples = 0  # field evaluations of the last step
+        self.rays = 0  # rays of the last step
         self.total_samples = 0
         self.total_rays = 0
 
@@ -187,18 +188,25 @@ class Trainer:
         with _autocast(self.device, self.config.autocast):
             if model.occupancy is not None:
                 self.update_occupancy(step, generator)
+                # a grid update can make every ray longer at once: at most twice the samples wanted, whatever
+                # the number of rays drawn
                 final, self.samples = render_marched(
                     field(model.coarse), model.coarse.query_density, rays.origins, rays.directions, rays.viewdirs,
-                    rays.near, rays.far, model.occupancy, model.marching, self.background, True, generator)
+                    rays.near, rays.far, model.occupancy, model.marching, self.background, True, generator,
+                    max_samples=2 * self.config.batch_samples)
                 out = {"coarse": final}
+                self.rays = len(final.rgb)
+                target = target[:self.rays]
                 if self.config.batch_samples > 0:  # Instant-NGP: keep the samples per batch about constant
-                    per_ray = max(self.samples / len(index), 1.0)
+                    per_ray = max(self.samples / self.rays, 1.0)
                     wanted = min(max(self.config.batch_samples / per_ray, 256.0), 16.0 * self.config.batch_rays)
-                    self.rays_per_batch = 0.8 * self.rays_per_batch + 0.2 * wanted
+                    # grow smoothly; shrink at once, since a batch too large costs time and memory
+                    self.rays_per_batch = min(0.8 * self.rays_per_batch + 0.2 * wanted, wanted)
             else:
                 out = render_rays(field(model.coarse), None if model.fine is None else field(model.fine),
                                   rays, model.sampling, self.background, randomized=True, generator=generator)
                 self.samples = self.samples_per_step(len(index))
+                self.rays = len(index)
         # Eq. 6: squared error of the coarse and the fine rendering (a mean rather than a sum over the batch)
         losses = {name: torch.mean((c.rgb - target) ** 2) for name, c in out.items()}
         loss = sum(losses.values())
@@ -232,6 +240,7 @@ class Trainer:
                 started = time.perf_counter()
                 rays = int(self.rays_per_batch)
                 loss, psnr = self.train_step(self.step)
+                rays = self.rays
                 if not math.isfinite(loss):
                     raise FloatingPointError(f"training loss became {loss} at step {self.step}")
                 if self.device.type == "cuda":

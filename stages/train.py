@@ -43,7 +43,7 @@ class TrainParams:
     steps: int = param(default=2000, metadata={"help": "optimization steps (the paper: 100-300k, Section 5.3)"})
     field: Literal["grid", "mlp"] = param(default="grid", metadata={"help": "grid: dense feature grids + a small MLP (fast); mlp: the paper's MLP (Fig. 7)"})
     batch_rays: int = param(default=4096, metadata={"help": "rays per batch (the paper: 4096); with batch_samples, the starting and largest / 16 batch"})
-    batch_samples: int = param(default=32768, metadata={"help": "while marching, adapt the rays per batch to about this many samples (Instant-NGP); 0: fixed batch_rays"})
+    batch_samples: int = param(default=32768, metadata={"help": "while marching, adapt the rays per batch to about this many samples (Instant-NGP), and evaluate at most twice as many a step; 0: fixed batch_rays"})
     occupancy: Literal["auto", "true", "false"] = param(default="auto", metadata={"help": "empty-space skipping with an occupancy grid; auto: with the grid field"})
     occupancy_resolution: int = param(default=64, metadata={"help": "cells a side of the occupancy grid"})
     march_steps: int = param(default=128, metadata={"help": "marching steps along the field box's diagonal (about one per image pixel at 100 px lego)"})
@@ -120,16 +120,16 @@ PAPER = {
     "include_input": False, "density_activation": "relu", "lr": 5e-4, "lr_final": 5e-5, "adam_eps": 1e-7,
     "adam_beta2": 0.999, "checkpoint_every": 10_000,
 }
-# the MLP of the CPU-scale NeRF (4x128, one network for both passes, softplus density, lr 3e-3) with the
-# paper's sampling (32 + 64): the "complete model" the Table 2 ablations of ``nerfpipe bench`` vary
+# the optimizer of the CPU-scale NeRF (4x128 MLP, softplus density, 512 rays a step, lr 3e-3 over 1500
+# steps); ``nerfpipe bench``'s Table 2 ablations and the ``balanced`` preset start from it
 MLP_CPU = {
     "field": "mlp", "occupancy": "false", "steps": 1500, "batch_rays": 512, "batch_samples": 0, "lr": 3e-3,
     "lr_final": 5e-5, "adam_eps": 1e-7, "adam_beta2": 0.999,
 }
 PRESETS = {
-    # lego at 100 px on 2 CPU cores (``nerfpipe bench``): 500 steps in about 1.5 minutes, 22.8 dB
+    # lego at 100 px on 2 CPU cores (``nerfpipe bench``): 500 steps in under a minute, 22.9 dB
     "draft": {"steps": 500, "grid_levels": 1, "grid_max_resolution": 64, "occupancy_resolution": 32},
-    # the default: 2000 steps, about 7 minutes there; 27.7 dB after 3 minutes, 28.8 dB after 5
+    # the default: 2000 steps, about 6 minutes there; 28.9 dB after 3 minutes, 29.3 dB after 5
     "fast": {},
     # the 4x128 MLP (Fig. 7's shape, smaller) marching the occupancy grid: 6000 steps, about half an hour there
     "balanced": {**MLP_CPU, "occupancy": "true", "steps": 6000, "batch_rays": 1024, "batch_samples": 32768,

@@ -45,11 +45,14 @@ def test_select_expands_groups_and_refuses_unknown_names() -> None:
     assert [c.name for c in select(["fast", "presets"])][:2] == ["fast", "draft"]
     ablations = select(["ablations"])
     assert len(ablations) == 8 and ablations[0].name == "complete"
-    # each ablation changes one thing of the complete model; row 4 also its N_c, as in the paper's (256, -)
+    # each ablation changes one thing of the complete model; row 4 also its N_c and networks, as the paper's (256, -)
     base = CONFIGS["complete"].overrides()
     for config in ablations[1:]:
         changed = {k for k, v in config.overrides().items() if base.get(k) != v}
         assert len(changed) == 1 or config.name == "no hierarchical", (config.name, changed)
-    assert CONFIGS["no hierarchical"].overrides()["n_coarse"] == base.get("n_coarse", 32) + (32 + 64)  # equal evaluations
+    # row 4 evaluates the field as often a ray as the complete model's N_c + (N_c + N_f), with one network
+    no_hierarchical = CONFIGS["no hierarchical"].overrides()
+    assert base["fine_network"] and not no_hierarchical["fine_network"] and not no_hierarchical["hierarchical"]
+    assert no_hierarchical["n_coarse"] == base["n_coarse"] + (base["n_coarse"] + base["n_fine"]) == 64
     with pytest.raises(KeyError, match="turbo"):
         select(["turbo"])

@@ -10,8 +10,8 @@ import torch
 
 from nerfpipe.nerf.analytic import SphereField
 from nerfpipe.nerf.occupancy import (
-    MarchingConfig, OccupancyGrid, march, pack_left, render_marched, render_marched_segments, transmittance_before,
-    visible,
+    MarchingConfig, OccupancyGrid, PackedSamples, march, pack_left, rays_within, render_marched, render_marched_segments,
+    transmittance_before, visible,
 )
 from nerfpipe.nerf.rays import intersect_box
 from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
@@ -161,6 +161,34 @@ def test_early_termination_drops_only_what_is_hidden() -> None:
                                         randomized=False)
     assert n_trained == int(counts.sum())
     assert torch.allclose(trained.rgb, early["rgb"], atol=2e-3)
+
+
+def test_rays_within_counts_the_leading_rays_that_fit() -> None:
+    valid = torch.tensor([[True, True, True, False, False], [False] * 5, [True] * 5, [True, True, False, False, False]])
+    samples = PackedSamples(torch.zeros(4, 5), torch.zeros(4, 5), torch.zeros(4, 5), valid)  # counts 3, 0, 5, 2
+    assert rays_within(samples, 10) == 4
+    assert rays_within(samples, 9) == 3  # 3 + 0 + 5 = 8 fit, + 2 does not
+    assert rays_within(samples, 7) == 2
+    assert rays_within(samples, 1) == 1  # always at least one ray, however long
+
+
+def test_a_sample_budget_renders_a_prefix_of_the_rays_unchanged() -> None:
+    sphere = SphereField(radius=0.5, density=200.0)
+    grid = OccupancyGrid(*BOX, resolution=16)  # every cell occupied: a fresh grid
+    o, d, near, far = camera_rays(300, spread=1.2)
+    config = MarchingConfig(steps=128, early_stop=1e-3)
+    whole, n_whole = render_marched(sphere, sphere.query_density, o, d, d, near, far, grid, config, torch.ones(3),
+                                    randomized=False)
+    budget = n_whole // 5
+    part, n_part = render_marched(sphere, sphere.query_density, o, d, d, near, far, grid, config, torch.ones(3),
+                                  randomized=False, max_samples=budget)
+    kept = len(part.rgb)
+    assert 0 < kept < 300 and n_part <= budget
+    torch.testing.assert_close(part.rgb, whole.rgb[:kept])
+    torch.testing.assert_close(part.depth, whole.depth[:kept])
+    # the next ray would not have fitted
+    counts = visible(sphere.query_density, o, d, march(o, d, near, far, grid, 128, randomized=False), 1e-3).count
+    assert int(counts[:kept].sum()) == n_part and int(counts[:kept + 1].sum()) > budget
 
 
 def test_randomized_marching_jitters_each_ray_within_one_step() -> None:

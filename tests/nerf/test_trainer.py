@@ -1,0 +1,60 @@
+"""The trainer's batches while marching: rays per batch follow the samples per ray (Instant-NGP), and one
+step never evaluates much more than it asked for, however the occupancy grid changed."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from helpers import look_at
+from nerfpipe.nerf.field import FieldConfig, NerfField
+from nerfpipe.nerf.model import RadianceModel, RaySpace
+from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
+from nerfpipe.nerf.rays import pixel_centers
+from nerfpipe.nerf.renderer import SamplingConfig
+from nerfpipe.nerf.trainer import PixelSet, TrainConfig, Trainer
+
+BOX = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
+
+
+def pixels_of_one_view(size: int = 32) -> PixelSet:
+    """A grey image seen from 3 units away, every ray through the box."""
+    uv = pixel_centers(size, size)
+    c2w = torch.tensor(look_at(np.array([0.0, -3.0, 0.0]), np.zeros(3)), dtype=torch.float32)
+    return PixelSet(rgb=torch.full((len(uv), 3), 0.5), image=torch.zeros(len(uv), dtype=torch.long), uv=uv,
+                    intrinsics=torch.tensor([[size / 1.2, size / 1.2, size / 2, size / 2]]), c2w=c2w[None],
+                    near=torch.tensor([1.0]), far=torch.tensor([5.0]))
+
+
+def marching_model() -> RadianceModel:
+    torch.manual_seed(0)
+    field = NerfField(FieldConfig(depth=2, width=32, skips=(), view_width=16, pos_freqs=4, dir_freqs=2,
+                                  density_activation="softplus"))
+    grid = OccupancyGrid(*BOX, resolution=8)  # fresh: every cell occupied, every ray marched end to end
+    return RadianceModel(field, None, SamplingConfig(8, 0), RaySpace(box=BOX), (1.0, 1.0, 1.0), {}, grid,
+                         MarchingConfig(steps=64, early_stop=1e-4, update_every=1000))
+
+
+def test_a_step_evaluates_at_most_twice_the_samples_it_asks_for_and_the_batch_shrinks_at_once(tmp_path) -> None:
+    model = marching_model()
+    config = TrainConfig(steps=10, batch_rays=1024, batch_samples=1000, lr=1e-3, lr_final=1e-4)
+    trainer = Trainer(model, pixels_of_one_view(), config, tmp_path, torch.device("cpu"))
+    trainer.train_step(1)  # not a grid update step: the grid stays fully occupied
+    # 1024 rays of about 15 samples each were drawn; only the leading rays within 2 x 1000 samples ran
+    assert 0 < trainer.samples <= 2000
+    assert trainer.rays < 1024 and trainer.samples / trainer.rays > 1000 / 256
+    # 1000 samples want fewer than 256 rays: the next batch drops straight to the smallest, 256 rays
+    assert trainer.rays_per_batch == 256.0
+    trainer.train_step(2)
+    assert trainer.rays <= 256 and trainer.samples <= 2000
+
+
+def test_the_batch_grows_smoothly_when_rays_get_shorter(tmp_path) -> None:
+    model = marching_model()
+    model.occupancy.occupied.zero_()  # nothing occupied: no samples at all
+    config = TrainConfig(steps=10, batch_rays=1024, batch_samples=100_000, lr=1e-3, lr_final=1e-4)
+    trainer = Trainer(model, pixels_of_one_view(), config, tmp_path, torch.device("cpu"))
+    trainer.train_step(1)
+    assert trainer.samples == 0 and trainer.rays == 1024
+    # wanted: 100000 rays (one sample a ray at least), capped at 16 x 1024; a fifth of the way there
+    assert trainer.rays_per_batch == 0.8 * 1024 + 0.2 * 16 * 1024
