@@ -273,6 +273,12 @@ def rays_within(samples: PackedSamples, budget: int) -> int:
     return max(int((total <= budget).sum()), 1)
 
 
+def leading_rays(budget: int, samples: PackedSamples, *per_ray: Tensor) -> tuple[PackedSamples, ...]:
+    """``samples`` and the per-ray tensors (R, ...) cut to the ``rays_within(samples, budget)`` leading rays."""
+    n = rays_within(samples, budget)
+    return (samples.rows(slice(0, n)), *(x[:n] for x in per_ray))
+
+
 def render_marched(field: FieldFn, density_fn: DensityFn, origins: Tensor, directions: Tensor, viewdirs: Tensor,
                    near: Tensor, far: Tensor, grid: OccupancyGrid, config: MarchingConfig,
                    background: Tensor | None = None, randomized: bool = True,
@@ -287,13 +293,13 @@ def render_marched(field: FieldFn, density_fn: DensityFn, origins: Tensor, direc
     Returns the composite (Eq. 3 over the marched intervals) and how many samples the field evaluated.
     """
     samples = march(origins, directions, near, far, grid, config.steps, randomized, generator)
+    per_ray = (origins, directions, viewdirs, far)
     if max_samples > 0:
-        n = rays_within(samples, 4 * max_samples)
-        samples, origins, directions, viewdirs, far = samples.rows(slice(0, n)), origins[:n], directions[:n], viewdirs[:n], far[:n]
-    samples = visible(density_fn, origins, directions, samples, config.early_stop)
+        samples, *per_ray = leading_rays(4 * max_samples, samples, *per_ray)
+    samples = visible(density_fn, per_ray[0], per_ray[1], samples, config.early_stop)
     if max_samples > 0:
-        n = rays_within(samples, max_samples)
-        samples, origins, directions, viewdirs, far = samples.rows(slice(0, n)), origins[:n], directions[:n], viewdirs[:n], far[:n]
+        samples, *per_ray = leading_rays(max_samples, samples, *per_ray)
+    origins, directions, viewdirs, far = per_ray
     rgb, sigma = evaluate_packed(field, origins, directions, viewdirs, samples)
     return composite_packed(rgb, sigma, samples, far, background), int(samples.valid.sum())
 

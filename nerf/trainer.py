@@ -238,7 +238,6 @@ class Trainer:
         with open(self.out / "metrics.jsonl", "a", encoding="utf-8") as metrics:
             while self.step < config.steps:
                 started = time.perf_counter()
-                rays = int(self.rays_per_batch)
                 loss, psnr = self.train_step(self.step)
                 rays = self.rays
                 if not math.isfinite(loss):

@@ -64,6 +64,9 @@ class FileLock:
             os.close(self._fd)
             self._fd = None
 
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
 
 class RunLock(FileLock):
     """One run at a time in a run directory: a second one fails at once, naming the holder."""
@@ -83,9 +86,6 @@ class RunLock(FileLock):
         self.acquire()
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.release()
-
 
 class StageLock(FileLock):
     """One writer per (stage, cache key): a second one waits, then finds the first one's result.
@@ -100,6 +100,3 @@ class StageLock(FileLock):
     def __enter__(self) -> "StageLock":
         self.acquire_waiting()
         return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.release()

@@ -258,7 +258,10 @@ class Pipeline:
 
     def restore(self, name: str) -> StageOutcome | None:
         """If stage ``name`` has a result for the current settings, make it the latest and say so; else None."""
-        planned = self.plan()[self.dag.check_name(name)]
+        return self._restore(self.plan()[self.dag.check_name(name)])
+
+    def _restore(self, planned: PlannedStage) -> StageOutcome | None:
+        name = planned.name
         hit = self.store.get(name, planned.key)
         if hit is None:
             return None
@@ -272,7 +275,7 @@ class Pipeline:
 
     def _run_locked(self, planned: PlannedStage, forced: bool) -> StageOutcome:
         name, key = planned.name, planned.key
-        restored = None if forced else self.restore(name)
+        restored = None if forced else self._restore(planned)
         if restored is not None:
             return restored
 
