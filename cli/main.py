@@ -228,6 +228,8 @@ def bench(
     eval_views: int = typer.Option(0, "--eval-views", help="Evaluate this many held-out views, evenly spaced (0: all)."),
     checkpoints: str = typer.Option("30,60,120,180,300,600", "--checkpoints",
                                     help="Training times in seconds at which to evaluate, comma-separated."),
+    seeds: int = typer.Option(1, "--seeds", help="Train each configuration this many times, seeds counting up; "
+                              "the tables give mean ± standard deviation."),
     set_: List[str] = SetOption,
     debug: bool = DebugOption,
 ) -> None:
@@ -250,19 +252,25 @@ def bench(
             raise typer.BadParameter(f"expected seconds separated by commas, got {checkpoints!r}", param_hint="--checkpoints") from None
         if not marks or marks[0] <= 0:
             raise typer.BadParameter(f"expected positive seconds, got {checkpoints!r}", param_hint="--checkpoints")
+        if seeds < 1:
+            raise typer.BadParameter(f"must be at least 1, got {seeds}", param_hint="--seeds")
         overrides = parse_assignments(set_)
         if size is not None:
             overrides.setdefault("ingest", {})["max_size"] = str(size)
         overrides.setdefault("train", {}).setdefault("eval_stride", "4")
-        folder = run_bench(capture, out, chosen, budget, overrides, eval_views, marks,
-                           on_result=lambda r: out_console.print(
-                               f"{r['name']}: {r['points'][-1]['psnr']:.2f} dB after {r['train_seconds']:.0f} s "
-                               f"({r['samples_per_ray']:.1f} samples/ray, {r['samples_per_s']:,} samples/s)", highlight=False))
+        folder = run_bench(capture, out, chosen, budget, overrides, eval_views, marks, seeds,
+                           on_result=lambda r: out_console.print(_bench_line(r, seeds > 1), highlight=False))
         from nerfpipe.export.report import write_report
 
         page = write_report(out)
     out_console.print((folder / "bench.md").read_text(), highlight=False, soft_wrap=True)
     out_console.print(f"bench: {escape(str(folder))}\nreport: {escape(str(page))}", highlight=False, soft_wrap=True)
+
+
+def _bench_line(result: dict, with_seed: bool) -> str:
+    seed = f" (seed {result['seed']})" if with_seed else ""
+    return (f"{result['name']}{seed}: {result['points'][-1]['psnr']:.2f} dB after {result['train_seconds']:.0f} s "
+            f"({result['samples_per_ray']:.1f} samples/ray, {result['samples_per_s']:,} samples/s)")
 
 
 @app.command()

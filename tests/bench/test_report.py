@@ -41,6 +41,26 @@ def test_markdown_and_plot(tmp_path) -> None:
     assert not list(tmp_path.glob(".*tmp*"))
 
 
+def test_seeds_give_mean_spread_and_difference_from_the_complete_model(tmp_path) -> None:
+    def seeded(name: str, psnrs: list[float]) -> list[dict]:
+        runs = [result(name, "ablations", [(60.0, 60.1, p)], finished=False) for p in psnrs]
+        for seed, run in enumerate(runs):
+            run["seed"] = seed
+        return runs
+
+    doc = {"capture": "lego", "budget": 60.0, "checkpoints": [60.0],
+           "results": seeded("complete", [21.0, 21.2, 21.4]) + seeded("no PE", [17.0, 17.3, 17.6])}
+    text = markdown(doc)
+    assert "| configuration | 1 min | Δ PSNR | steps |" in text
+    # mean 21.2, sample standard deviation 0.2; SSIM is PSNR / 100 here
+    assert "| complete | 21.20 ± 0.20 / 0.212 | reference | 100 |" in text
+    # -3.9 dB, standard error sqrt(0.2² / 3 + 0.3² / 3) = 0.208
+    assert "| no PE | 17.30 ± 0.30 / 0.173 | -3.90 ± 0.21 | 100 |" in text
+    assert "over seeds 0, 1, 2" in text
+    write_outputs(tmp_path, doc)
+    assert (tmp_path / "psnr_time.png").stat().st_size > 1000
+
+
 def test_select_expands_groups_and_refuses_unknown_names() -> None:
     assert [c.name for c in select(["fast", "presets"])][:2] == ["fast", "draft"]
     ablations = select(["ablations"])
