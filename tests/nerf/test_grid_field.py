@@ -58,4 +58,4 @@ def test_huge_raw_density_stays_finite() -> None:
     with torch.no_grad():
         field.density_net[-1].bias[0] = 1e4  # exp would overflow to inf
     sigma = field.query_density(torch.full((3, 3), 0.5))
-    assert bool(torch.isfinite(sigma).all()) and float(sigma.max()) == torch.exp(torch.tensor(15.0)).item()
+    assert bool(torch.isfinite(sigma).all()) and float(sigma.detach().max()) == torch.exp(torch.tensor(15.0)).item()
