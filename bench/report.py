@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from statistics import fmean, stdev
 from typing import Any
 
 
@@ -34,10 +35,7 @@ def configurations(results: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
 
 def mean_std(values: list[float]) -> tuple[float, float]:
     """Mean and sample standard deviation (0 for one value)."""
-    mean = sum(values) / len(values)
-    if len(values) < 2:
-        return mean, 0.0
-    return mean, (sum((v - mean) ** 2 for v in values) / (len(values) - 1)) ** 0.5
+    return fmean(values), stdev(values) if len(values) > 1 else 0.0
 
 
 def _at(runs: list[dict[str, Any]], seconds: float) -> list[dict[str, Any]] | None:
@@ -54,9 +52,10 @@ def markdown(doc: dict[str, Any]) -> str:
     """
     marks = doc["checkpoints"]
     lines = []
-    seeded = any(len(runs) > 1 for runs in configurations(doc["results"]))
+    grouped = configurations(doc["results"])
+    seeded = any(len(runs) > 1 for runs in grouped)
     for group in ("presets", "ablations"):
-        rows = [runs for runs in configurations(doc["results"]) if runs[0]["group"] == group]
+        rows = [runs for runs in grouped if runs[0]["group"] == group]
         if not rows:
             continue
         reference = next((runs for runs in rows if runs[0]["name"] == "complete"), None) if seeded else None
@@ -73,16 +72,18 @@ def markdown(doc: dict[str, Any]) -> str:
                     cells.append("–")
                     continue
                 psnr, spread = mean_std([p["psnr"] for p in points])
-                ssim = mean_std([p["ssim"] for p in points])[0]
+                ssim = fmean(p["ssim"] for p in points)
                 cells.append(f"{psnr:.2f}" + (f" ± {spread:.2f}" if seeded else "") + f" / {ssim:.3f}")
             if reference:
                 cells.append(_difference(runs, reference, marks[-1]))
-            n = len(runs)
-            done = "" if not all(r["finished"] for r in runs) else f" (done at {sum(r['train_seconds'] for r in runs) / n:.0f} s)"
+
+            def mean(key: str) -> float:
+                return fmean(r[key] for r in runs)
+
+            done = f" (done at {mean('train_seconds'):.0f} s)" if all(r["finished"] for r in runs) else ""
             renders = [r["render_seconds_per_image"] for r in runs if r["render_seconds_per_image"] is not None]
-            cells += [f"{round(sum(r['steps'] for r in runs) / n)}{done}", f"{sum(r['samples_per_ray'] for r in runs) / n:.1f}",
-                      f"{round(sum(r['samples_per_s'] for r in runs) / n):,}",
-                      f"{sum(renders) / len(renders):.2f}" if renders else "–",
+            cells += [f"{round(mean('steps'))}{done}", f"{mean('samples_per_ray'):.1f}",
+                      f"{round(mean('samples_per_s')):,}", f"{fmean(renders):.2f}" if renders else "–",
                       f"{max(r['peak_memory_bytes'] for r in runs) / 2**30:.2f} GiB"]
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
@@ -93,8 +94,9 @@ def markdown(doc: dict[str, Any]) -> str:
                      + (f" at {size[0]}x{size[1]}" if size else "") + f", on {first['device']}.")
         if seeded:
             seeds = sorted({r.get("seed", 0) for r in doc["results"]})
-            lines.append(f"Mean ± standard deviation over seeds {', '.join(map(str, seeds))} (train.seed); Δ PSNR: the "
-                         f"mean's difference from the complete model's after {_label(marks[-1])}, ± its standard error.")
+            lines.append(f"Mean ± standard deviation over seeds {', '.join(map(str, seeds))} (train.seed); "
+                         f"Δ PSNR: the mean's difference from the complete model's after {_label(marks[-1])}, "
+                         "± its standard error.")
     return "\n".join(lines) + "\n"
 
 
@@ -124,11 +126,11 @@ def plot(doc: dict[str, Any], path: Path) -> None:
             pts = sorted(runs[0]["points"], key=lambda p: p["seconds"])
             ax.plot([p["seconds"] / 60 for p in pts], [p["psnr"] for p in pts], marker="o", markersize=3, **style)
             continue
-        marks = [m for m in doc["checkpoints"] if _at(runs, m) is not None]
-        values = [[p["psnr"] for p in _at(runs, m) or []] for m in marks]
-        line, = ax.plot([m / 60 for m in marks], [sum(v) / len(v) for v in values], marker="o", markersize=3, **style)
-        ax.fill_between([m / 60 for m in marks], [min(v) for v in values], [max(v) for v in values],
-                        color=line.get_color(), alpha=0.15, linewidth=0)
+        at = {m: points for m in doc["checkpoints"] if (points := _at(runs, m)) is not None}
+        minutes, values = [m / 60 for m in at], [[p["psnr"] for p in points] for points in at.values()]
+        line, = ax.plot(minutes, [fmean(v) for v in values], marker="o", markersize=3, **style)
+        ax.fill_between(minutes, [min(v) for v in values], [max(v) for v in values], color=line.get_color(),
+                        alpha=0.15, linewidth=0)
     ax.set_xlabel("training time (min)")
     ax.set_ylabel("held-out PSNR (dB)")
     ax.grid(alpha=0.3)

@@ -33,8 +33,9 @@ def run_bench(capture: Path, run_dir: Path, configs: list[BenchConfig], budget: 
     """Benchmark ``configs`` on ``capture``; returns the ``bench`` folder.
 
     ``overrides`` apply to every configuration (for example ``ingest.max_size``); train parameters among
-    them win over each configuration's own, so ``--set train.steps=3000`` lengthens every schedule. Results of earlier configurations already in ``bench.json`` for the same settings
-    are kept, so an interrupted benchmark resumes with the configuration it was running.
+    them win over each configuration's own, so ``--set train.steps=3000`` lengthens every schedule.
+    Results of earlier configurations already in ``bench.json`` for the same settings are kept, so an
+    interrupted benchmark resumes with the configuration it was running.
 
     ``seeds`` > 1 trains each configuration that many times, with ``train.seed`` counting up from its own
     (0 unless set), so the tables can tell a difference between configurations from the spread of one
@@ -53,19 +54,20 @@ def run_bench(capture: Path, run_dir: Path, configs: list[BenchConfig], budget: 
         marks.append(budget)
     first_seed = int(overrides.get("train", {}).get("seed", 0))
     for config, n in ((c, n) for c in configs for n in range(seeds)):
-        train = {**config.overrides(), **overrides.get("train", {}), **({"seed": str(first_seed + n)} if n else {})}
+        seed = first_seed + n
+        train = {**config.overrides(), **overrides.get("train", {}), **({"seed": str(seed)} if n else {})}
         spec = {"name": config.name, "group": config.group, "note": config.note, "capture": str(capture.resolve()),
                 "run_dir": str(run_dir.resolve()), "overrides": {**shared, "train": train}, "budget": budget,
                 "checkpoints": marks, "eval_views": eval_views}
-        label = config.name + (f" (seed {first_seed + n})" if seeds > 1 else "")
+        label = config.name + (f" (seed {seed})" if seeds > 1 else "")
         kept = next((r for r in previous.get("results", []) if r.get("spec") == _comparable(spec)), None)
         if kept is not None:
             log.info("bench: %s: kept from the last benchmark", label)
-            results.append({**kept, "seed": first_seed + n})
+            results.append({**kept, "seed": seed})
             continue
         log.info("bench: %s (%s) for up to %.0f s of training", label, config.note, budget)
         result = _run_worker(spec)
-        result["seed"] = first_seed + n
+        result["seed"] = seed
         result["spec"] = _comparable(spec)
         results.append(result)
         on_result(result)
