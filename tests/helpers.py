@@ -22,10 +22,13 @@ TEMPLE = REPO / "samples" / "templeSparseRing"
 
 
 def shared(*parts: str) -> Path:
-    """A path under ../shared/data; the test is skipped, saying so, when that folder is absent."""
+    """A path under ../shared/data; skipped, saying so, when it is absent, and failed instead when ``CI=true``."""
     path = SHARED_DATA.joinpath(*parts)
     if not path.exists():
-        pytest.skip(f"shared data not found at {path}")
+        message = f"shared data not found at {path}"
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(f"{message}: CI runs beside ../shared", pytrace=False)
+        pytest.skip(message)
     return path
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import run_cli, shared
+from tests.helpers import run_cli, shared
 
 
 def small_lego(root: Path, train: int = 6, val: int = 4) -> Path:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import TEMPLE, run_cli, shared
+from tests.helpers import TEMPLE, run_cli, shared
 
 
 def error_lines(stderr: str) -> list[str]:

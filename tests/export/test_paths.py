@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from helpers import look_at
+from tests.helpers import look_at
 from nerfpipe.export.paths import (
     focus_depth,
     orbit_of,
@@ -16,7 +16,7 @@ from nerfpipe.export.paths import (
     spiral_radii,
     transform_poses,
 )
-from nerfpipe.stages.train import mean_camera
+from nerfpipe.geometry.cameras import mean_camera
 
 
 def rotation_about(axis: np.ndarray, degrees: float) -> np.ndarray:

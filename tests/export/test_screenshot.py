@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
-from helpers import look_at
+from tests.helpers import look_at
 from nerfpipe.export.screenshot import (
     FRUSTUM_LINES,
     FRUSTUM_POINTS,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import look_at
+from tests.helpers import look_at
 from nerfpipe.export.depth import DepthView, decode_depth_png, read_view, write_view
 from nerfpipe.export.mesh import Grid, clean, marching_cubes, read_mesh, surface_colors, transformed, tsdf_fusion, vertex_normals, write_mesh
 from nerfpipe.export.points import clean_cloud, transformed as cloud_transformed, views_to_points

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import SHARED_DATA
+from tests.helpers import SHARED_DATA
 
 RAW_SAMPLES = SHARED_DATA / "raw_samples"
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from helpers import look_at
+from tests.helpers import look_at
 from nerfpipe.nerf.analytic import SphereField
 from nerfpipe.nerf.rays import camera_rays, pixel_centers
 from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked

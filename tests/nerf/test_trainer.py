@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from helpers import look_at
+from tests.helpers import look_at
 from nerfpipe.nerf.field import FieldConfig, NerfField
 from nerfpipe.nerf.model import RadianceModel, RaySpace
 from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import TEMPLE, run_cli, slow_stages, two_stages
+from tests.helpers import TEMPLE, run_cli, slow_stages, two_stages
 from nerfpipe.pipeline import InputError, ParamError, Pipeline
 from nerfpipe.pipeline.batch import SUMMARY, Batch, BatchSettings, find_captures, run_stage_task, StageJob
 from nerfpipe.pipeline.executors import LocalExecutor
@@ -109,7 +109,7 @@ RACE = """
 import json, sys
 from pathlib import Path
 from nerfpipe.pipeline import Pipeline
-from helpers import slow_stages
+from tests.helpers import slow_stages
 pipe = Pipeline(slow_stages(), Path(sys.argv[1]), Path(sys.argv[2]))
 pipe.run_stage("ingest") if sys.argv[3] == "ingest" else None
 print(json.dumps({"action": pipe.run_stage("slow_count").action}), flush=True)
@@ -120,7 +120,7 @@ def test_two_workers_racing_on_one_stage_leave_one_complete_result(tmp_path):
     source = make_captures(tmp_path / "captures", sizes=(3,))[0]
     run_dir = tmp_path / "shared-run"
     Pipeline(slow_stages(), source, run_dir).run_stage("ingest")
-    env_path = str(Path(__file__).resolve().parents[1])
+    env_path = str(Path(__file__).resolve().parents[2])
     racers = [
         subprocess.Popen([sys.executable, "-c", RACE, str(source), str(run_dir), "-"], stdout=subprocess.PIPE, text=True,
                          env={**os.environ, "PYTHONPATH": env_path})

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from helpers import add, die_until, fail_with
+from tests.helpers import add, die_until, fail_with
 from nerfpipe.pipeline.errors import ParamError
 from nerfpipe.pipeline.executors import LocalExecutor, TaskFailure
 

@@ -11,7 +11,7 @@ import time
 from nerfpipe.pipeline import ArtifactStore, Pipeline
 from nerfpipe.stages import default_stages
 
-from helpers import shared
+from tests.helpers import shared
 
 
 def start_and_interrupt(run_dir, sig) -> subprocess.Popen:

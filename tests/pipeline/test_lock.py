@@ -12,7 +12,7 @@ import pytest
 from nerfpipe.pipeline import RunLockedError
 from nerfpipe.pipeline.lock import RunLock
 
-from helpers import run_cli
+from tests.helpers import run_cli
 
 HOLD = """
 import sys, time

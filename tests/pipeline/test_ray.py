@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import TEMPLE, shared
+from tests.helpers import TEMPLE, shared
 from nerfpipe.pipeline.batch import Batch, BatchSettings, find_captures
 from nerfpipe.pipeline.executors import LocalExecutor
 
@@ -135,7 +135,7 @@ def test_a_ray_batch_matches_the_local_executor_isolates_failures_and_survives_a
 
 
 def test_nerfpipe_batch_on_ray_from_the_command_line(captures, tmp_path):
-    from helpers import run_cli
+    from tests.helpers import run_cli
 
     out = tmp_path / "runs"
     result = run_cli("batch", captures, "--out", out, "--executor", "ray", "--until", "scene", "--set", "ingest.max_size=40",

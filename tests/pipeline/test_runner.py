@@ -11,7 +11,7 @@ import pytest
 from nerfpipe.pipeline import ArtifactStore, ParamError, Pipeline, UpstreamNotReadyError
 from nerfpipe.pipeline.hashing import sha256_file
 
-from helpers import TEMPLE, two_stages
+from tests.helpers import TEMPLE, two_stages
 
 
 def pipe(capture, run_dir, **kwargs) -> Pipeline:

@@ -14,7 +14,7 @@ from nerfpipe.geometry.normalize import Similarity, depths, in_view
 from nerfpipe.pipeline import ParamError
 from nerfpipe.stages.bounds import BoundsStage
 
-from helpers import SavedCameras, look_at, shared
+from tests.helpers import SavedCameras, look_at, shared
 
 
 def run_bounds(cameras: CameraSet, tmp_path: Path, **overrides) -> tuple[Path, dict]:

@@ -15,9 +15,10 @@ from nerfpipe.pipeline import InputError
 from nerfpipe.pipeline.hashing import sha256_file
 from nerfpipe.stages import IngestStage
 from nerfpipe.poses.layout import discover_photos
-from nerfpipe.stages.ingest import output_names, target_size, to_bit_depth
+from nerfpipe.stages.ingest import target_size, to_bit_depth
+from nerfpipe.artifacts import output_names
 
-from helpers import TEMPLE, shared
+from tests.helpers import TEMPLE, shared
 
 
 def ingest(folder: Path, tmp_path: Path, **overrides) -> tuple[Path, dict]:

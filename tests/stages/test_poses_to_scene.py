@@ -13,7 +13,7 @@ import pytest
 from nerfpipe import Pipeline, default_stages
 from nerfpipe.geometry.cameras import CameraSet
 
-from helpers import TEMPLE, run_cli, shared
+from tests.helpers import TEMPLE, run_cli, shared
 
 # The lego model's bounding box in the scene frame (the NSVF bounding box of the Blender scene, rounded out).
 LEGO_BOX = np.array([[-0.65, -1.16, -0.36], [0.65, 1.16, 1.02]])

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import look_at
+from tests.helpers import look_at
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
 from nerfpipe.nerf.field import FieldConfig, NerfField
 from nerfpipe.nerf.model import RadianceModel, RaySpace
@@ -26,8 +26,10 @@ from nerfpipe.pipeline.errors import ParamError, StageError
 from nerfpipe.pipeline.params import build_params
 from nerfpipe.pipeline.stage import StageContext, StageInputs
 from nerfpipe.stages.render import RenderParams, RenderStage, render_size
-from nerfpipe.stages.train import NDC_NEAR_FACTOR, mean_camera, srgb_encode
-from nerfpipe.stages.undistort import read_png
+from nerfpipe.stages.train import NDC_NEAR_FACTOR
+from nerfpipe.geometry.cameras import mean_camera
+from nerfpipe.imaging.png import srgb_encode
+from nerfpipe.imaging.png import read_png
 
 COLOUR = np.array([0.8, 0.3, 0.1])
 CAMERA = Camera.pinhole(60.0, 60.0, 32.0, 24.0, 64, 48)

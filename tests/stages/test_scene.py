@@ -17,7 +17,7 @@ from nerfpipe.stages import IngestStage
 from nerfpipe.stages.bounds import BoundsStage
 from nerfpipe.stages.scene import SceneParams, SceneStage, decide_exposure, decide_layout, decide_photometric, describe_scene
 
-from helpers import TEMPLE, SavedCameras, look_at, shared
+from tests.helpers import TEMPLE, SavedCameras, look_at, shared
 
 # README.txt of templeSparseRing: "The (tight) bounding box for the templeSparseRing model"
 TEMPLE_BOX = (np.array([-0.073568, 0.021728, -0.012445]), np.array([0.028855, 0.181892, 0.062736]))

@@ -16,7 +16,7 @@ from nerfpipe.geometry.cameras import CameraSet, invert_pose
 from nerfpipe.stages import IngestStage, SfmStage
 from nerfpipe.stages.sfm import SfmParams, choose_matcher
 
-from helpers import TEMPLE, run_cli
+from tests.helpers import TEMPLE, run_cli
 
 
 def read_par(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import TEMPLE, shared
+from tests.helpers import TEMPLE, shared
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
 from nerfpipe.nerf.field import NerfField
 from nerfpipe.pipeline import Pipeline, param_specs
@@ -229,7 +229,7 @@ def test_resumed_training_matches_an_uninterrupted_one(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_nerfpipe_run_on_the_bundled_capture_trains_evaluates_and_exports(tmp_path: Path) -> None:
-    from helpers import run_cli
+    from tests.helpers import run_cli
 
     run_dir = tmp_path / "temple"
     args = [a.replace("ingest.max_size=32", "ingest.max_size=80").replace("eval_stride=25", "eval_stride=1")
@@ -257,7 +257,7 @@ def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
 
     import cv2
 
-    from helpers import run_cli
+    from tests.helpers import run_cli
     from nerfpipe.export.depth import DepthIndex
     from nerfpipe.export.mesh import read_mesh
     from nerfpipe.export.points import read_ply

@@ -17,10 +17,12 @@ from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, Points
 from nerfpipe.geometry.distortion import max_distortion_displacement, undistort_pixels, undistortion_maps
 from nerfpipe.pipeline import StageContext, StageError, StageInputs
 from nerfpipe.stages import IngestStage
-from nerfpipe.stages.ingest import write_png
-from nerfpipe.stages.undistort import UndistortParams, UndistortStage, frame_image_path, read_png
+from nerfpipe.imaging.png import write_png
+from nerfpipe.stages.undistort import UndistortParams, UndistortStage
+from nerfpipe.artifacts import frame_image_path
+from nerfpipe.imaging.png import read_png
 
-from helpers import SavedCameras, shared
+from tests.helpers import SavedCameras, shared
 
 PATTERN = (9, 6)  # inner corners per row, rows
 SUBPIX = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-6)

@@ -16,6 +16,7 @@ import concurrent.futures as cf
 import itertools
 import multiprocessing
 import os
+import sys
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
@@ -193,14 +194,12 @@ class LocalExecutor(Executor):
 
 
 def _limit_threads(threads: int) -> None:
-    """In a fresh worker process, before torch or OpenCV start their thread pools."""
+    """In a fresh worker process, before torch or OpenCV start their thread pools (they read the variable when
+    they start). The engine does not import torch; one that a stage library already loaded is told directly."""
     os.environ["OMP_NUM_THREADS"] = str(threads)
-    try:
-        import torch
-
+    torch = sys.modules.get("torch")
+    if torch is not None:
         torch.set_num_threads(threads)
-    except ImportError:
-        pass
 
 
 class RayExecutor(Executor):

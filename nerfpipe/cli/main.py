@@ -120,7 +120,7 @@ def run(
         table.add_row(o.name, o.action, f"{o.seconds:.1f} s", str(o.path))
     out_console.print(table)
     with _user_errors(debug):
-        from nerfpipe.export.report import write_report
+        from nerfpipe.report import write_report
 
         page = write_report(run_dir)
     out_console.print(f"report: {escape(str(page))}", highlight=False, soft_wrap=True)
@@ -210,7 +210,7 @@ def report(
 ) -> None:
     """Write RUN_DIR/report/index.html: capture, SfM, scene decisions, training, depth, mesh, timings."""
     _setup_logging(debug)
-    from nerfpipe.export.report import write_report
+    from nerfpipe.report import write_report
 
     with _user_errors(debug):
         page = write_report(run_dir)
@@ -260,7 +260,7 @@ def bench(
         overrides.setdefault("train", {}).setdefault("eval_stride", "4")
         folder = run_bench(capture, out, chosen, budget, overrides, eval_views, marks, seeds,
                            on_result=lambda r: out_console.print(_bench_line(r, seeds > 1), highlight=False))
-        from nerfpipe.export.report import write_report
+        from nerfpipe.report import write_report
 
         page = write_report(out)
     out_console.print((folder / "bench.md").read_text(), highlight=False, soft_wrap=True)

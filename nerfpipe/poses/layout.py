@@ -25,7 +25,7 @@ from typing import Literal
 from nerfpipe.pipeline.errors import InputError
 
 LayoutKind = Literal["transforms", "colmap", "llff", "middlebury", "folder"]
-PHOTO_SUBFOLDER = "images"
+from nerfpipe.artifacts import PHOTO_SUBFOLDER
 TRANSFORMS_FILES = ("transforms.json", "transforms_train.json", "transforms_val.json", "transforms_test.json")
 COLMAP_MODEL_DIRS = ("sparse/0", "sparse", ".")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG", ".tif", ".tiff", ".exr")

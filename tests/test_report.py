@@ -5,8 +5,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from helpers import two_stages
-from nerfpipe.export.report import write_report
+from tests.helpers import two_stages
+from nerfpipe.report import write_report
 from nerfpipe.pipeline import Pipeline
 
 

@@ -126,11 +126,11 @@ class RenderStage(Stage):
         import torch
 
         from nerfpipe.nerf.cpu import cpu_rendering
-        from nerfpipe.stages.train import resolve_device
+        from nerfpipe.nerf.device import resolve_device
 
         if params.device == "cuda" and not torch.cuda.is_available():
             raise StageError("render.device=cuda but torch sees no CUDA device; use render.device=auto or cpu")
-        device = resolve_device(params.device)
+        device = resolve_device(params.device, "render.device")
         with cpu_rendering(device):
             return self._run(inputs, out, params, ctx, device)
 
@@ -138,10 +138,8 @@ class RenderStage(Stage):
         from nerfpipe.export.paths import path_for_scene, transform_poses
         from nerfpipe.export.video import colorize_depth, write_mp4
         from nerfpipe.nerf.model import RadianceModel
-        from nerfpipe.stages.ingest import write_png
-        from nerfpipe.stages.train import srgb_encode
-
-        # model.pt and model.json sit side by side in the train stage's folder
+        from nerfpipe.imaging.png import write_png
+        from nerfpipe.imaging.png import srgb_encode
         model = RadianceModel.load(inputs["model"].parent, device)
         world = CameraSet.load(inputs["world"])
         bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
@@ -237,7 +235,7 @@ def depth_colour_range(depth: np.ndarray, acc: np.ndarray, near: float, far: flo
 
 def read_frames(folder: Path, kind: str, count: int) -> Iterator[np.ndarray]:
     """The written PNGs ``<kind>_0000.png`` ... back, one at a time, so a video never holds every frame in memory."""
-    from nerfpipe.stages.undistort import read_png
+    from nerfpipe.imaging.png import read_png
 
     for i in range(count):
         yield read_png(folder / f"{kind}_{i:04d}.png")

@@ -34,7 +34,8 @@ from nerfpipe.export.points import read_ply
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.geometry.normalize import Similarity
 from nerfpipe.pipeline.params import parse_assignments
-from nerfpipe.stages.undistort import frame_image_path, read_png
+from nerfpipe.artifacts import frame_image_path
+from nerfpipe.imaging.png import read_png
 
 REPO = Path(__file__).resolve().parents[1]
 LEGO = REPO.parent / "shared" / "data" / "nerf_synthetic_lego_400"

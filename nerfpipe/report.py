@@ -118,7 +118,7 @@ def write_report(run_dir: Path, stages: Sequence[Any] | None = None) -> Path:
     from nerfpipe.geometry.cameras import CameraSet
     from nerfpipe.pipeline import Pipeline
     from nerfpipe.stages import default_stages
-    from nerfpipe.stages.train import view_file_stem
+    from nerfpipe.artifacts import view_file_stem
 
     pipe = Pipeline.from_run_dir(list(stages) if stages is not None else default_stages(), run_dir)
     folder = run_dir / "report"

@@ -19,7 +19,7 @@ from typing import Any, Literal
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
-from nerfpipe.stages.train import resolve_device, view_file_stem
+from nerfpipe.artifacts import view_file_stem
 
 
 @dataclass(frozen=True)
@@ -68,17 +68,18 @@ class ExportDepthStage(Stage):
 
     def run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:
         from nerfpipe.nerf.cpu import cpu_rendering
+        from nerfpipe.nerf.device import resolve_device
 
-        with cpu_rendering(resolve_device(params.device)):
-            return self._run(inputs, out, params, ctx)
+        device = resolve_device(params.device, "export_depth.device")
+        with cpu_rendering(device):
+            return self._run(inputs, out, params, ctx, device)
 
-    def _run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:
+    def _run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext, device) -> dict[str, Any]:
         import numpy as np
 
         from nerfpipe.export.depth import DepthIndex, DepthView, png_scale_for, write_view
         from nerfpipe.nerf.model import RadianceModel
 
-        device = resolve_device(params.device)
         model = RadianceModel.load(inputs["model"].parent, device)
         world = CameraSet.load(inputs["world"])
         bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))

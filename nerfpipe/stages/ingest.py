@@ -19,7 +19,8 @@ from nerfpipe.pipeline.errors import BadPhotoError, InputError
 from nerfpipe.pipeline.fingerprint import Fingerprint
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
-from nerfpipe.poses.layout import PHOTO_SUBFOLDER, detect_layout
+from nerfpipe.poses.layout import detect_layout
+from nerfpipe.artifacts import PHOTO_SUBFOLDER
 
 @dataclass(frozen=True)
 class IngestParams:
@@ -51,27 +52,6 @@ class IngestParams:
             raise ValueError(f"workers must be >= 0, got {self.workers}")
 
 
-def output_names(relpaths: list[str]) -> dict[str, str]:
-    """Ingest names of the photos: their paths below the photo folder, as ``.png``.
-
-    ``images/0001.jpg`` -> ``0001.png`` when every photo is under ``images/`` (LLFF, COLMAP);
-    ``train/r_0.png`` keeps its folder (NeRF splits); two photos that would share a name (``a.jpg``,
-    ``a.tif``) both keep their extension (``a_jpg.png``, ``a_tif.png``).
-    """
-    prefix = f"{PHOTO_SUBFOLDER}/"
-    strip = bool(relpaths) and all(rel.startswith(prefix) for rel in relpaths)
-    stems = {rel: PurePosixPath(rel[len(prefix):] if strip else rel) for rel in relpaths}
-    counts: dict[PurePosixPath, int] = {}
-    for path in stems.values():
-        counts[path.with_suffix("")] = counts.get(path.with_suffix(""), 0) + 1
-    names = {}
-    for rel, path in stems.items():
-        base = path.with_suffix("")
-        clash = counts[base] > 1
-        names[rel] = f"{base}_{path.suffix.lstrip('.').lower()}.png" if clash else f"{base}.png"
-    return names
-
-
 def target_size(width: int, height: int, max_size: int) -> tuple[int, int]:
     """Size after fitting the longest side into ``max_size`` (never upscales); 0 means no limit."""
     longest = max(width, height)
@@ -87,19 +67,6 @@ def to_bit_depth(pixels: np.ndarray, bits: int) -> np.ndarray:
     if bits == 8 and pixels.dtype == np.uint16:
         return ((pixels.astype(np.uint32) + 128) // 257).astype(np.uint8)
     return pixels
-
-
-def write_png(path: Path, rgb: np.ndarray) -> None:
-    """Write RGB(A) or single-channel pixels as PNG; goes through bytes so any path name works."""
-    import cv2
-
-    if rgb.ndim == 3:
-        rgb = cv2.cvtColor(rgb, cv2.COLOR_RGBA2BGRA if rgb.shape[2] == 4 else cv2.COLOR_RGB2BGR)
-    ok, buf = cv2.imencode(".png", rgb, [cv2.IMWRITE_PNG_COMPRESSION, 1])
-    if not ok:
-        raise RuntimeError(f"PNG encoding failed for {path}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(buf.tobytes())
 
 
 class IngestStage(Stage):

@@ -24,7 +24,6 @@ import numpy as np
 
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
-from nerfpipe.stages.train import resolve_device
 
 FORMATS = (".ply", ".obj", ".glb")
 
@@ -82,11 +81,13 @@ class ExportMeshStage(Stage):
 
     def run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext) -> dict[str, Any]:
         from nerfpipe.nerf.cpu import cpu_rendering
+        from nerfpipe.nerf.device import resolve_device
 
-        with cpu_rendering(resolve_device(params.device)):
-            return self._run(inputs, out, params, ctx)
+        device = resolve_device(params.device, "export_mesh.device")
+        with cpu_rendering(device):
+            return self._run(inputs, out, params, ctx, device)
 
-    def _run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext) -> dict[str, Any]:
+    def _run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext, device) -> dict[str, Any]:
         from nerfpipe.export.depth import DepthIndex, read_view
         from nerfpipe.export.mesh import (
             Grid, clean, marching_cubes, poisson, surface_colors, transformed, tsdf_fusion, vertex_normals, write_mesh,
@@ -99,7 +100,6 @@ class ExportMeshStage(Stage):
         started = time.perf_counter()
         bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
         lo, hi = np.asarray(bounds["scene_box"][0]), np.asarray(bounds["scene_box"][1])
-        device = resolve_device(params.device)
         model = RadianceModel.load(inputs["model"].parent, device)
         far = max(f["far"] for f in bounds["frames"])
         if params.method == "marching_cubes":

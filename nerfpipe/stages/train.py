@@ -29,7 +29,8 @@ from nerfpipe.geometry.cameras import CameraSet, Frame
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
-from nerfpipe.stages.undistort import frame_image_path, read_png
+from nerfpipe.artifacts import frame_image_path
+from nerfpipe.imaging.png import read_png
 
 param = field  # TrainParams has a parameter named ``field``, which shadows dataclasses.field in its body
 
@@ -171,26 +172,6 @@ def split_views(world: CameraSet, params: TrainParams) -> Views:
     return Views(train, heldout, rule)
 
 
-def srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """The sRGB transfer curve (IEC 61966-2-1) for previews of linear renders."""
-    linear = np.clip(linear, 0.0, 1.0)
-    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
-
-
-def mean_camera(c2ws: np.ndarray) -> np.ndarray:
-    """The average pose (OpenCV): mean centre, mean viewing axis, mean down axis made orthonormal."""
-    z = c2ws[:, :3, 2].mean(axis=0)
-    z /= np.linalg.norm(z)
-    y = c2ws[:, :3, 1].mean(axis=0)
-    x = np.cross(y, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([x, y, z], axis=1)
-    pose[:3, 3] = c2ws[:, :3, 3].mean(axis=0)
-    return pose
-
-
 class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
@@ -221,7 +202,7 @@ class TrainStage(Stage):
     def run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext) -> dict[str, Any]:
         from nerfpipe.nerf.cpu import flush_denormals, keep_freed_memory
 
-        device = resolve_device(params.device)
+        device = resolve_device(params.device, "train.device")
         with contextlib.ExitStack() as cpu_settings:
             if device.type == "cpu":
                 keep_freed_memory()
@@ -284,14 +265,6 @@ class TrainStage(Stage):
         ctx.log.info("train: held-out PSNR %.2f dB, SSIM %.3f over %d views", evaluation["psnr"], evaluation["ssim"],
                      len(views.heldout))
         return summary
-
-
-def resolve_device(choice: str):
-    import torch
-
-    if choice == "cuda" and not torch.cuda.is_available():
-        raise StageError("train.device=cuda but torch sees no CUDA device; use train.device=auto or cpu")
-    return torch.device("cuda" if choice == "cuda" or (choice == "auto" and torch.cuda.is_available()) else "cpu")
 
 
 def density_noise(params: TrainParams, scene: dict[str, Any]) -> float:
@@ -458,11 +431,6 @@ class ImageLoader:
         )
 
 
-def view_file_stem(name: str) -> str:
-    """An eval file name for a frame name that may contain folders: ``val/r_0.png`` -> ``val__r_0``."""
-    return Path(name).with_suffix("").as_posix().replace("/", "__")
-
-
 def evaluate(model, loader: ImageLoader, frames: list[Frame], folder: Path | None, chunk: int,
              ctx: StageContext | None = None) -> dict[str, Any]:
     """Render each held-out view; PSNR and SSIM (kornia.metrics, 11x11 Gaussian window) against its image,
@@ -470,7 +438,7 @@ def evaluate(model, loader: ImageLoader, frames: list[Frame], folder: Path | Non
     import kornia
     import torch
 
-    from nerfpipe.stages.ingest import write_png
+    from nerfpipe.imaging.png import write_png
 
     if folder is not None:
         folder.mkdir(parents=True, exist_ok=True)

@@ -208,3 +208,39 @@ def pose_from_rt(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 # OpenGL / Blender cameras (x right, y up, looking down -z) to OpenCV (x right, y down, looking down +z).
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, down: np.ndarray) -> np.ndarray:
+    """OpenCV c2w (4, 4) at ``eye`` (3,) with +z towards ``target`` (3,) and +y as close to ``down`` (3,) as
+    a right-handed orthonormal frame allows (y is ``down`` made perpendicular to z).
+
+    Raises ``ValueError`` when ``down`` is parallel to the viewing axis (the roll is then undefined).
+    """
+    z = np.asarray(target, dtype=np.float64) - np.asarray(eye, dtype=np.float64)
+    z_norm = np.linalg.norm(z)
+    if z_norm == 0.0:
+        raise ValueError("look_at: eye and target coincide")
+    z /= z_norm
+    x = np.cross(np.asarray(down, dtype=np.float64), z)  # down x forward = right, as y x z = x
+    x_norm = np.linalg.norm(x)
+    if x_norm < 1e-9:
+        raise ValueError("look_at: the down vector is parallel to the viewing axis")
+    x /= x_norm
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+    pose[:3, 3] = eye
+    return pose
+
+
+def mean_camera(c2ws: np.ndarray) -> np.ndarray:
+    """The average pose (OpenCV): mean centre, mean viewing axis, mean down axis made orthonormal."""
+    z = c2ws[:, :3, 2].mean(axis=0)
+    z /= np.linalg.norm(z)
+    y = c2ws[:, :3, 1].mean(axis=0)
+    x = np.cross(y, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([x, y, z], axis=1)
+    pose[:3, 3] = c2ws[:, :3, 3].mean(axis=0)
+    return pose

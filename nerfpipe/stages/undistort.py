@@ -23,9 +23,8 @@ import numpy as np
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
-from nerfpipe.stages.ingest import write_png
+from nerfpipe.imaging.png import write_png
 
-IMAGE_ROOTS: tuple[str, ...] = ("undistort", "ingest")
 
 
 @dataclass(frozen=True)
@@ -41,31 +40,6 @@ class UndistortParams:
     def __post_init__(self) -> None:
         if not (math.isfinite(self.threshold_px) and self.threshold_px >= 0):
             raise ValueError(f"threshold_px must be a number of pixels >= 0, got {self.threshold_px}")
-
-
-def frame_image_path(frame_name: str, image_root: str, ingest_images: Path, undistort_images: Path) -> Path:
-    """The image of frame ``frame_name``, given its ``extra["image_roots"]`` entry in the pinhole camera set.
-
-    ``ingest_images`` and ``undistort_images`` are the ``images`` artifact of ingest and the
-    ``undistorted_images`` artifact of undistort.
-    """
-    if image_root == "undistort":
-        return Path(undistort_images) / frame_name
-    if image_root == "ingest":
-        return Path(ingest_images) / frame_name
-    raise ValueError(f"image root of {frame_name!r} is {image_root!r}; expected one of {', '.join(IMAGE_ROOTS)}")
-
-
-def read_png(path: Path) -> np.ndarray:
-    """RGB(A) or single-channel pixels of a PNG, 8 or 16 bit, read through bytes so any path name works."""
-    import cv2
-
-    pixels = cv2.imdecode(np.fromfile(path, np.uint8), cv2.IMREAD_UNCHANGED)
-    if pixels is None:
-        raise StageError(f"{path}: cannot decode this ingest image; rerun ingest with --force ingest")
-    if pixels.ndim == 3:
-        pixels = cv2.cvtColor(pixels, cv2.COLOR_BGRA2RGBA if pixels.shape[2] == 4 else cv2.COLOR_BGR2RGB)
-    return pixels
 
 
 def remap_image(pixels: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interpolation: str) -> np.ndarray:

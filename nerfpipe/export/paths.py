@@ -19,9 +19,7 @@ import numpy as np
 from nerfpipe.geometry.normalize import Similarity
 
 # the mean camera of the train stage, so the spiral circles the very frame a forward model's NDC rays use
-from nerfpipe.stages.train import mean_camera
-
-# LLFF's focus depth: the point whose disparity is this mix of the near and far disparities
+from nerfpipe.geometry.cameras import mean_camera
 # (``dt = .75`` in its ``load_llff_data``), a depth a little behind the nearest content.
 FOCUS_DISPARITY_WEIGHT = 0.75
 # The orbit's auto elevation stays this far off the poles: straight above the target a camera's x axis
@@ -39,28 +37,6 @@ def _check_poses(c2ws: np.ndarray) -> np.ndarray:
 def _check_frames(n_frames: int) -> None:
     if n_frames < 1:
         raise ValueError(f"n_frames must be >= 1, got {n_frames}")
-
-
-def look_at(eye: np.ndarray, target: np.ndarray, down: np.ndarray) -> np.ndarray:
-    """OpenCV c2w (4, 4) at ``eye`` (3,) with +z towards ``target`` (3,) and +y as close to ``down`` (3,) as
-    a right-handed orthonormal frame allows (y is ``down`` made perpendicular to z).
-
-    Raises ``ValueError`` when ``down`` is parallel to the viewing axis (the roll is then undefined).
-    """
-    z = np.asarray(target, dtype=np.float64) - np.asarray(eye, dtype=np.float64)
-    z_norm = np.linalg.norm(z)
-    if z_norm == 0.0:
-        raise ValueError("look_at: eye and target coincide")
-    z /= z_norm
-    x = np.cross(np.asarray(down, dtype=np.float64), z)  # down x forward = right, as y x z = x
-    x_norm = np.linalg.norm(x)
-    if x_norm < 1e-9:
-        raise ValueError("look_at: the down vector is parallel to the viewing axis")
-    x /= x_norm
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
-    pose[:3, 3] = eye
-    return pose
 
 
 # -- spiral (forward-facing) ------------------------------------------------------------------------------

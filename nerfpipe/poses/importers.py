@@ -41,7 +41,8 @@ from nerfpipe.geometry.cameras import (
     pose_from_rt,
 )
 from nerfpipe.pipeline.errors import InputError
-from nerfpipe.poses.layout import IMAGE_SUFFIXES, PHOTO_SUBFOLDER, CaptureLayout, _read_json, resolve_inside
+from nerfpipe.poses.layout import IMAGE_SUFFIXES, CaptureLayout, _read_json, resolve_inside
+from nerfpipe.artifacts import PHOTO_SUBFOLDER, output_names
 
 ROTATION_TOLERANCE = 1e-3  # max |R^T R - I| and |det R - 1| before a matrix is refused as a rotation
 ASPECT_TOLERANCE = 0.01  # relative aspect-ratio mismatch between a pose file's camera and the photo
@@ -68,8 +69,6 @@ class _Photos:
     """Maps the photos pose files name to their images.json records and ingest names."""
 
     def __init__(self, layout: CaptureLayout, records: list[dict[str, Any]]) -> None:
-        from nerfpipe.stages.ingest import output_names  # the names ingest gives, also to photos it skipped
-
         self.capture = layout.capture
         self._by_source = {r["source"]: r for r in records}
         self._by_resolved = {(self.capture / r["source"]).resolve(): r for r in records}

@@ -1,0 +1,15 @@
+"""Which torch device a stage computes on."""
+
+from __future__ import annotations
+
+import torch
+
+from nerfpipe.pipeline.errors import StageError
+
+
+def resolve_device(choice: str, param: str) -> torch.device:
+    """``auto``: CUDA when torch sees a device, else the CPU; ``cuda`` where there is none is a user error
+    that names ``param`` (e.g. ``export_mesh.device``), the setting to change."""
+    if choice == "cuda" and not torch.cuda.is_available():
+        raise StageError(f"{param}=cuda but torch sees no CUDA device; use {param}=auto or cpu")
+    return torch.device("cuda" if choice == "cuda" or (choice == "auto" and torch.cuda.is_available()) else "cpu")
