@@ -131,7 +131,7 @@ class Bounds:
         frames = tuple(FrameBounds(f["name"], float(f["near"]), float(f["far"]), f["method"]) for f in doc["frames"])
         lo, hi = doc["scene_box"]
         return Bounds(doc["to_world"], doc["to_sfm"], doc["scale"], doc["up"], doc["rig"], doc["method"],
-                      (lo, hi), doc["near"], doc["far"], frames)
+                      (lo, hi), float(doc["near"]), float(doc["far"]), frames)
 
     def save(self, path: Path) -> None:
         write_json_atomic(path, {

@@ -2,7 +2,7 @@
 
 Run by hand from the repository root, with Ray installed (`pip install -e ".[ray]"`):
 
-    python benchmarks/bench_batch.py [--captures 4] [--preset draft] [--set train.steps=300]
+    python scripts/bench_batch.py [--captures 4] [--preset draft] [--set train.steps=300]
 
 The captures are windows of 8 consecutive views of the bundled temple ring (its calibration imported, no
 SfM), so the benchmark needs nothing outside the repository. Each executor runs the same batch into a

@@ -2,8 +2,8 @@
 
 Run by hand from the repository root, with ../shared beside it:
 
-    python benchmarks/bench_export.py                  # fast preset, lego at 100x100, all exports
-    python benchmarks/bench_export.py --run-dir /tmp/lego-export --set export_mesh.method=tsdf
+    python scripts/bench_export.py                  # fast preset, lego at 100x100, all exports
+    python scripts/bench_export.py --run-dir /tmp/lego-export --set export_mesh.method=tsdf
 
 Trains lego's train split with the train stage (as ``bench_train.py``), runs export_depth at full
 (100 px) resolution, export_points and export_mesh, then prints:
@@ -20,7 +20,6 @@ Trains lego's train split with the train stage (as ``bench_train.py``), runs exp
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 from pathlib import Path
@@ -34,7 +33,7 @@ from nerfpipe.export.points import read_ply
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.geometry.normalize import Similarity
 from nerfpipe.pipeline.params import parse_assignments
-from nerfpipe.artifacts import frame_image_path
+from nerfpipe.artifacts import Bounds, ViewSplit, frame_image_path
 from nerfpipe.imaging.png import read_png
 
 REPO = Path(__file__).resolve().parents[1]
@@ -97,15 +96,16 @@ def main() -> None:
             seconds = o.seconds if o.action == "ran" else pipe.result(o.name).manifest["timings"]["seconds"]
             print(f"| {o.name} | {seconds:.0f} s{'' if o.action == 'ran' else ' (cached)'} |")
 
-        bounds = json.loads(pipe.stage_inputs("export_points")["bounds"].read_text())
-        to_world = np.asarray(bounds["to_world"])
-        diagonal = float(np.linalg.norm(np.subtract(bounds["scene_box"][1], bounds["scene_box"][0])))
+        bounds = Bounds.load(pipe.stage_inputs("export_points")["bounds"])
+        to_world = np.asarray(bounds.to_world)
+        lo, hi = bounds.box()
+        diagonal = float(np.linalg.norm(hi - lo))
         train_inputs = pipe.stage_inputs("train")
         world = CameraSet.load(train_inputs["world"])
         roots = CameraSet.load(train_inputs["pinhole"]).extra.get("image_roots", {})
-        views = json.loads((pipe.result("train").path / "views.json").read_text())
+        views = ViewSplit.load(pipe.result("train").path / "views.json")
         masks = {}
-        for name in views["train"]:
+        for name in views.train:
             pixels = read_png(frame_image_path(name, roots.get(name, "ingest"), train_inputs["images"],
                                                train_inputs["undistorted_images"]))
             if pixels.ndim != 3 or pixels.shape[-1] != 4:

@@ -2,7 +2,7 @@
 
 Run by hand from the repository root (with ../shared beside it for the larger captures):
 
-    python benchmarks/bench_ingest.py
+    python scripts/bench_ingest.py
 
 It prints a Markdown table; copy its figures into the README's results table.
 """

@@ -2,7 +2,7 @@
 
 Run by hand from the repository root, with ../shared beside it:
 
-    python benchmarks/bench_sfm.py [--only temple|cup|cup_small]
+    python scripts/bench_sfm.py [--only temple|cup|cup_small]
 
 Prints one Markdown row per capture; the figures go into the README's results table.
 """

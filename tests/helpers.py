@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from nerfpipe.geometry import cameras
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.pipeline import Stage
 from nerfpipe.stages import IngestStage
@@ -68,13 +69,7 @@ def two_stages() -> list[Stage]:
 
 def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
     """OpenCV c2w (x right, y down, z forward) of a level camera at ``eye`` looking at ``target``, world z up."""
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
-    c2w[:3, 3] = eye
-    return c2w
+    return cameras.look_at(eye, target, down=np.array([0.0, 0.0, -1.0]))
 
 
 @dataclass(frozen=True)
@@ -159,3 +154,18 @@ class SlowCountStage(CountStage):
 
 def slow_stages() -> list[Stage]:
     return [IngestStage(), SlowCountStage()]
+
+
+def read_mp4(path: Path) -> list[np.ndarray]:
+    """Every frame of a video, RGB (H, W, 3) uint8."""
+    import cv2
+
+    capture = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
+    capture.release()
+    return frames

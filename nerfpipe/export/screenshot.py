@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from nerfpipe.geometry.cameras import Camera, CameraSet, invert_pose
+from nerfpipe.geometry.cameras import Camera, CameraSet, invert_pose, look_at
 from nerfpipe.pipeline.errors import InputError, NerfpipeError
 
 if TYPE_CHECKING:  # Open3D is optional: imported inside the functions that need it
@@ -183,15 +183,11 @@ def default_frustum_size(cameras: Sequence[ViewCamera], bounds: tuple[np.ndarray
 
 def _look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
     """(4, 4) OpenCV c2w at ``eye`` looking at ``target`` with image-up along ``up`` (as far as it can be)."""
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(forward, up)
-    if np.linalg.norm(right) < 1e-6 * np.linalg.norm(up):  # looking straight along up: any roll will do
-        right = np.cross(forward, np.eye(3)[np.argmin(np.abs(forward))])
-    right /= np.linalg.norm(right)
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)  # y = forward x right points down
-    c2w[:3, 3] = eye
-    return c2w
+    try:
+        return look_at(eye, target, down=-up)
+    except ValueError:  # looking straight along up: any roll will do
+        forward = target - eye
+        return look_at(eye, target, down=-np.eye(3)[np.argmin(np.abs(forward))])
 
 
 def capture_up(cameras: Sequence[ViewCamera]) -> np.ndarray:

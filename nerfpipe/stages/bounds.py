@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from nerfpipe.geometry.cameras import CameraSet, Frame, Points
+from nerfpipe.artifacts import Bounds, FrameBounds
+from nerfpipe.geometry.cameras import CameraSet, Points
 from nerfpipe.geometry.normalize import (
     Similarity,
     in_view,
@@ -34,7 +35,6 @@ from nerfpipe.geometry.normalize import (
 )
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
-from nerfpipe.pipeline.store import write_json_atomic
 
 # Without points a non-converging rig says nothing about depth: wide bounds in normalized units (the
 # cameras fit the unit cube), which NDC (forward-facing) does not need anyway.
@@ -77,12 +77,12 @@ class BoundsParams:
             raise ValueError(f"rig_radius must be in (0, 1), got {self.rig_radius}")
 
 
-def frustum_box(world: CameraSet, frames: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray]:
+def frustum_box(world: CameraSet, frames: list[FrameBounds]) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box of every image's view frustum between its near and far depth."""
     corners = []
     for frame, bounds in zip(world.frames, frames):
         camera = world.cameras[frame.camera_id]
-        for depth in (bounds["near"], bounds["far"]):
+        for depth in (bounds.near, bounds.far):
             for u, v in ((0, 0), (camera.width, 0), (0, camera.height), (camera.width, camera.height)):
                 ray = np.array([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0]) * depth
                 corners.append(frame.c2w[:3, :3] @ ray + frame.c2w[:3, 3])
@@ -143,80 +143,70 @@ class BoundsStage(Stage):
         world = transform_camera_set(sfm, similarity)
         (out / "world").mkdir()
         world.save(out / "world")
-        world_c2ws = np.array([f.c2w for f in world.frames])
-
-        kind = rig_kind(world_c2ws)
-        frames: list[dict[str, Any]] = []
+        kind = rig_kind(np.array([f.c2w for f in world.frames]))
         if xyz is not None:
-            method = "points"
-            lo, hi = robust_box(world.points.xyz, params.box_outlier_quantile, params.box_mad_k)
-            # images that see too few points fall back to the sphere around the scene box
-            box_center, box_radius = (lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0)
-            for i, frame in enumerate(world.frames):
-                bounds = near_far_from_points(
-                    frame.c2w, frame_points(world, i), params.near_percentile, params.far_percentile,
-                    params.margin, params.min_points,
-                )
-                if bounds is None:
-                    near, far = near_far_from_rig(frame.c2w[None], box_center, box_radius)
-                    frames.append(self._frame(frame, float(near[0]), float(far[0]), "rig"))
-                else:
-                    frames.append(self._frame(frame, bounds[0], bounds[1], "points"))
-            fallback = sum(f["method"] != "points" for f in frames)
-            if fallback:
-                ctx.log.warning(
-                    "bounds: %d of %d images see fewer than %d sparse points; their near/far come from the scene box",
-                    fallback, len(frames), params.min_points,
-                )
+            method, (lo, hi), frames = "points", *self._from_points(world, params, ctx)
         elif sfm.extra.get("llff_bounds"):
             # LLFF's poses_bounds.npy carries near/far depths from the points COLMAP had: use them, scaled
-            method = "pose_file"
             llff = sfm.extra["llff_bounds"]
-            frames = [self._frame(f, float(llff[f.name][0]) * similarity.scale, float(llff[f.name][1]) * similarity.scale,
-                                  "pose_file") for f in world.frames]
-            lo, hi = frustum_box(world, frames)
-        elif kind == "inward":
-            method = "rig"
-            center = look_at_center(world_c2ws)
-            radius = rig_radius(world_c2ws, center, params.rig_radius)
-            lo, hi = center - radius, center + radius
-            near, far = near_far_from_rig(world_c2ws, center, radius)
-            frames = [self._frame(f, float(n), float(x), "rig") for f, n, x in zip(world.frames, near, far)]
+            frames = [FrameBounds(f.name, float(llff[f.name][0]) * similarity.scale,
+                                  float(llff[f.name][1]) * similarity.scale, "pose_file") for f in world.frames]
+            method, (lo, hi) = "pose_file", frustum_box(world, frames)
         else:
-            method = "rig"
-            ctx.log.warning(
-                "bounds: no sparse points and the cameras do not look at a common centre (%s rig); "
-                "near/far are wide defaults %.2f / %.0f", kind, UNCONSTRAINED_NEAR, UNCONSTRAINED_FAR,
-            )
-            centers = world_c2ws[:, :3, 3]
-            lo, hi = centers.min(axis=0), centers.max(axis=0)
-            frames = [self._frame(f, UNCONSTRAINED_NEAR, UNCONSTRAINED_FAR, "rig") for f in world.frames]
+            method, (lo, hi), frames = "rig", *self._from_rig(world, kind, params, ctx)
 
-        inverse = similarity.inverse()
-        near_all = min(f["near"] for f in frames)
-        far_all = max(f["far"] for f in frames)
-        write_json_atomic(
-            out / "bounds.json",
-            {
-                "convention": "world: z up, region of interest in [-1, 1]^3; near/far are depths along the camera z axis",
-                "to_world": similarity.matrix().tolist(),
-                "to_sfm": inverse.matrix().tolist(),
-                "scale": similarity.scale,
-                "up": up.tolist(),
-                "rig": kind,
-                "method": method,
-                "scene_box": [lo.tolist(), hi.tolist()],
-                "near": near_all,
-                "far": far_all,
-                "frames": frames,
-            },
+        bounds = Bounds(
+            to_world=similarity.matrix().tolist(), to_sfm=similarity.inverse().matrix().tolist(),
+            scale=similarity.scale, up=up.tolist(), rig=kind, method=method, scene_box=(lo.tolist(), hi.tolist()),
+            near=min(f.near for f in frames), far=max(f.far for f in frames), frames=tuple(frames),
         )
+        bounds.save(out / "bounds.json")
         ctx.log.info(
             "bounds: %d images, %s-based near/far %.3g .. %.3g (normalized units), scale %.4g, %s rig",
-            len(frames), method, near_all, far_all, similarity.scale, kind,
+            len(frames), method, bounds.near, bounds.far, similarity.scale, kind,
         )
-        return {"method": method, "rig": kind, "scale": similarity.scale, "near": near_all, "far": far_all, "frames": len(frames)}
+        return {"method": method, "rig": kind, "scale": similarity.scale, "near": bounds.near, "far": bounds.far,
+                "frames": len(frames)}
 
     @staticmethod
-    def _frame(frame: Frame, near: float, far: float, method: str) -> dict[str, Any]:
-        return {"name": frame.name, "near": near, "far": far, "method": method}
+    def _from_points(world: CameraSet, params: BoundsParams, ctx: StageContext):
+        """The robust box of the sparse points, and near/far from the points each image sees."""
+        lo, hi = robust_box(world.points.xyz, params.box_outlier_quantile, params.box_mad_k)
+        # images that see too few points fall back to the sphere around the scene box
+        box_center, box_radius = (lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0)
+        frames = []
+        for i, frame in enumerate(world.frames):
+            bounds = near_far_from_points(
+                frame.c2w, frame_points(world, i), params.near_percentile, params.far_percentile,
+                params.margin, params.min_points,
+            )
+            if bounds is None:
+                near, far = near_far_from_rig(frame.c2w[None], box_center, box_radius)
+                frames.append(FrameBounds(frame.name, float(near[0]), float(far[0]), "rig"))
+            else:
+                frames.append(FrameBounds(frame.name, bounds[0], bounds[1], "points"))
+        fallback = sum(f.method != "points" for f in frames)
+        if fallback:
+            ctx.log.warning(
+                "bounds: %d of %d images see fewer than %d sparse points; their near/far come from the scene box",
+                fallback, len(frames), params.min_points,
+            )
+        return (lo, hi), frames
+
+    @staticmethod
+    def _from_rig(world: CameraSet, kind: str, params: BoundsParams, ctx: StageContext):
+        """Without points: the sphere the cameras look at (inward rigs), else wide defaults."""
+        c2ws = np.array([f.c2w for f in world.frames])
+        if kind == "inward":
+            center = look_at_center(c2ws)
+            radius = rig_radius(c2ws, center, params.rig_radius)
+            near, far = near_far_from_rig(c2ws, center, radius)
+            frames = [FrameBounds(f.name, float(n), float(x), "rig") for f, n, x in zip(world.frames, near, far)]
+            return (center - radius, center + radius), frames
+        ctx.log.warning(
+            "bounds: no sparse points and the cameras do not look at a common centre (%s rig); "
+            "near/far are wide defaults %.2f / %.0f", kind, UNCONSTRAINED_NEAR, UNCONSTRAINED_FAR,
+        )
+        centers = c2ws[:, :3, 3]
+        frames = [FrameBounds(f.name, UNCONSTRAINED_NEAR, UNCONSTRAINED_FAR, "rig") for f in world.frames]
+        return (centers.min(axis=0), centers.max(axis=0)), frames

@@ -10,7 +10,6 @@ normalized world; ``to_sfm`` there and in every sidecar maps them back to the Sf
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +18,7 @@ from typing import Any, Literal
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
-from nerfpipe.artifacts import view_file_stem
+from nerfpipe.artifacts import Bounds, ViewSplit, view_file_stem
 
 
 @dataclass(frozen=True)
@@ -82,12 +81,12 @@ class ExportDepthStage(Stage):
 
         model = RadianceModel.load(inputs["model"].parent, device)
         world = CameraSet.load(inputs["world"])
-        bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
-        split = json.loads(inputs["views"].read_text(encoding="utf-8"))
-        near_far = {f["name"]: (f["near"], f["far"]) for f in bounds["frames"]}
+        bounds = Bounds.load(inputs["bounds"])
+        split = ViewSplit.load(inputs["views"])
+        near_far = bounds.near_far()
         by_name = {f.name: f for f in world.frames}
-        wanted = [("train", n) for n in split["train"]] * (params.views in ("all", "train"))
-        wanted += [("heldout", n) for n in split["heldout"]] * (params.views in ("all", "heldout"))
+        wanted = [("train", n) for n in split.train] * (params.views in ("all", "train"))
+        wanted += [("heldout", n) for n in split.heldout] * (params.views in ("all", "heldout"))
         missing = [n for _, n in wanted if n not in by_name]
         if missing:
             raise StageError(f"export_depth: views {missing[:3]} of the trained model are not in the world cameras; "
@@ -110,11 +109,11 @@ class ExportDepthStage(Stage):
                             model.render_image(intrinsics, frame.c2w, width, height, near, far, params.chunk).items()}
                 view = DepthView(name, view_file_stem(name), role, width, height, intrinsics,
                                  tuple(map(tuple, np.asarray(frame.c2w).tolist())), near, far)
-                write_view(folder, view, rendered, png_scale, params.acc_threshold, bounds["to_sfm"])
+                write_view(folder, view, rendered, png_scale, params.acc_threshold, bounds.to_sfm)
                 views.append(view)
                 accs.append(float(rendered["acc"].mean()))
                 advance(1, info=name)
-        DepthIndex(views, png_scale, bounds["to_sfm"], params.acc_threshold).save(out / "depth.json")
+        DepthIndex(views, png_scale, bounds.to_sfm, params.acc_threshold).save(out / "depth.json")
         seconds = time.perf_counter() - started
         ctx.log.info("export_depth: %d views in %.0f s (%.1f s a view)", len(views), seconds, seconds / max(len(views), 1))
         return {

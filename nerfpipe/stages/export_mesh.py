@@ -14,7 +14,6 @@ With ``poisson``, a screened Poisson surface of the exported point cloud is writ
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from nerfpipe.artifacts import Bounds
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 
@@ -98,10 +98,10 @@ class ExportMeshStage(Stage):
         import torch
 
         started = time.perf_counter()
-        bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
-        lo, hi = np.asarray(bounds["scene_box"][0]), np.asarray(bounds["scene_box"][1])
+        bounds = Bounds.load(inputs["bounds"])
+        lo, hi = bounds.box()
         model = RadianceModel.load(inputs["model"].parent, device)
-        far = max(f["far"] for f in bounds["frames"])
+        far = max(f.far for f in bounds.frames)
         if params.method == "marching_cubes":
             box = model.ray_space.field_box(far) or (tuple(lo), tuple(hi))
             grid = Grid.over(box[0], box[1], params.resolution)
@@ -126,7 +126,7 @@ class ExportMeshStage(Stage):
         mesh, report = clean(mesh, params.min_component, params.target_faces)
         if params.method == "marching_cubes":
             mesh.colors = surface_colors(model, mesh.vertices, vertex_normals(mesh), 2 * voxel)
-        in_sfm = transformed(mesh, bounds["to_sfm"])
+        in_sfm = transformed(mesh, bounds.to_sfm)
         for suffix in FORMATS:
             write_mesh(in_sfm, out / f"mesh{suffix}")
         summary: dict[str, Any] = {
@@ -135,11 +135,11 @@ class ExportMeshStage(Stage):
             "faces_before_cleaning": report.faces_before, "poisson_faces": None,
         }
         if params.poisson:
-            points = point_clouds.transformed(point_clouds.read_ply(inputs["points"]), bounds["to_world"])
+            points = point_clouds.transformed(point_clouds.read_ply(inputs["points"]), bounds.to_world)
             surface = poisson(point_clouds.to_open3d(points), params.poisson_depth, box=(lo, hi))
             surface, _ = clean(surface, params.min_component, params.target_faces)
             for suffix in FORMATS:
-                write_mesh(transformed(surface, bounds["to_sfm"]), out / f"mesh_poisson{suffix}")
+                write_mesh(transformed(surface, bounds.to_sfm), out / f"mesh_poisson{suffix}")
             summary["poisson_faces"] = surface.faces
         summary["seconds"] = round(time.perf_counter() - started, 2)
         ctx.log.info("export_mesh: %d triangles, %d vertices -> mesh.ply, mesh.obj, mesh.glb (SfM frame)", mesh.faces,

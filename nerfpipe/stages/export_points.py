@@ -9,13 +9,13 @@ cameras that saw them (Open3D).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from nerfpipe.artifacts import Bounds, SceneDecisions
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
@@ -65,22 +65,22 @@ class ExportPointsStage(Stage):
         from nerfpipe.export.points import Cloud, clean_cloud, transformed, views_to_points, write_ply
 
         index = DepthIndex.load(inputs["depth_index"])
-        bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
-        scene = json.loads(inputs["scene"].read_text(encoding="utf-8"))
+        bounds = Bounds.load(inputs["bounds"])
+        scene = SceneDecisions.load(inputs["scene"])
         train = [v for v in index.views if v.role == "train"]
         if not train:
             raise StageError("export_points: the depth export holds no training views; "
                              "run it with --set export_depth.views=all")
         views = [(read_view(inputs["depth"], v), v.K(), np.asarray(v.c2w)) for v in train]
-        box = bounds["scene_box"] if params.crop_to_box and scene["layout"]["value"] == "inward360" else None
+        box = bounds.scene_box if params.crop_to_box and scene.layout.value == "inward360" else None
         cloud, _ = views_to_points(views, params.acc_threshold, box)
         if len(cloud) == 0:
             raise StageError(f"export_points: no pixel of {len(train)} views reaches opacity {params.acc_threshold}; "
                              "lower export_points.acc_threshold or train longer")
-        lo, hi = np.asarray(bounds["scene_box"][0]), np.asarray(bounds["scene_box"][1])
+        lo, hi = bounds.box()
         voxel = params.voxel or float(np.linalg.norm(hi - lo)) / 1000
         cleaned, report = clean_cloud(cloud, voxel, params.target_points, params.outlier_neighbors, params.outlier_std)
-        write_ply(out / "points.ply", transformed(cleaned, bounds["to_sfm"]))
+        write_ply(out / "points.ply", transformed(cleaned, bounds.to_sfm))
         ctx.log.info("export_points: %d points (%d back-projected from %d views) -> points.ply (SfM frame)", len(cleaned),
                      len(cloud), len(train))
 

@@ -10,17 +10,17 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
+from nerfpipe.artifacts import ImageIndex, output_names
+from nerfpipe.imaging.png import write_png
 from nerfpipe.pipeline.errors import BadPhotoError, InputError
 from nerfpipe.pipeline.fingerprint import Fingerprint
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
-from nerfpipe.pipeline.store import write_json_atomic
 from nerfpipe.poses.layout import detect_layout
-from nerfpipe.artifacts import PHOTO_SUBFOLDER
 
 @dataclass(frozen=True)
 class IngestParams:
@@ -141,7 +141,7 @@ class IngestStage(Stage):
         layout = detect_layout(inputs.source)
         for record in records:
             record["split"] = layout.splits.get(record["source"])
-        write_json_atomic(out / "images.json", {"layout": layout.kind, "images": records, "skipped": skipped})
+        ImageIndex(layout.kind, records, skipped).save(out / "images.json")
         megapixels = sum(r["source_width"] * r["source_height"] for r in records) / 1e6
         ctx.log.info(
             "ingest: %d photos (%.1f MP) -> %s%s",

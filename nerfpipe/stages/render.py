@@ -15,7 +15,6 @@ the way out, as their previews in train are.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +22,9 @@ from typing import Any, Iterator, Literal
 
 import numpy as np
 
+from nerfpipe.artifacts import Bounds, SceneDecisions
 from nerfpipe.geometry.cameras import Camera, CameraSet
+from nerfpipe.imaging.png import read_png, srgb_encode, write_png
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
@@ -123,36 +124,29 @@ class RenderStage(Stage):
         ]
 
     def run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext) -> dict[str, Any]:
-        import torch
-
         from nerfpipe.nerf.cpu import cpu_rendering
         from nerfpipe.nerf.device import resolve_device
 
-        if params.device == "cuda" and not torch.cuda.is_available():
-            raise StageError("render.device=cuda but torch sees no CUDA device; use render.device=auto or cpu")
         device = resolve_device(params.device, "render.device")
         with cpu_rendering(device):
             return self._run(inputs, out, params, ctx, device)
 
     def _run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext, device) -> dict[str, Any]:
-        from nerfpipe.export.paths import path_for_scene, transform_poses
-        from nerfpipe.export.video import colorize_depth, write_mp4
+        from nerfpipe.export.paths import path_for_scene
+        from nerfpipe.export.video import write_mp4
         from nerfpipe.nerf.model import RadianceModel
-        from nerfpipe.imaging.png import write_png
-        from nerfpipe.imaging.png import srgb_encode
+
         model = RadianceModel.load(inputs["model"].parent, device)
         world = CameraSet.load(inputs["world"])
-        bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
-        scene = json.loads(inputs["scene"].read_text(encoding="utf-8"))
+        bounds = Bounds.load(inputs["bounds"])
+        layout = SceneDecisions.load(inputs["scene"]).layout.value
         if not world.frames:
             raise StageError("render: the normalized world has no cameras to build a path from; check the bounds stage")
 
-        layout = scene["layout"]["value"]
         c2ws = np.array([f.c2w for f in world.frames])
-        near, far = float(bounds["near"]), float(bounds["far"])
-        lo, hi = np.asarray(bounds["scene_box"][0], dtype=np.float64), np.asarray(bounds["scene_box"][1], dtype=np.float64)
+        lo, hi = bounds.box()
         try:
-            poses, description = path_for_scene(layout, c2ws, near, far, (lo + hi) / 2.0, params.frames,
+            poses, description = path_for_scene(layout, c2ws, bounds.near, bounds.far, (lo + hi) / 2.0, params.frames,
                                                 kind=params.path, n_rotations=params.n_rotations,
                                                 elevation=params.elevation_degrees())
         except ValueError as err:
@@ -162,51 +156,18 @@ class RenderStage(Stage):
         camera = world.camera_of(world.frames[0])
         width, height = render_size(camera, params.scale, params.max_side)
         scaled = camera.scaled(width / camera.width, height / camera.height)
-        intrinsics = (scaled.fx, scaled.fy, scaled.cx, scaled.cy)
-        linear = model.info.get("photometric") == "linear_raw"
         ctx.log.info("render: %d frames of %dx%d (the camera of %s scaled by %.3g) on %s", params.frames, width,
                      height, world.frames[0].name, width / camera.width, device)
 
-        folder = out / "frames"
-        folder.mkdir(parents=True, exist_ok=True)
-        depth_range: tuple[float, float] | None = None
         started = time.perf_counter()
-        with ctx.progress(len(poses), "render") as advance:
-            for i, c2w in enumerate(poses):
-                began = time.perf_counter()
-                result = model.render_image(intrinsics, c2w, width, height, near, far, params.chunk)
-                rgb = result["rgb"].clamp(0.0, 1.0).numpy()
-                depth, acc = result["depth"].numpy(), result["acc"].numpy()
-                if depth_range is None:
-                    depth_range = depth_colour_range(depth, acc, near, far)
-                shown = srgb_encode(rgb) if linear else rgb
-                write_png(folder / f"rgb_{i:04d}.png", np.round(np.clip(shown, 0.0, 1.0) * 255).astype(np.uint8))
-                write_png(folder / f"depth_{i:04d}.png", colorize_depth(depth, acc, *depth_range))
-                advance(1, info=f"frame {i + 1}: {time.perf_counter() - began:.1f} s")
+        depth_range = render_frames(model, poses, scaled, (bounds.near, bounds.far), out / "frames", params.chunk, ctx)
         seconds = time.perf_counter() - started
+        count = write_mp4(read_frames(out / "frames", "rgb", len(poses)), out / "render.mp4", params.fps)
+        write_mp4(read_frames(out / "frames", "depth", len(poses)), out / "depth.mp4", params.fps)
 
-        count = write_mp4(read_frames(folder, "rgb", len(poses)), out / "render.mp4", params.fps)
-        write_mp4(read_frames(folder, "depth", len(poses)), out / "depth.mp4", params.fps)
-
-        to_sfm = np.asarray(model.info.get("to_sfm", bounds["to_sfm"]), dtype=np.float64)
-        sfm_poses = transform_poses(poses, to_sfm)
-        write_json_atomic(out / "camera_path.json", {
-            "convention": "opencv c2w (x right, y down, z forward); COLMAP intrinsics, pixel centres at +0.5",
-            "path": description,
-            "layout": layout,
-            "fps": params.fps,
-            "camera": scaled.to_json(),
-            "near": near,
-            "far": far,
-            "depth_colours": {"range": list(depth_range) if depth_range is not None else None,
-                              "map": "turbo, red at the range's start to blue at its end, black where acc < 0.5"},
-            "to_sfm": to_sfm.tolist(),
-            "frames": [
-                {"rgb": f"frames/rgb_{i:04d}.png", "depth": f"frames/depth_{i:04d}.png", "c2w": pose.tolist(),
-                 "c2w_sfm": sfm_pose.tolist()}
-                for i, (pose, sfm_pose) in enumerate(zip(poses, sfm_poses))
-            ],
-        })
+        to_sfm = np.asarray(model.info.get("to_sfm", bounds.to_sfm), dtype=np.float64)
+        write_json_atomic(out / "camera_path.json", camera_path_json(
+            description, layout, params.fps, scaled, (bounds.near, bounds.far), depth_range, to_sfm, poses))
         per_frame = seconds / max(len(poses), 1)
         ctx.log.info("render: %d frames in %.1f s (%.2f s a frame) -> render.mp4, depth.mp4", count, seconds, per_frame)
         return {
@@ -218,6 +179,56 @@ class RenderStage(Stage):
             "device": str(device),
             "depth_range": [round(v, 6) for v in depth_range] if depth_range is not None else None,
         }
+
+
+def render_frames(model, poses: np.ndarray, camera: Camera, near_far: tuple[float, float], folder: Path, chunk: int,
+                  ctx: StageContext) -> tuple[float, float] | None:
+    """Render each pose (N, 4, 4) with ``camera`` into ``folder/rgb_NNNN.png`` and a coloured
+    ``depth_NNNN.png``; returns the depth colour range, fixed by the first frame (None without frames)."""
+    from nerfpipe.export.video import colorize_depth
+
+    intrinsics = (camera.fx, camera.fy, camera.cx, camera.cy)
+    linear = model.info.get("photometric") == "linear_raw"
+    folder.mkdir(parents=True, exist_ok=True)
+    depth_range: tuple[float, float] | None = None
+    with ctx.progress(len(poses), "render") as advance:
+        for i, c2w in enumerate(poses):
+            began = time.perf_counter()
+            result = model.render_image(intrinsics, c2w, camera.width, camera.height, *near_far, chunk)
+            rgb = result["rgb"].clamp(0.0, 1.0).numpy()
+            depth, acc = result["depth"].numpy(), result["acc"].numpy()
+            if depth_range is None:
+                depth_range = depth_colour_range(depth, acc, *near_far)
+            shown = srgb_encode(rgb) if linear else rgb
+            write_png(folder / f"rgb_{i:04d}.png", np.round(np.clip(shown, 0.0, 1.0) * 255).astype(np.uint8))
+            write_png(folder / f"depth_{i:04d}.png", colorize_depth(depth, acc, *depth_range))
+            advance(1, info=f"frame {i + 1}: {time.perf_counter() - began:.1f} s")
+    return depth_range
+
+
+def camera_path_json(description: str, layout: str, fps: float, camera: Camera, near_far: tuple[float, float],
+                     depth_range: tuple[float, float] | None, to_sfm: np.ndarray, poses: np.ndarray) -> dict[str, Any]:
+    """``camera_path.json``: the path's intrinsics and every pose, in the normalized world and the SfM frame."""
+    from nerfpipe.export.paths import transform_poses
+
+    sfm_poses = transform_poses(poses, to_sfm)
+    return {
+        "convention": "opencv c2w (x right, y down, z forward); COLMAP intrinsics, pixel centres at +0.5",
+        "path": description,
+        "layout": layout,
+        "fps": fps,
+        "camera": camera.to_json(),
+        "near": near_far[0],
+        "far": near_far[1],
+        "depth_colours": {"range": list(depth_range) if depth_range is not None else None,
+                          "map": "turbo, red at the range's start to blue at its end, black where acc < 0.5"},
+        "to_sfm": to_sfm.tolist(),
+        "frames": [
+            {"rgb": f"frames/rgb_{i:04d}.png", "depth": f"frames/depth_{i:04d}.png", "c2w": pose.tolist(),
+             "c2w_sfm": sfm_pose.tolist()}
+            for i, (pose, sfm_pose) in enumerate(zip(poses, sfm_poses))
+        ],
+    }
 
 
 def depth_colour_range(depth: np.ndarray, acc: np.ndarray, near: float, far: float) -> tuple[float, float]:
@@ -235,7 +246,5 @@ def depth_colour_range(depth: np.ndarray, acc: np.ndarray, near: float, far: flo
 
 def read_frames(folder: Path, kind: str, count: int) -> Iterator[np.ndarray]:
     """The written PNGs ``<kind>_0000.png`` ... back, one at a time, so a video never holds every frame in memory."""
-    from nerfpipe.imaging.png import read_png
-
     for i in range(count):
         yield read_png(folder / f"{kind}_{i:04d}.png")

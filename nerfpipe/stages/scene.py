@@ -21,7 +21,6 @@ user set (``--set scene.layout=forward``) keeps the measured evidence and says s
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,11 +28,11 @@ from typing import Any, Literal
 
 import numpy as np
 
+from nerfpipe.artifacts import Bounds, Decision, ImageIndex, SceneDecisions
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.geometry.normalize import axis_angles_to, azimuth_coverage, look_at_center, viewing_spread
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
-from nerfpipe.pipeline.store import write_json_atomic
 
 NAMED_COLORS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
 EXPOSURE_STEP_STOPS = 1.0 / 3.0  # cameras step exposure in thirds of a stop: anything less is rounding
@@ -109,45 +108,14 @@ class SceneParams:
             raise ValueError(f"background_images must be >= 1, got {self.background_images}")
 
 
-def decision(value: Any, evidence: str, measured: dict[str, Any], override: Any = "auto") -> dict[str, Any]:
-    """A decision record; an ``override`` other than "auto" replaces the value and keeps the evidence."""
-    if override == "auto":
-        return {"value": value, "evidence": evidence, "overridden": False, "measured": measured}
-    return {
-        "value": override,
-        "evidence": f"{evidence}; set by the user (the data suggested {_show(value)})",
-        "overridden": True,
-        "measured": measured,
-    }
-
-
-def _show(value: Any) -> str:
-    if isinstance(value, (list, tuple)) and all(isinstance(v, (int, float)) for v in value):
-        return "(" + ", ".join(f"{v:.3g}" for v in value) + ")"
-    if value is None:
-        return "none"
-    return str(value).lower() if isinstance(value, bool) else str(value)
-
-
-def describe_scene(scene_json: dict[str, Any]) -> list[str]:
-    """One line per decision, e.g. ``layout: inward360 (cameras look at a common centre ...)``."""
-    lines = []
-    for key, entry in scene_json.items():
-        if not isinstance(entry, dict) or "value" not in entry:
-            continue
-        mark = ", set by the user" if entry.get("overridden") else ""
-        lines.append(f"{key}: {_show(entry['value'])}{mark} ({entry['evidence']})")
-    return lines
-
-
 # -- layout ----------------------------------------------------------------------------------------------
-def decide_layout(world: CameraSet, bounds: dict[str, Any], params: SceneParams) -> tuple[str, str, dict[str, Any]]:
+def decide_layout(world: CameraSet, bounds: Bounds, params: SceneParams) -> tuple[str, str, dict[str, Any]]:
     """(value, evidence, measured) for the layout, from the normalized rig, its points and the near/far bounds."""
     c2ws = np.array([f.c2w for f in world.frames])
     centers = c2ws[:, :3, 3]
     mean_dir, angles = viewing_spread(c2ws)
-    nears = np.array([f["near"] for f in bounds["frames"]])
-    fars = np.array([f["far"] for f in bounds["frames"]])
+    nears = np.array([f.near for f in bounds.frames])
+    fars = np.array([f.far for f in bounds.frames])
     median_near = float(np.median(nears))
     advance = float(np.ptp(centers @ mean_dir)) if len(centers) > 1 else 0.0
     far_near = float(np.median(fars / np.maximum(nears, 1e-12)))
@@ -158,7 +126,7 @@ def decide_layout(world: CameraSet, bounds: dict[str, Any], params: SceneParams)
         "advance_along_mean": round(advance, 4),
         "median_near": round(median_near, 4),
         "median_far_near_ratio": round(far_near, 3),
-        "bounds_method": bounds.get("method"),
+        "bounds_method": bounds.method,
     }
     spread = (
         f"viewing directions lie within {angles.max():.0f}° of their mean (median {np.median(angles):.0f}°), "
@@ -334,16 +302,15 @@ class SceneStage(Stage):
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
         path = result / "scene.json"
-        return describe_scene(json.loads(path.read_text(encoding="utf-8"))) if path.exists() else []
+        return SceneDecisions.load(path).describe() if path.exists() else []
 
     def run(self, inputs: StageInputs, out: Path, params: SceneParams, ctx: StageContext) -> dict[str, Any]:
-        images = json.loads(inputs["images_json"].read_text(encoding="utf-8"))
-        records = images["images"]
+        records = ImageIndex.load(inputs["images_json"]).records
         if not records:
             raise StageError("scene: images.json lists no images")
         pinhole = CameraSet.load(inputs["pinhole"])
         world = CameraSet.load(inputs["world"])
-        bounds = json.loads(inputs["bounds"].read_text(encoding="utf-8"))
+        bounds = Bounds.load(inputs["bounds"])
         if not world.frames:
             raise StageError("scene: no registered images in the normalized world")
 
@@ -369,30 +336,26 @@ class SceneStage(Stage):
         photometric, photometric_text, photometric_numbers = decide_photometric(records)
         exposure, exposure_text, exposure_numbers = decide_exposure(records)
 
-        decisions = {
-            "layout": decision(layout, layout_text, layout_numbers, params.layout),
-            "background": decision(background, background_text, background_numbers, params.background),
-            "background_color": decision(
+        scene = SceneDecisions(
+            layout=Decision.made(layout, layout_text, layout_numbers, params.layout),
+            background=Decision.made(background, background_text, background_numbers, params.background),
+            background_color=Decision.made(
                 None if auto_color is None else [round(c, 4) for c in auto_color],
                 color_text,
                 {"border_color": background_numbers["border_color"]},
                 "auto" if color_override is None else list(color_override),
             ),
-            "lens": decision(lens, lens_text, lens_numbers),
-            "photometric": decision(photometric, photometric_text, photometric_numbers, params.photometric),
-            "exposure_varies": decision(
+            lens=Decision.made(lens, lens_text, lens_numbers),
+            photometric=Decision.made(photometric, photometric_text, photometric_numbers, params.photometric),
+            exposure_varies=Decision.made(
                 exposure, exposure_text, exposure_numbers,
                 "auto" if params.exposure_varies == "auto" else params.exposure_varies == "true",
             ),
-        }
-        scene = {
-            **decisions,
-            "ndc": decisions["layout"]["value"] == "forward",
-            "near": bounds["near"],
-            "far": bounds["far"],
-            "scene_box": bounds["scene_box"],
-        }
-        write_json_atomic(out / "scene.json", scene)
-        for line in describe_scene(scene):
+            near=bounds.near,
+            far=bounds.far,
+            scene_box=bounds.scene_box,
+        )
+        scene.save(out / "scene.json")
+        for line in scene.describe():
             ctx.log.info("scene: %s", line)
-        return {key: entry["value"] for key, entry in decisions.items()}
+        return scene.values()

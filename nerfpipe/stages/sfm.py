@@ -11,7 +11,6 @@ COLMAP's own log goes to ``colmap.log`` in the stage folder.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import re
 import sys
@@ -21,6 +20,7 @@ from typing import Any, Iterator, Literal
 
 import numpy as np
 
+from nerfpipe.artifacts import ImageIndex
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, invert_pose
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
@@ -96,8 +96,7 @@ class SfmStage(Stage):
         return detect_layout(source, None if params.poses == "auto" else params.poses).pose_files
 
     def run(self, inputs: StageInputs, out: Path, params: SfmParams, ctx: StageContext) -> dict[str, Any]:
-        doc = json.loads(inputs["images_json"].read_text())
-        records = doc["images"]
+        records = ImageIndex.load(inputs["images_json"]).records
         layout = detect_layout(inputs.source, None if params.poses in ("auto", "sfm") else params.poses)
         (out / "model").mkdir()
         if params.poses == "sfm" or layout.kind == "folder":

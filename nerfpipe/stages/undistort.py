@@ -10,7 +10,6 @@ keeps its K, drops its (negligible) distortion, and its images are not touched, 
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -20,10 +19,11 @@ from typing import Any, Literal
 
 import numpy as np
 
+from nerfpipe.artifacts import ImageIndex
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
-from nerfpipe.imaging.png import write_png
+from nerfpipe.imaging.png import read_png, write_png
 
 
 
@@ -92,7 +92,7 @@ class UndistortStage(Stage):
         from nerfpipe.geometry.distortion import max_distortion_displacement, undistortion_maps
 
         model = CameraSet.load(inputs["sfm_model"])
-        records = {r["name"]: r for r in json.loads(inputs["images_json"].read_text(encoding="utf-8"))["images"]}
+        records = ImageIndex.load(inputs["images_json"]).by_name()
         self._check_frames(model, records)
         (out / "images").mkdir()
         (out / "pinhole").mkdir()

@@ -9,21 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.helpers import read_mp4
 from nerfpipe.export.video import colorize_depth, turbo_lut, write_mp4
 from nerfpipe.pipeline.errors import StageError
-
-
-def read_mp4(path: Path) -> list[np.ndarray]:
-    """Every frame of a video, RGB."""
-    capture = cv2.VideoCapture(str(path))
-    frames = []
-    while True:
-        ok, frame = capture.read()
-        if not ok:
-            break
-        frames.append(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
-    capture.release()
-    return frames
 
 
 def test_mp4_has_the_frames_size_and_colour_written(tmp_path: Path) -> None:

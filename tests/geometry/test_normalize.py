@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+
+from nerfpipe.geometry import cameras
 import pytest
 
 from nerfpipe.geometry.normalize import (
@@ -23,14 +25,8 @@ Z = np.array([0.0, 0.0, 1.0])
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = Z) -> np.ndarray:
-    """OpenCV c2w of a level camera at ``eye`` looking at ``target``: x = f x up (right), y = f x x (down)."""
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right)
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
-    c2w[:3, 3] = eye
-    return c2w
+    """OpenCV c2w of a level camera at ``eye`` looking at ``target``, image-up along ``up``."""
+    return cameras.look_at(eye, target, down=-np.asarray(up))
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:

@@ -16,7 +16,6 @@ from nerfpipe.pipeline.hashing import sha256_file
 from nerfpipe.stages import IngestStage
 from nerfpipe.poses.layout import discover_photos
 from nerfpipe.stages.ingest import target_size, to_bit_depth
-from nerfpipe.artifacts import output_names
 
 from tests.helpers import TEMPLE, shared
 
@@ -45,16 +44,6 @@ def test_bit_depth_conversion_round_trips():
     assert wide.dtype == np.uint16 and wide[255] == 65535 and wide[1] == 257
     assert np.array_equal(to_bit_depth(wide, 8), values)
     assert to_bit_depth(np.array([32895, 32896], np.uint16), 8).tolist() == [128, 128]  # 32896/257 = 128.0
-
-
-def test_output_names_keep_stems_unless_they_collide():
-    assert output_names(["a.jpg", "b.PNG", "a.tif", "c.dng"]) == {
-        "a.jpg": "a_jpg.png", "b.PNG": "b.png", "a.tif": "a_tif.png", "c.dng": "c.png"
-    }
-    assert output_names(["images/1.jpg", "images/10.jpg"]) == {"images/1.jpg": "1.png", "images/10.jpg": "10.png"}
-    assert output_names(["train/r_0.png", "val/r_0.png", "images/x.jpg"]) == {
-        "train/r_0.png": "train/r_0.png", "val/r_0.png": "val/r_0.png", "images/x.jpg": "images/x.png"
-    }
 
 
 def test_discover_ignores_sidecars_and_falls_back_to_images_subfolder(tmp_path):

@@ -12,12 +12,12 @@ import json
 import logging
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 import torch
 
-from tests.helpers import look_at
+from tests.helpers import look_at, read_mp4
+from nerfpipe.artifacts import Bounds, Decision, FrameBounds, SceneDecisions
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
 from nerfpipe.nerf.field import FieldConfig, NerfField
 from nerfpipe.nerf.model import RadianceModel, RaySpace
@@ -26,7 +26,7 @@ from nerfpipe.pipeline.errors import ParamError, StageError
 from nerfpipe.pipeline.params import build_params
 from nerfpipe.pipeline.stage import StageContext, StageInputs
 from nerfpipe.stages.render import RenderParams, RenderStage, render_size
-from nerfpipe.stages.train import NDC_NEAR_FACTOR
+from nerfpipe.nerf.assembly import NDC_NEAR_FACTOR
 from nerfpipe.geometry.cameras import mean_camera
 from nerfpipe.imaging.png import srgb_encode
 from nerfpipe.imaging.png import read_png
@@ -81,12 +81,15 @@ def write_scene(folder: Path, layout: str, photometric: str = "srgb") -> StageIn
     (folder / "world").mkdir(parents=True)
     world.save(folder / "world")
     box = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
-    bounds = {"near": NEAR, "far": FAR, "scene_box": box, "to_sfm": TO_SFM.tolist(),
-              "frames": [{"name": f.name, "near": NEAR, "far": FAR} for f in world.frames]}
-    (folder / "bounds.json").write_text(json.dumps(bounds))
-    scene = {"layout": {"value": layout}, "photometric": {"value": photometric}, "background": {"value": "none"},
-             "background_color": {"value": None}}
-    (folder / "scene.json").write_text(json.dumps(scene))
+    frames = tuple(FrameBounds(f.name, NEAR, FAR, "rig") for f in world.frames)
+    Bounds(np.linalg.inv(TO_SFM).tolist(), TO_SFM.tolist(), 0.5, [0.0, 0.0, 1.0], "inward", "rig", (box[0], box[1]),
+           NEAR, FAR, frames).save(folder / "bounds.json")
+    SceneDecisions(
+        layout=Decision(layout, "by hand"), background=Decision("none", "by hand"),
+        background_color=Decision(None, "by hand"), lens=Decision("pinhole", "by hand"),
+        photometric=Decision(photometric, "by hand"), exposure_varies=Decision(False, "by hand"),
+        near=NEAR, far=FAR, scene_box=(box[0], box[1]),
+    ).save(folder / "scene.json")
 
     if layout == "forward":
         # the cube sits in NDC space, where the field is queried: the middle of x', y' and most of z'
@@ -115,18 +118,6 @@ def count_progress(calls: list) -> object:
         yield lambda n=1, info=None: calls.append(n)
 
     return progress
-
-
-def read_mp4(path: Path) -> list[np.ndarray]:
-    capture = cv2.VideoCapture(str(path))
-    frames = []
-    while True:
-        ok, frame = capture.read()
-        if not ok:
-            break
-        frames.append(frame)
-    capture.release()
-    return frames
 
 
 def run_render(tmp_path: Path, layout: str, photometric: str = "srgb", **params) -> tuple[Path, dict, list]:

@@ -15,7 +15,8 @@ from nerfpipe.geometry.normalize import in_view
 from nerfpipe.pipeline import ParamError, parse_assignments
 from nerfpipe.stages import IngestStage
 from nerfpipe.stages.bounds import BoundsStage
-from nerfpipe.stages.scene import SceneParams, SceneStage, decide_exposure, decide_layout, decide_photometric, describe_scene
+from nerfpipe.artifacts import Bounds, FrameBounds, SceneDecisions
+from nerfpipe.stages.scene import SceneParams, SceneStage, decide_exposure, decide_layout, decide_photometric
 
 from tests.helpers import TEMPLE, SavedCameras, look_at, shared
 
@@ -146,7 +147,7 @@ def test_override_keeps_the_evidence_and_marks_it(temple_run):
     assert color["measured"] == auto["background_color"]["measured"] == {"border_color": [0.0, 0.0, 0.0]}
     assert "the data suggested (0, 0, 0)" in color["evidence"]
     assert scene["background"] == auto["background"]  # untouched decisions are as measured
-    lines = describe_scene(scene)
+    lines = SceneDecisions.load(outcomes[-1].path / "scene.json").describe()
     assert SceneStage().describe(outcomes[-1].path, {}) == lines
     assert lines[0].startswith("layout: forward, set by the user (cameras look at a common centre")
     assert any(line.startswith("background: color (median border colour (0.00, 0.00, 0.00)") for line in lines)
@@ -217,12 +218,15 @@ def test_lens_evidence_per_camera():
 
 
 # -- layout on synthetic rigs ----------------------------------------------------------------------------
-def synthetic(c2ws: list[np.ndarray], xyz: np.ndarray) -> tuple[CameraSet, dict]:
+def synthetic(c2ws: list[np.ndarray], xyz: np.ndarray) -> tuple[CameraSet, Bounds]:
     """A world CameraSet with points, and bounds frames with the points' depth range per camera."""
     frames = [Frame(f"{i}.png", 1, c) for i, c in enumerate(c2ws)]
     points = Points(xyz, np.zeros((len(xyz), 3), np.uint8), np.zeros(len(xyz)), [])
     depth = [(xyz - c[:3, 3]) @ c[:3, 2] for c in c2ws]
-    bounds = {"method": "points", "frames": [{"near": d[d > 0].min(), "far": d[d > 0].max()} for d in depth]}
+    frame_bounds = tuple(FrameBounds(f.name, d[d > 0].min(), d[d > 0].max(), "points") for f, d in zip(frames, depth))
+    eye = np.eye(4).tolist()
+    bounds = Bounds(eye, eye, 1.0, [0.0, 0.0, 1.0], "inward", "points", ([-1.0] * 3, [1.0] * 3),
+                    min(f.near for f in frame_bounds), max(f.far for f in frame_bounds), frame_bounds)
     return CameraSet({1: Camera.pinhole(100, 100, 50, 50, 100, 100)}, frames, points), bounds
 
 

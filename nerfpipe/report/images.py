@@ -1,0 +1,97 @@
+"""The report's own pictures: photo thumbnails, the SfM plot, the training curves, PNGs of RGB arrays."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+THUMB_SIDE = 160  # pixels, the longer side of a capture thumbnail
+MAX_PLOTTED_POINTS = 20000
+
+
+def write_png(path: Path, rgb: np.ndarray) -> None:
+    """Write an (H, W, 3) uint8 RGB image."""
+    import cv2
+
+    if not cv2.imwrite(str(path), np.ascontiguousarray(rgb[..., ::-1])):
+        raise OSError(f"could not write {path}")
+
+
+def thumbnail(source: Path, target: Path) -> bool:
+    """Write a PNG of ``source`` no larger than ``THUMB_SIDE``, transparency flattened onto white; False
+    when ``source`` cannot be read or ``target`` written."""
+    import cv2
+
+    image = cv2.imread(str(source), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        return False
+    if image.dtype == np.uint16:
+        image = (image / 257).astype(np.uint8)
+    if image.ndim == 2:
+        image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    elif image.shape[2] == 4:
+        alpha = image[..., 3:].astype(np.float32) / 255
+        image = (image[..., :3] * alpha + 255 * (1 - alpha)).astype(np.uint8)
+    h, w = image.shape[:2]
+    scale = THUMB_SIDE / max(h, w)
+    if scale < 1:
+        image = cv2.resize(image, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+    return bool(cv2.imwrite(str(target), image))
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_cameras(path: Path, centers: np.ndarray, axes: np.ndarray, points: np.ndarray | None,
+                 colors: np.ndarray | None) -> None:
+    """A 3D plot of camera centres (N, 3) with their viewing axes (N, 3) and, when given, sparse
+    points (P, 3) in their colours (P, 3) in [0, 1]; framed on the 1st..99th percentile of all of them."""
+    plt = _pyplot()
+    fig = plt.figure(figsize=(6, 5), dpi=100)
+    ax = fig.add_subplot(projection="3d")
+    if points is not None and len(points):
+        keep = np.random.default_rng(0).permutation(len(points))[:MAX_PLOTTED_POINTS]
+        ax.scatter(*points[keep].T, s=0.5, c=None if colors is None else colors[keep], alpha=0.6)
+    ax.scatter(*centers.T, s=12, c="tab:red", label="cameras")
+    span = float(np.ptp(centers, axis=0).max()) if len(centers) > 1 else 1.0
+    ax.quiver(*centers.T, *(axes * 0.1 * span).T, color="tab:red", linewidth=0.8)
+    everything = centers if points is None or not len(points) else np.concatenate([centers, points[keep]])
+    lo, hi = np.percentile(everything, 1, axis=0), np.percentile(everything, 99, axis=0)
+    mid, half = (lo + hi) / 2, float((hi - lo).max()) / 2 or 1.0
+    ax.set_xlim(mid[0] - half, mid[0] + half)
+    ax.set_ylim(mid[1] - half, mid[1] + half)
+    ax.set_zlim(mid[2] - half, mid[2] + half)
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+    ax.set_zlabel("z")
+    ax.legend(loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_training(path: Path, records: list[dict[str, Any]]) -> None:
+    """Training loss (log scale) and PSNR against wall time, from the records of ``metrics.jsonl``."""
+    plt = _pyplot()
+    wall = [r["wall"] for r in records]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.5), dpi=100)
+    left.plot(wall, [r["loss"] for r in records])
+    left.set_yscale("log")
+    left.set_xlabel("wall time (s)")
+    left.set_ylabel("training loss (MSE)")
+    right.plot(wall, [r["psnr"] for r in records], color="tab:green")
+    right.set_xlabel("wall time (s)")
+    right.set_ylabel("training PSNR (dB)")
+    for a in (left, right):
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

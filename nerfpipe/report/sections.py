@@ -1,0 +1,220 @@
+"""The sections of the report, one builder each, in page order (``SECTIONS``).
+
+A builder takes the gathered ``RunData``, writes the pictures it shows into ``run.img`` and returns its
+``<section>``, or None when its stage has no fresh result (the stage table is always there).
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import shutil
+from typing import Any, Callable
+
+import numpy as np
+
+from nerfpipe.artifacts import ImageIndex, SceneDecisions, view_file_stem
+from nerfpipe.report.data import RunData
+from nerfpipe.report.images import plot_cameras, plot_training, thumbnail, write_png
+from nerfpipe.report.markup import figure, grid, paragraphs, section, table
+
+MAX_THUMBS = 48
+MAX_DEPTH_PREVIEWS = 12
+SHOT_WIDTH, SHOT_HEIGHT = 640, 480  # pixels, the mesh and point cloud screenshots
+
+
+def capture(run: RunData) -> str | None:
+    """Thumbnails of the first ``MAX_THUMBS`` ingested photos."""
+    if "ingest" not in run.results:
+        return None
+    records = ImageIndex.load(run.artifact("ingest", "images_json")).records
+    photos = run.artifact("ingest", "images")
+    figures = []
+    for i, record in enumerate(records[:MAX_THUMBS]):
+        target = run.img / f"thumb_{i:03d}.png"
+        if thumbnail(photos / record["name"], target):
+            figures.append(figure(f"img/{target.name}", record["name"]))
+    more = f"<p>and {len(records) - MAX_THUMBS} more</p>" if len(records) > MAX_THUMBS else ""
+    return section("Capture", f"<p>{len(records)} photos from <code>{html.escape(str(run.source))}</code></p>"
+                   f"{grid(figures)}{more}")
+
+
+def structure_from_motion(run: RunData) -> str | None:
+    """The SfM stage's summary and a plot of the camera centres, their viewing axes and the sparse points."""
+    cameras = run.sfm_cameras
+    if cameras is None:
+        return None
+    body = paragraphs(run.describe("sfm"))
+    if cameras.frames:
+        centers = np.array([f.center for f in cameras.frames])
+        axes = np.array([np.asarray(f.c2w)[:3, 2] for f in cameras.frames])
+        points = colors = None
+        if cameras.points is not None and len(cameras.points.xyz):
+            points = np.asarray(cameras.points.xyz)
+            rgb = np.asarray(cameras.points.rgb, dtype=np.float64)
+            colors = rgb / 255.0 if rgb.max() > 1 else rgb
+        plot_cameras(run.img / "sfm.png", centers, axes, points, colors)
+        body += figure("img/sfm.png", "camera centres, viewing axes and sparse points (SfM frame)")
+    return section("Structure from motion", body)
+
+
+def scene_decisions(run: RunData) -> str | None:
+    """A table of the scene decisions: value, evidence, and "yes" where the user overrode the data."""
+    if "scene" not in run.results:
+        return None
+    decisions = SceneDecisions.load(run.artifact("scene", "scene")).decisions()
+    rows = [(name, json.dumps(d.value), d.evidence, "yes" if d.overridden else "") for name, d in decisions.items()]
+    return section("Scene decisions", table(("decision", "value", "evidence", "overridden"), rows))
+
+
+def training(run: RunData) -> str | None:
+    """The train stage's summary, its loss and PSNR curves, and each held-out render beside its ground truth."""
+    if "train" not in run.results:
+        return None
+    body = paragraphs(run.describe("train"))
+    log = run.results["train"].path / "metrics.jsonl"
+    records = [json.loads(line) for line in log.read_text(encoding="utf-8").splitlines() if line.strip()] if log.exists() else []
+    if records:
+        plot_training(run.img / "training.png", records)
+        body += figure("img/training.png", "training loss and PSNR against wall time")
+    pairs = heldout_pairs(run)
+    if pairs:
+        body += "<h3>Held-out views: render beside ground truth</h3>" + "".join(pairs)
+    return section("Training", body)
+
+
+def heldout_pairs(run: RunData) -> list[str]:
+    """One block per held-out view of the train stage's ``metrics.json``: its render and ground truth
+    (those of the two that exist), with the view's PSNR and SSIM."""
+    metrics = json.loads(run.artifact("train", "metrics").read_text(encoding="utf-8"))
+    renders = run.artifact("train", "eval")
+    blocks = []
+    for view in metrics.get("views", []):
+        stem = view_file_stem(view["name"])
+        pair = []
+        for suffix in ("render", "gt"):
+            source = renders / f"{stem}.{suffix}.png"
+            if source.exists():
+                shutil.copy2(source, run.img / f"eval_{stem}.{suffix}.png")
+                pair.append(figure(f"img/eval_{stem}.{suffix}.png", f"{view['name']}: {suffix}"))
+        if pair:
+            blocks.append(f"<div class='pair'>{''.join(pair)}<p>PSNR {view['psnr']:.2f} dB, "
+                          f"SSIM {view['ssim']:.3f}</p></div>")
+    return blocks
+
+
+def depth(run: RunData) -> str | None:
+    """Disparity previews of up to ``MAX_DEPTH_PREVIEWS`` exported views, evenly spread."""
+    if "export_depth" not in run.results:
+        return None
+    from nerfpipe.export.depth import DepthIndex
+
+    views = DepthIndex.load(run.artifact("export_depth", "depth_index")).views
+    previews = run.artifact("export_depth", "depth")
+    figures = []
+    step = max(1, len(views) // MAX_DEPTH_PREVIEWS)
+    for view in views[::step][:MAX_DEPTH_PREVIEWS]:
+        source = previews / f"{view.stem}.preview.png"
+        if source.exists():
+            shutil.copy2(source, run.img / f"depth_{view.stem}.png")
+            figures.append(figure(f"img/depth_{view.stem}.png", f"{view.name} ({view.role})"))
+    return section("Depth", paragraphs(run.describe("export_depth"))
+                   + "<p>disparity, near red to far blue; black where the field is transparent</p>" + grid(figures))
+
+
+GEOMETRY = (("export_mesh", "mesh", "mesh"), ("export_points", "points", "point cloud"))  # stage, artifact, label
+
+
+def mesh_and_points(run: RunData) -> str | None:
+    """Screenshots of the exported mesh and point cloud, seen from the side of the SfM cameras."""
+    shown = [(stage, artifact, label) for stage, artifact, label in GEOMETRY if stage in run.results]
+    if not shown:
+        return None
+    from nerfpipe.export.screenshot import cameras_of
+
+    cameras = cameras_of(run.sfm_cameras) if run.sfm_cameras is not None else []
+    shots = [geometry_shot(run, stage, artifact, label, cameras) for stage, artifact, label in shown]
+    return section("Mesh and point cloud", grid(shots)
+                   + "<p>Files in the SfM frame; open them with <code>nerfpipe view RUN_DIR mesh|points</code>.</p>")
+
+
+def geometry_shot(run: RunData, stage: str, artifact: str, label: str, cameras: list[Any]) -> str:
+    """Write ``img/{artifact}.png``, a screenshot of a mesh or point cloud artifact; return its figure."""
+    from nerfpipe.export.screenshot import auto_view, load_mesh, load_points, screenshot
+
+    path = run.artifact(stage, artifact)
+    geometry = {"mesh": load_mesh(path)} if artifact == "mesh" else {"points": load_points(path)}
+    # framed on the geometry, seen from the cameras' side: framing the camera ring too leaves the object tiny
+    box = next(iter(geometry.values())).get_axis_aligned_bounding_box()
+    view = auto_view(np.asarray(box.min_bound), np.asarray(box.max_bound), cameras, SHOT_WIDTH, SHOT_HEIGHT)
+    write_png(run.img / f"{artifact}.png", screenshot(cameras=cameras, view=view, **geometry))
+    return figure(f"img/{artifact}.png", f"{label}: " + "; ".join(run.describe(stage)))
+
+
+def novel_views(run: RunData) -> str | None:
+    """The render stage's summary, the first RGB and depth frames, and links to the two videos."""
+    if "render" not in run.results:
+        return None
+    body = paragraphs(run.describe("render"))
+    frames = run.artifact("render", "frames")
+    for name, pattern in (("render_first.png", "rgb_*.png"), ("render_depth_first.png", "depth_*.png")):
+        first = sorted(frames.glob(pattern))[:1]
+        if first:
+            shutil.copy2(first[0], run.img / name)
+            body += figure(f"img/{name}", "first frame")
+    for artifact in ("video", "depth_video"):
+        video = run.artifact("render", artifact)
+        if video.exists():
+            shutil.copy2(video, run.folder / video.name)
+            body += f'<p><a href="{video.name}">{video.name}</a></p>'
+    return section("Novel views", body)
+
+
+def benchmark(run: RunData) -> str | None:
+    """``nerfpipe bench``'s table, held-out PSNR / SSIM at each training-time checkpoint, and its plot."""
+    from nerfpipe.bench.run import BENCH_DIR
+
+    bench = run.run_dir / BENCH_DIR / "bench.json"
+    if not bench.is_file():
+        return None
+    doc = json.loads(bench.read_text(encoding="utf-8"))
+    marks = doc["checkpoints"]
+    header = ("configuration", *(f"{m:.0f} s" for m in marks), "samples/ray", "samples/s", "render s/image", "peak memory")
+    body = ("<p>held-out PSNR / SSIM after each training time (nerfpipe bench)</p>"
+            + table(header, [benchmark_row(r, marks) for r in doc["results"]]))
+    plot = bench.parent / "psnr_time.png"
+    if plot.is_file():
+        shutil.copyfile(plot, run.img / "bench_psnr_time.png")
+        body += figure("img/bench_psnr_time.png", "held-out PSNR against training time")
+    return section("What accuracy costs in time", body)
+
+
+def benchmark_row(result: dict[str, Any], marks: list[float]) -> tuple[str, ...]:
+    """One configuration of ``bench.json``: PSNR / SSIM at each mark ("–" where it had not got there), its
+    samples per ray and per second, render time per image and peak memory."""
+    from nerfpipe.bench.report import psnr_at
+
+    cells = [psnr_at(result, m) for m in marks]
+    render = result["render_seconds_per_image"]
+    return (result["name"], *("–" if c is None else f"{c['psnr']:.2f} dB / {c['ssim']:.3f}" for c in cells),
+            f"{result['samples_per_ray']:.1f}", f"{result['samples_per_s']:,}",
+            "–" if render is None else f"{render:.2f}", f"{result['peak_memory_bytes'] / 2**30:.2f} GiB")
+
+
+def stage_times(run: RunData) -> str:
+    """Every stage in pipeline order: its state, the time its result took, why it is not fresh; and the
+    total time of the fresh stages."""
+    rows = []
+    for name in run.order:
+        status = run.statuses[name]
+        seconds = status.result.manifest.get("timings", {}).get("seconds") if status.result is not None else None
+        rows.append((name, status.state, "" if seconds is None else f"{seconds:.1f} s", "; ".join(status.reasons)))
+    total = sum(r.manifest.get("timings", {}).get("seconds", 0.0) for r in run.results.values())
+    return section("Time per stage", table(("stage", "state", "time", "note"), rows)
+                   + f"<p>total of fresh stages: {total:.0f} s</p>")
+
+
+SECTIONS: tuple[Callable[[RunData], str | None], ...] = (
+    capture, structure_from_motion, scene_decisions, training, depth, mesh_and_points, novel_views, benchmark,
+    stage_times,
+)

@@ -1,0 +1,102 @@
+"""Section builders on hand-made run data: the decisions table, held-out pairs, the stage times, and no
+section for a stage that has not run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from nerfpipe.artifacts import Decision, SceneDecisions
+from nerfpipe.pipeline import Committed, StageStatus
+from nerfpipe.report import sections
+from nerfpipe.report.data import RunData
+from nerfpipe.stages import SceneStage, TrainStage
+
+
+def run_data(tmp_path: Path, results: dict[str, Committed], statuses: dict[str, StageStatus] | None = None,
+             stages: dict | None = None) -> RunData:
+    folder = tmp_path / "report"
+    (folder / "img").mkdir(parents=True)
+    statuses = statuses or {}
+    return RunData(tmp_path / "run", tmp_path / "photos", folder, stages or {}, tuple(statuses), statuses, results)
+
+
+def test_no_section_for_a_stage_that_has_not_run(tmp_path):
+    run = run_data(tmp_path, {})
+    for build in sections.SECTIONS:
+        if build is not sections.stage_times:
+            assert build(run) is None, build.__name__
+    assert not any((tmp_path / "report" / "img").iterdir())  # and no pictures written
+
+
+def test_decisions_table_marks_the_users_override(tmp_path):
+    result = tmp_path / "scene"
+    result.mkdir()
+    made = Decision.made("color", "border pixels agree", {})
+    overridden = Decision.made([0.0, 0.0, 0.0], "median border colour", {}, override=[1.0, 1.0, 1.0])
+    SceneDecisions(layout=made, background=made, background_color=overridden, lens=made, photometric=made,
+                   exposure_varies=Decision.made(False, "no EXIF", {}), near=0.5, far=2.0,
+                   scene_box=([-1.0] * 3, [1.0] * 3)).save(result / "scene.json")
+    html = sections.scene_decisions(run_data(tmp_path, {"scene": Committed(result, {})}, stages={"scene": SceneStage()}))
+
+    assert html.startswith("<section><h2>Scene decisions</h2><table>")
+    assert "<th>decision</th><th>value</th><th>evidence</th><th>overridden</th>" in html
+    assert html.count("<tr>") == 1 + 6  # the header and one row per decision, no row for near / far / box
+    # the value the user set, the data's evidence with what it suggested, and "yes"
+    assert ("<tr><td>background_color</td><td>[1.0, 1.0, 1.0]</td>"
+            "<td>median border colour; set by the user (the data suggested (0, 0, 0))</td><td>yes</td></tr>") in html
+    assert '<tr><td>background</td><td>&quot;color&quot;</td><td>border pixels agree</td><td></td></tr>' in html
+    assert "<tr><td>exposure_varies</td><td>false</td><td>no EXIF</td><td></td></tr>" in html
+
+
+def test_heldout_pairs_show_the_images_that_exist_with_their_scores(tmp_path):
+    result = tmp_path / "train"
+    (result / "eval").mkdir(parents=True)
+    (result / "metrics.json").write_text(
+        '{"views": [{"name": "val/r_0.png", "psnr": 25.126, "ssim": 0.9}, {"name": "r_1.png", "psnr": 1, "ssim": 0}]}')
+    (result / "eval" / "val__r_0.render.png").write_bytes(b"png")  # its ground truth is missing; r_1 has nothing
+    run = run_data(tmp_path, {"train": Committed(result, {})}, stages={"train": TrainStage()})
+
+    blocks = sections.heldout_pairs(run)
+
+    assert blocks == ["<div class='pair'><figure><img src=\"img/eval_val__r_0.render.png\" alt=\"val/r_0.png: render\">"
+                      "<figcaption>val/r_0.png: render</figcaption></figure><p>PSNR 25.13 dB, SSIM 0.900</p></div>"]
+    assert (tmp_path / "report" / "img" / "eval_val__r_0.render.png").read_bytes() == b"png"
+
+
+def test_stage_times_total_only_the_fresh_stages(tmp_path):
+    def done(seconds: float) -> Committed:
+        return Committed(tmp_path, {"timings": {"seconds": seconds}})
+
+    statuses = {
+        "ingest": StageStatus("ingest", "fresh", (), "k1", done(1.4)),
+        "sfm": StageStatus("sfm", "fresh", ("cached by an earlier run",), "k2", done(2.0)),
+        "train": StageStatus("train", "stale", ("params changed: train.lr 0.01 -> 0.005",), "k3", done(10.0)),
+        "render": StageStatus("render", "missing", ("not run yet",), "k4", None),
+    }
+    run = run_data(tmp_path, {"ingest": done(1.4), "sfm": done(2.0)}, statuses)
+
+    html = sections.stage_times(run)
+
+    assert ("<tr><td>ingest</td><td>fresh</td><td>1.4 s</td><td></td></tr>"
+            "<tr><td>sfm</td><td>fresh</td><td>2.0 s</td><td>cached by an earlier run</td></tr>"
+            "<tr><td>train</td><td>stale</td><td>10.0 s</td><td>params changed: train.lr 0.01 -&gt; 0.005</td></tr>"
+            "<tr><td>render</td><td>missing</td><td></td><td>not run yet</td></tr>") in html
+    assert html.endswith("<p>total of fresh stages: 3 s</p></section>")  # 1.4 + 2.0; the stale 10 s not counted
+
+
+@pytest.mark.parametrize("caption, alt", [("", "img/a.png"), ("a <b>", "a &lt;b&gt;")])
+def test_a_figure_escapes_its_caption_and_falls_back_to_its_source_as_alt_text(caption, alt):
+    from nerfpipe.report.markup import figure
+
+    assert f'alt="{alt}"' in figure("img/a.png", caption)
+
+
+def test_a_benchmark_row_has_a_dash_where_the_budget_stopped_training_first():
+    slow = {"name": "slow", "finished": False, "samples_per_ray": 12.345, "samples_per_s": 123456,
+            "render_seconds_per_image": None, "peak_memory_bytes": 3 * 2**29,
+            "points": [{"mark": 30.0, "seconds": 30.4, "psnr": 20.0, "ssim": 0.2}]}
+    # no checkpoint at 60 s and not finished: "–"; 3 * 2^29 bytes = 1.5 GiB
+    assert sections.benchmark_row(slow, [30.0, 60.0]) == (
+        "slow", "20.00 dB / 0.200", "–", "12.3", "123,456", "–", "1.50 GiB")
