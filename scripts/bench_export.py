@@ -27,14 +27,14 @@ from pathlib import Path
 import numpy as np
 
 from nerfpipe import Pipeline, default_stages
+from nerfpipe.artifacts import Bounds, ViewSplit, frame_image_path
 from nerfpipe.export.depth import DepthIndex
 from nerfpipe.export.mesh import read_mesh, transformed
 from nerfpipe.export.points import read_ply
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.geometry.normalize import Similarity
-from nerfpipe.pipeline.params import parse_assignments
-from nerfpipe.artifacts import Bounds, ViewSplit, frame_image_path
 from nerfpipe.imaging.png import read_png
+from nerfpipe.pipeline.params import parse_assignments
 
 REPO = Path(__file__).resolve().parents[1]
 LEGO = REPO.parent / "shared" / "data" / "nerf_synthetic_lego_400"

@@ -1,16 +1,19 @@
-"""Training benchmark: held-out PSNR against wall time on lego, and the paper MLP's throughput against
-this machine's float32 matmul rate.
+"""Training benchmark: the paper MLP's throughput against this machine's float32 matmul rate, and one run
+of the train stage on lego as ``nerfpipe run`` trains it.
 
 Run by hand from the repository root, with ../shared beside it:
 
-    python benchmarks/bench_train.py                        # fast preset, lego train split at 100x100
-    python benchmarks/bench_train.py --preset paper --size 400 --steps 5000     # on a GPU machine
+    python scripts/bench_train.py                        # fast preset, lego train split at 100x100
+    python scripts/bench_train.py --preset paper --size 400 --steps 5000     # on a GPU machine
 
-Trains lego's train split at ``--size`` pixels with the train stage (preset and ``--set`` overrides as
-for ``nerfpipe run``), keeping all checkpoints, then renders every 4th val view from
-each checkpoint (one every sixth of the run) and prints PSNR and SSIM against the training wall time each checkpoint recorded.
-Before training, it times the paper MLP (Fig. 7: 8x256, view branch 128) training on random samples and
-a large float32 matmul, in the same process, and prints achieved / peak FLOP rate.
+First it times the paper MLP (Fig. 7: 8x256, view branch 128) training on random samples and a large
+float32 matmul, in the same process, and prints achieved / peak FLOP rate. Then it trains lego's train
+split at ``--size`` pixels with the train stage (preset and ``--set`` overrides as for ``nerfpipe run``)
+and prints its steps, samples/s, held-out PSNR on every 4th val view and wall time with evaluation.
+
+Held-out PSNR against training time is ``nerfpipe bench``'s to measure, e.g.
+
+    nerfpipe bench ../shared/data/nerf_synthetic_lego_400 --out /tmp/lego --size 100 --config fast
 """
 
 from __future__ import annotations
@@ -26,10 +29,9 @@ import torch
 
 from nerfpipe import Pipeline, default_stages
 from nerfpipe.nerf.cpu import keep_freed_memory
+from nerfpipe.nerf.device import resolve_device
 from nerfpipe.nerf.field import FieldConfig, NerfField
-from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.pipeline.params import parse_assignments
-from nerfpipe.stages.train import ImageLoader, evaluate, resolve_device, split_views
 
 REPO = Path(__file__).resolve().parents[1]
 LEGO = REPO.parent / "shared" / "data" / "nerf_synthetic_lego_400"
@@ -89,7 +91,7 @@ def main() -> None:
         sys.exit(f"lego not found at {LEGO}: put ../shared beside the checkout")
     keep_freed_memory()
     torch.set_flush_denormal(True)  # before torch's first parallel operation, as the train stage does in the CLI
-    device = resolve_device("auto")
+    device = resolve_device("auto", "device")
     name = torch.cuda.get_device_name() if device.type == "cuda" else f"{os.cpu_count()} CPU cores"
     print(f"machine: {name}, torch {torch.__version__}, {torch.get_num_threads()} threads, Python {sys.version.split()[0]}")
 
@@ -100,36 +102,19 @@ def main() -> None:
         print(f"paper MLP training: {rate:,.0f} samples/s x {flops / 1e6:.2f} MFLOP/sample = {rate * flops / 1e9:.0f} GFLOP/s"
               f" = {100 * rate * flops / peak:.0f} % of the matmul rate")
 
-    overrides = parse_assignments([f"ingest.max_size={args.size}", "train.eval_stride=4", "train.keep_checkpoints=0", *args.set])
-    steps = args.steps
-    if steps is not None:
-        overrides.setdefault("train", {})["steps"] = steps
+    overrides = parse_assignments([f"ingest.max_size={args.size}", "train.eval_stride=4", *args.set])
+    if args.steps is not None:
+        overrides.setdefault("train", {})["steps"] = args.steps
     with tempfile.TemporaryDirectory() as tmp:
-        run_dir = args.run_dir or Path(tmp) / "lego"
-        probe = Pipeline(default_stages(), LEGO, run_dir, args.preset, overrides)
-        total = probe.plan()["train"].params.steps
-        overrides["train"].setdefault("checkpoint_every", max(total // 6, 1))
-        pipe = Pipeline(default_stages(), LEGO, run_dir, args.preset, overrides)
+        pipe = Pipeline(default_stages(), LEGO, args.run_dir or Path(tmp) / "lego", args.preset, overrides)
         pipe.run(until="scene")
         started = time.perf_counter()
-        train = pipe.run(until="train")[-1]
+        s = pipe.run(until="train")[-1].summary
         wall = time.perf_counter() - started
-        s = train.summary
-        print(f"\npreset {args.preset}, lego {args.size}px, {s['train_images']} training views, {s['heldout']} held-out "
-              f"({s['heldout_rule']}, every 4th): {s['steps']} steps in {s['train_seconds']:.0f} s of training "
-              f"({s['samples_per_s']:,} samples/s), stage wall time {wall:.0f} s with evaluation")
-
-        params = pipe.plan()["train"].params
-        loader = ImageLoader.from_inputs(pipe.stage_inputs("train"))
-        heldout = split_views(loader.world, params).heldout
-        model = RadianceModel.load(train.path, device)
-        print("\n| step | training wall time | val PSNR | val SSIM |")
-        print("|---:|---:|---:|---:|")
-        for path in sorted((train.path / "checkpoints").glob("step_*.pt")):
-            state = torch.load(path, map_location=device, weights_only=True)
-            model.load_state(state)
-            result = evaluate(model, loader, heldout, None, params.chunk)
-            print(f"| {state['step']} | {state['elapsed']:.0f} s | {result['psnr']:.2f} dB | {result['ssim']:.3f} |", flush=True)
+    print(f"\npreset {args.preset}, lego {args.size}px, {s['train_images']} training views, {s['heldout']} held-out "
+          f"({s['heldout_rule']}, every 4th): {s['steps']} steps in {s['train_seconds']:.0f} s of training "
+          f"({s['samples_per_s']:,} samples/s), held-out PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f}; "
+          f"stage wall time {wall:.0f} s with evaluation")
 
 
 if __name__ == "__main__":

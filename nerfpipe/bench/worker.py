@@ -10,13 +10,23 @@ held-out views: PSNR and SSIM against training time.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import resource
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # torch is imported once the CPU settings are made (``run``)
+    import torch
+
+    from nerfpipe.geometry.cameras import Frame
+    from nerfpipe.nerf.images import ImageLoader, Views
+    from nerfpipe.nerf.model import RadianceModel
+    from nerfpipe.nerf.trainer import TrainConfig, Trainer
 
 
 def run(spec: dict[str, Any]) -> dict[str, Any]:
@@ -27,43 +37,63 @@ def run(spec: dict[str, Any]) -> dict[str, Any]:
         return _run(spec)
 
 
-def _run(spec: dict[str, Any]) -> dict[str, Any]:
+@dataclass
+class Setup:
+    """What the train stage would train for the spec's settings: its model, images, views and config."""
+
+    device: torch.device
+    loader: ImageLoader
+    views: Views
+    heldout: list[Frame]  # the held-out views evaluated: ``eval_views`` of them, evenly spaced (0: all)
+    model: RadianceModel
+    decisions: list[str]
+    config: TrainConfig
+    chunk: int
+
+
+def prepare(spec: dict[str, Any]) -> Setup:
+    """The train stage's model and training configuration for the spec's settings, from the pipeline's
+    results up to ``scene``; no checkpoints (the bench keeps its copies of the model in memory)."""
     import numpy as np
-    import torch
 
     from nerfpipe import Pipeline, default_stages
-    from nerfpipe.nerf.trainer import TrainConfig, Trainer
-    from nerfpipe.stages.train import ImageLoader, build_model, density_noise, evaluate, resolve_device, split_views
+    from nerfpipe.nerf.assembly import build_model, training_config
+    from nerfpipe.nerf.device import resolve_device
+    from nerfpipe.nerf.images import ImageLoader, split_views
 
     pipe = Pipeline(default_stages(), Path(spec["capture"]), Path(spec["run_dir"]), None, spec["overrides"])
-    planned = pipe.plan()["train"]
-    params = planned.params
-    device = resolve_device(params.device)
+    params = pipe.plan()["train"].params
+    device = resolve_device(params.device, "train.device")
     loader = ImageLoader.from_inputs(pipe.stage_inputs("train"))
-    views = split_views(loader.world, params)
+    views = split_views(loader.world, params.holdout_every, params.train_images, params.eval_stride)
     heldout = views.heldout
     if spec["eval_views"] and spec["eval_views"] < len(heldout):
         pick = np.unique(np.linspace(0, len(heldout) - 1, spec["eval_views"]).round().astype(int))
         heldout = [heldout[i] for i in pick]
     model, decisions = build_model(params, loader.scene, loader.world, loader.bounds, device)
-    pixels = loader.pixel_set(views.train)
-    config = TrainConfig(
-        steps=params.steps, batch_rays=params.batch_rays, lr=params.lr, lr_final=params.lr_final,
-        adam_eps=params.adam_eps, adam_beta2=params.adam_beta2, batch_samples=params.batch_samples,
-        density_noise=density_noise(params, loader.scene), seed=params.seed, checkpoint_every=10**9,
-        keep_checkpoints=1, log_every=25, autocast=params.autocast,
-    )
-    budget, marks = float(spec["budget"]), sorted(float(m) for m in spec["checkpoints"] if m <= spec["budget"])
+    config = dataclasses.replace(training_config(params, loader.scene.layout.value), checkpoint_every=10**9,
+                                 keep_checkpoints=1)
+    return Setup(device, loader, views, heldout, model, decisions, config, params.chunk)
+
+
+def train(setup: Setup, budget: float, marks: list[float]) -> tuple[Trainer, list[dict[str, Any]], int]:
+    """Train for at most ``budget`` seconds, copying the model at each of ``marks`` (seconds of training) and
+    where training ended. Returns the trainer, the copies and the peak memory in bytes."""
+    import torch
+
+    from nerfpipe.nerf.trainer import Trainer
+
+    marks = sorted(marks)
     snapshots: list[dict[str, Any]] = []
+    device = setup.device
     with tempfile.TemporaryDirectory() as scratch:
-        trainer = Trainer(model, pixels, config, Path(scratch), device)
+        trainer = Trainer(setup.model, setup.loader.pixel_set(setup.views.train), setup.config, Path(scratch), device)
         if device.type == "cuda":
             torch.cuda.reset_peak_memory_stats(device)
 
         def snapshot(t: Trainer, mark: float | None) -> None:
             state = {k: {n: v.detach().to("cpu", copy=True) for n, v in d.items()} for k, d in t.model.state().items()}
-            snapshots.append({"mark": mark, "seconds": t.elapsed, "step": t.step, "state": state,
-                              "samples_per_ray": t.total_samples / max(t.total_rays, 1)})
+            snapshots.append({"mark": mark, "seconds": t.elapsed, "step": t.step, "state": state})
 
         def after_step(t: Trainer) -> bool:
             while marks and t.elapsed >= marks[0]:
@@ -73,23 +103,37 @@ def _run(spec: dict[str, Any]) -> dict[str, Any]:
         trainer.run(after_step=after_step)
         if not snapshots or snapshots[-1]["step"] != trainer.step:
             snapshot(trainer, None)  # where training ended: the last steps, or the budget
-        finished = trainer.step >= config.steps
-        peak = (torch.cuda.max_memory_allocated(device) if device.type == "cuda"
-                else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
-        samples_per_s = trainer.total_samples / max(trainer.elapsed, 1e-9)
-        samples_per_ray = trainer.total_samples / max(trainer.total_rays, 1)
+    peak = (torch.cuda.max_memory_allocated(device) if device.type == "cuda"
+            else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
+    return trainer, snapshots, int(peak)
+
+
+def evaluate_snapshots(setup: Setup, snapshots: list[dict[str, Any]], name: str) -> tuple[list[dict[str, Any]], float | None]:
+    """Each copy's held-out PSNR and SSIM; and the seconds to render a held-out view (of the last copy)."""
+    from nerfpipe.nerf.evaluation import evaluate
 
     points = []
     render_seconds = None
     for snap in snapshots:
-        model.load_state({k: {n: v.to(device) for n, v in d.items()} for k, d in snap["state"].items()})
+        setup.model.load_state({k: {n: v.to(setup.device) for n, v in d.items()} for k, d in snap["state"].items()})
         started = time.perf_counter()
-        result = evaluate(model, loader, heldout, None, params.chunk)
-        render_seconds = (time.perf_counter() - started) / max(len(heldout), 1)
+        result = evaluate(setup.model, setup.loader, setup.heldout, None, setup.chunk)
+        render_seconds = (time.perf_counter() - started) / max(len(setup.heldout), 1)
         points.append({"mark": snap["mark"], "seconds": round(snap["seconds"], 2), "step": snap["step"],
                        "psnr": result["psnr"], "ssim": result["ssim"]})
-        print(f"  {spec['name']}: {snap['seconds']:.0f} s, step {snap['step']}: PSNR {result['psnr']:.2f} dB", flush=True)
-    camera = loader.world.camera_of(heldout[0]) if heldout else None
+        print(f"  {name}: {snap['seconds']:.0f} s, step {snap['step']}: PSNR {result['psnr']:.2f} dB", flush=True)
+    return points, render_seconds
+
+
+def _run(spec: dict[str, Any]) -> dict[str, Any]:
+    import torch
+
+    setup = prepare(spec)
+    budget = float(spec["budget"])
+    trainer, snapshots, peak = train(setup, budget, [float(m) for m in spec["checkpoints"] if m <= budget])
+    points, render_seconds = evaluate_snapshots(setup, snapshots, spec["name"])
+    device, heldout = setup.device, setup.heldout
+    camera = setup.loader.world.camera_of(heldout[0]) if heldout else None
     return {
         "name": spec["name"],
         "group": spec["group"],
@@ -97,17 +141,17 @@ def _run(spec: dict[str, Any]) -> dict[str, Any]:
         "train": spec["overrides"].get("train", {}),
         "device": torch.cuda.get_device_name(device) if device.type == "cuda" else f"CPU ({torch.get_num_threads()} threads)",
         "steps": trainer.step,
-        "steps_planned": config.steps,
-        "finished": finished,
+        "steps_planned": setup.config.steps,
+        "finished": trainer.step >= setup.config.steps,
         "train_seconds": round(trainer.elapsed, 2),
-        "samples_per_s": round(samples_per_s),
-        "samples_per_ray": round(samples_per_ray, 2),
+        "samples_per_s": round(trainer.total_samples / max(trainer.elapsed, 1e-9)),
+        "samples_per_ray": round(trainer.total_samples / max(trainer.total_rays, 1), 2),
         "render_seconds_per_image": None if render_seconds is None else round(render_seconds, 3),
         "image_size": None if camera is None else [camera.width, camera.height],
-        "peak_memory_bytes": int(peak),
-        "train_images": len(views.train),
+        "peak_memory_bytes": peak,
+        "train_images": len(setup.views.train),
         "heldout": len(heldout),
-        "decisions": decisions,
+        "decisions": setup.decisions,
         "points": points,
     }
 

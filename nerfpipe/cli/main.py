@@ -69,7 +69,14 @@ def _user_errors(debug: bool) -> Iterator[None]:
 
 
 def _progress_factory() -> Callable:
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
 
     @contextlib.contextmanager
     def progress(total: int, description: str) -> Iterator[Callable[..., None]]:

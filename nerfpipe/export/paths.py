@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nerfpipe.geometry.normalize import Similarity
-
 # the mean camera of the train stage, so the spiral circles the very frame a forward model's NDC rays use
 from nerfpipe.geometry.cameras import look_at, mean_camera
+from nerfpipe.geometry.normalize import Similarity
+
 # (``dt = .75`` in its ``load_llff_data``), a depth a little behind the nearest content.
 FOCUS_DISPARITY_WEIGHT = 0.75
 # The orbit's auto elevation stays this far off the poles: straight above the target a camera's x axis

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
+from typing import Iterator
+
 import torch
 
+from nerfpipe.nerf.cpu import cpu_rendering
 from nerfpipe.pipeline.errors import StageError
 
 
@@ -13,3 +17,12 @@ def resolve_device(choice: str, param: str) -> torch.device:
     if choice == "cuda" and not torch.cuda.is_available():
         raise StageError(f"{param}=cuda but torch sees no CUDA device; use {param}=auto or cpu")
     return torch.device("cuda" if choice == "cuda" or (choice == "auto" and torch.cuda.is_available()) else "cpu")
+
+
+@contextlib.contextmanager
+def rendering_device(choice: str, param: str) -> Iterator[torch.device]:
+    """The device a stage that renders a trained field computes on (``resolve_device``), with the CPU
+    settings of ``nerfpipe.nerf.cpu.cpu_rendering`` held while it works."""
+    device = resolve_device(choice, param)
+    with cpu_rendering(device):
+        yield device

@@ -38,6 +38,7 @@ class TrainConfig:
     keep_checkpoints: int = 2  # 0: keep all
     log_every: int = 25
     autocast: str = "none"  # "none", "bf16", "fp16"
+    tf32: bool = False  # CUDA: TF32 matmuls (see ``set_precision``)
 
 
 @dataclass
@@ -98,6 +99,14 @@ def load_latest_checkpoint(folder: Path, device: torch.device) -> dict | None:
     return None
 
 
+def set_precision(config: TrainConfig, device: torch.device) -> None:
+    """TF32 matmuls and convolutions on CUDA when ``config.tf32``; nothing otherwise. torch's flags are
+    process-wide and stay set, so evaluation after training computes as training did."""
+    if device.type == "cuda" and config.tf32:
+        torch.backends.cuda.matmul.allow_tf32 = True
+        torch.backends.cudnn.allow_tf32 = True
+
+
 def _autocast(device: torch.device, mode: str):
     if mode == "none":
         return torch.autocast(device.type, enabled=False)
@@ -105,9 +114,11 @@ def _autocast(device: torch.device, mode: str):
 
 
 class Trainer:
-    """Optimizes a ``RadianceModel`` on a ``PixelSet``; writes checkpoints and ``metrics.jsonl`` in ``out``."""
+    """Optimizes a ``RadianceModel`` on a ``PixelSet``; writes checkpoints and ``metrics.jsonl`` in ``out``.
+    Applies the config's precision settings (``set_precision``)."""
 
     def __init__(self, model: RadianceModel, pixels: PixelSet, config: TrainConfig, out: Path, device: torch.device) -> None:
+        set_precision(config, device)
         self.model, self.pixels, self.config, self.out, self.device = model, pixels.to(device), config, out, device
         params = [p for f in model.fields() for p in f.parameters()]
         # fused Adam: one pass over each tensor, which matters for grids of millions of values on a CPU

@@ -30,6 +30,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from nerfpipe.artifacts import PHOTO_SUBFOLDER, output_names
 from nerfpipe.geometry.cameras import (
     CAMERA_MODELS,
     OPENGL_TO_OPENCV,
@@ -42,7 +43,6 @@ from nerfpipe.geometry.cameras import (
 )
 from nerfpipe.pipeline.errors import InputError
 from nerfpipe.poses.layout import IMAGE_SUFFIXES, CaptureLayout, _read_json, resolve_inside
-from nerfpipe.artifacts import PHOTO_SUBFOLDER, output_names
 
 ROTATION_TOLERANCE = 1e-3  # max |R^T R - I| and |det R - 1| before a matrix is refused as a rotation
 ASPECT_TOLERANCE = 0.01  # relative aspect-ratio mismatch between a pose file's camera and the photo

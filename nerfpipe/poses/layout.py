@@ -26,6 +26,7 @@ from nerfpipe.pipeline.errors import InputError
 
 LayoutKind = Literal["transforms", "colmap", "llff", "middlebury", "folder"]
 from nerfpipe.artifacts import PHOTO_SUBFOLDER
+
 TRANSFORMS_FILES = ("transforms.json", "transforms_train.json", "transforms_val.json", "transforms_test.json")
 COLMAP_MODEL_DIRS = ("sparse/0", "sparse", ".")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG", ".tif", ".tiff", ".exr")

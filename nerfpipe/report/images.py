@@ -11,14 +11,6 @@ THUMB_SIDE = 160  # pixels, the longer side of a capture thumbnail
 MAX_PLOTTED_POINTS = 20000
 
 
-def write_png(path: Path, rgb: np.ndarray) -> None:
-    """Write an (H, W, 3) uint8 RGB image."""
-    import cv2
-
-    if not cv2.imwrite(str(path), np.ascontiguousarray(rgb[..., ::-1])):
-        raise OSError(f"could not write {path}")
-
-
 def thumbnail(source: Path, target: Path) -> bool:
     """Write a PNG of ``source`` no larger than ``THUMB_SIDE``, transparency flattened onto white; False
     when ``source`` cannot be read or ``target`` written."""

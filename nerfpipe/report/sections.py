@@ -14,8 +14,9 @@ from typing import Any, Callable
 import numpy as np
 
 from nerfpipe.artifacts import ImageIndex, SceneDecisions, view_file_stem
+from nerfpipe.imaging.png import write_png
 from nerfpipe.report.data import RunData
-from nerfpipe.report.images import plot_cameras, plot_training, thumbnail, write_png
+from nerfpipe.report.images import plot_cameras, plot_training, thumbnail
 from nerfpipe.report.markup import figure, grid, paragraphs, section, table
 
 MAX_THUMBS = 48

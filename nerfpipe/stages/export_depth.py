@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from nerfpipe.artifacts import Bounds, ViewSplit, view_file_stem
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
-from nerfpipe.artifacts import Bounds, ViewSplit, view_file_stem
 
 
 @dataclass(frozen=True)
@@ -66,11 +66,9 @@ class ExportDepthStage(Stage):
                 f"{s['width']}x{s['height']}, {s['seconds_per_view']:.1f} s each; mean opacity {s['mean_acc']:.2f}"]
 
     def run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:
-        from nerfpipe.nerf.cpu import cpu_rendering
-        from nerfpipe.nerf.device import resolve_device
+        from nerfpipe.nerf.device import rendering_device
 
-        device = resolve_device(params.device, "export_depth.device")
-        with cpu_rendering(device):
+        with rendering_device(params.device, "export_depth.device") as device:
             return self._run(inputs, out, params, ctx, device)
 
     def _run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext, device) -> dict[str, Any]:

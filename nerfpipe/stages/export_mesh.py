@@ -80,22 +80,28 @@ class ExportMeshStage(Stage):
         return lines
 
     def run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext) -> dict[str, Any]:
-        from nerfpipe.nerf.cpu import cpu_rendering
-        from nerfpipe.nerf.device import resolve_device
+        from nerfpipe.nerf.device import rendering_device
 
-        device = resolve_device(params.device, "export_mesh.device")
-        with cpu_rendering(device):
+        with rendering_device(params.device, "export_mesh.device") as device:
             return self._run(inputs, out, params, ctx, device)
 
     def _run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext, device) -> dict[str, Any]:
+        import torch
+
+        from nerfpipe.export import points as point_clouds
         from nerfpipe.export.depth import DepthIndex, read_view
         from nerfpipe.export.mesh import (
-            Grid, clean, marching_cubes, poisson, surface_colors, transformed, tsdf_fusion, vertex_normals, write_mesh,
+            Grid,
+            clean,
+            marching_cubes,
+            poisson,
+            surface_colors,
+            transformed,
+            tsdf_fusion,
+            vertex_normals,
+            write_mesh,
         )
-        from nerfpipe.export import points as point_clouds
         from nerfpipe.nerf.model import RadianceModel
-
-        import torch
 
         started = time.perf_counter()
         bounds = Bounds.load(inputs["bounds"])

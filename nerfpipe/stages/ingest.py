@@ -22,6 +22,7 @@ from nerfpipe.pipeline.fingerprint import Fingerprint
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.poses.layout import detect_layout
 
+
 @dataclass(frozen=True)
 class IngestParams:
     max_size: int = field(default=1600, metadata={"help": "longest side in pixels after downscaling; 0 keeps full size"})

@@ -124,11 +124,9 @@ class RenderStage(Stage):
         ]
 
     def run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext) -> dict[str, Any]:
-        from nerfpipe.nerf.cpu import cpu_rendering
-        from nerfpipe.nerf.device import resolve_device
+        from nerfpipe.nerf.device import rendering_device
 
-        device = resolve_device(params.device, "render.device")
-        with cpu_rendering(device):
+        with rendering_device(params.device, "render.device") as device:
             return self._run(inputs, out, params, ctx, device)
 
     def _run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext, device) -> dict[str, Any]:

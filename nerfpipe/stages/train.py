@@ -17,24 +17,15 @@ paper holds out 1/8 of its real scenes (Section 6.1).
 from __future__ import annotations
 
 import contextlib
-import json
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-import numpy as np
-
-from nerfpipe.geometry.cameras import CameraSet, Frame
-from nerfpipe.pipeline.errors import StageError
+from nerfpipe.artifacts import ViewSplit
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
-from nerfpipe.artifacts import frame_image_path
-from nerfpipe.imaging.png import read_png
 
 param = field  # TrainParams has a parameter named ``field``, which shadows dataclasses.field in its body
-
-NDC_NEAR_FACTOR = 0.75  # the NDC near plane at 0.75 x the nearest bound, as LLFF's bd_factor places it
 
 
 @dataclass(frozen=True)
@@ -140,38 +131,6 @@ PRESETS = {
 }
 
 
-@dataclass
-class Views:
-    """The frames used for training and for evaluation, and why."""
-
-    train: list[Frame]
-    heldout: list[Frame]
-    rule: str
-
-
-def split_views(world: CameraSet, params: TrainParams) -> Views:
-    """Held-out views: the test split, else the val split, else every ``holdout_every``-th image."""
-    frames = world.frames
-    splits = {f.split for f in frames}
-    for name in ("test", "val"):
-        if name in splits:
-            train = [f for f in frames if f.split == "train"] or [f for f in frames if f.split != name]
-            heldout = [f for f in frames if f.split == name]
-            rule = f"the capture's {name} split"
-            break
-    else:
-        heldout = frames[:: params.holdout_every]
-        train = [f for i, f in enumerate(frames) if i % params.holdout_every != 0]
-        rule = f"every {params.holdout_every}th image"
-    if params.train_images and params.train_images < len(train):
-        keep = np.unique(np.linspace(0, len(train) - 1, params.train_images).round().astype(int))
-        train = [train[i] for i in keep]
-    heldout = heldout[:: params.eval_stride]
-    if not train:
-        raise StageError(f"train: no training images left after holding out {rule}; lower train.holdout_every")
-    return Views(train, heldout, rule)
-
-
 class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
@@ -200,7 +159,9 @@ class TrainStage(Stage):
         return lines
 
     def run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext) -> dict[str, Any]:
+        # torch is imported here, not at the top: the CPU settings of training must come before its first use
         from nerfpipe.nerf.cpu import flush_denormals, keep_freed_memory
+        from nerfpipe.nerf.device import resolve_device
 
         device = resolve_device(params.device, "train.device")
         with contextlib.ExitStack() as cpu_settings:
@@ -212,45 +173,35 @@ class TrainStage(Stage):
             return self._run(inputs, out, params, ctx, device)
 
     def _run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext, device) -> dict[str, Any]:
-        import torch
+        from nerfpipe.nerf.assembly import build_model, field_kind, training_config
+        from nerfpipe.nerf.evaluation import evaluate
+        from nerfpipe.nerf.images import ImageLoader, split_views
+        from nerfpipe.nerf.trainer import Trainer
 
-        from nerfpipe.nerf.trainer import TrainConfig, Trainer
-
-        if device.type == "cuda" and params.tf32:
-            torch.backends.cuda.matmul.allow_tf32 = True
-            torch.backends.cudnn.allow_tf32 = True
         loader = ImageLoader.from_inputs(inputs)
-        scene, world, bounds = loader.scene, loader.world, loader.bounds
-        views = split_views(world, params)
-        model, decisions = build_model(params, scene, world, bounds, device)
+        layout = loader.scene.layout.value
+        views = split_views(loader.world, params.holdout_every, params.train_images, params.eval_stride)
+        model, decisions = build_model(params, loader.scene, loader.world, loader.bounds, device)
         for line in decisions:
             ctx.log.info("train: %s", line)
         ctx.log.info("train: %d training images, %d held out (%s)", len(views.train), len(views.heldout), views.rule)
-        write_json_atomic(out / "views.json", {"train": [f.name for f in views.train],
-                                               "heldout": [f.name for f in views.heldout], "rule": views.rule})
+        ViewSplit([f.name for f in views.train], [f.name for f in views.heldout], views.rule).save(out / "views.json")
 
-        pixels = loader.pixel_set(views.train)
-        config = TrainConfig(
-            steps=params.steps, batch_rays=params.batch_rays, lr=params.lr, lr_final=params.lr_final,
-            adam_eps=params.adam_eps, adam_beta2=params.adam_beta2, batch_samples=params.batch_samples,
-            density_noise=density_noise(params, scene), seed=params.seed,
-            checkpoint_every=params.checkpoint_every, keep_checkpoints=params.keep_checkpoints, autocast=params.autocast,
-        )
-        trainer = Trainer(model, pixels, config, out, device)
+        trainer = Trainer(model, loader.pixel_set(views.train), training_config(params, layout), out, device)
         resumed = trainer.resume()
         if resumed is not None:
             ctx.log.info("train: resuming from the checkpoint at step %d of %d", resumed, params.steps)
         with ctx.progress(params.steps - trainer.step, "train") as advance:
             trainer.run(advance)
         model.save(out)
-        evaluation = evaluate(model, loader, views.heldout, out / "eval", params.chunk, ctx)
-        samples_per_s = trainer.total_samples / max(trainer.elapsed, 1e-9)
+        with ctx.progress(len(views.heldout), "evaluate") as advance:
+            evaluation = evaluate(model, loader, views.heldout, out / "eval", params.chunk, advance)
         summary = {
             "steps": params.steps,
             "train_seconds": round(trainer.elapsed, 2),
-            "samples_per_s": round(samples_per_s),
+            "samples_per_s": round(trainer.total_samples / max(trainer.elapsed, 1e-9)),
             "samples_per_ray": round(trainer.total_samples / max(trainer.total_rays, 1), 2),
-            "field": field_kind(params, loader.scene),
+            "field": field_kind(params, layout),
             "occupancy": None if model.occupancy is None else round(model.occupancy.occupancy(), 4),
             "device": str(device),
             "train_images": len(views.train),
@@ -262,212 +213,7 @@ class TrainStage(Stage):
             "decisions": decisions,
         }
         write_json_atomic(out / "metrics.json", {**summary, "views": evaluation["views"], "eval_seconds": evaluation["seconds"]})
-        ctx.log.info("train: held-out PSNR %.2f dB, SSIM %.3f over %d views", evaluation["psnr"], evaluation["ssim"],
-                     len(views.heldout))
+        if evaluation["psnr"] is not None:
+            ctx.log.info("train: held-out PSNR %.2f dB, SSIM %.3f over %d views", evaluation["psnr"], evaluation["ssim"],
+                         len(views.heldout))
         return summary
-
-
-def density_noise(params: TrainParams, scene: dict[str, Any]) -> float:
-    """The authors regularize real forward-facing scenes with noise of std 1 on the raw density; not synthetic
-    ones. The MLP's raw density only: the grid field has no such regularizer."""
-    if params.density_noise != "auto":
-        return float(params.density_noise)
-    return 1.0 if scene["layout"]["value"] == "forward" and field_kind(params, scene) == "mlp" else 0.0
-
-
-def field_kind(params: TrainParams, scene: dict[str, Any]) -> str:
-    """The grid field needs a bounded box to hold its grids: unbounded 360 scenes train the MLP."""
-    return "mlp" if scene["layout"]["value"] == "unbounded360" else params.field
-
-
-def build_model(params: TrainParams, scene: dict[str, Any], world: CameraSet, bounds: dict[str, Any], device):
-    """The fields, sampling, ray space and background this scene calls for, and a sentence per choice."""
-    from nerfpipe.nerf.field import FieldConfig, NerfField
-    from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
-    from nerfpipe.nerf.model import RadianceModel, RaySpace
-    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
-    from nerfpipe.nerf.renderer import SamplingConfig
-
-    import torch
-
-    torch.manual_seed(params.seed)
-    layout = scene["layout"]["value"]
-    decisions = []
-    config = FieldConfig(
-        depth=params.depth, width=params.width, skips=(params.skip_after - 1,) if params.skip_after else (),
-        view_width=params.view_width, pos_freqs=params.pos_freqs if params.positional_encoding else 0,
-        dir_freqs=params.dir_freqs if params.positional_encoding else 0, include_input=params.include_input,
-        view_dependent=params.view_dependence, density_activation=params.density_activation,
-    )
-    lindisp = layout == "unbounded360" if params.lindisp == "auto" else params.lindisp == "true"
-    sampling = SamplingConfig(params.n_coarse, params.n_fine if params.hierarchical else 0, lindisp)
-
-    if layout == "forward":
-        c2ws = np.array([f.c2w for f in world.frames])
-        reference = world.camera_of(world.frames[0])
-        near_plane = NDC_NEAR_FACTOR * min(f["near"] for f in bounds["frames"])
-        ray_space = RaySpace(ndc=True, ndc_c2w=tuple(map(tuple, mean_camera(c2ws).tolist())), ndc_focal=reference.fx,
-                             ndc_size=(reference.width, reference.height), ndc_near=near_plane)
-        decisions.append(f"forward-facing: rays in NDC of the mean camera, near plane {near_plane:.3g}, "
-                         "samples linear in NDC depth (near to infinity)")
-    elif layout == "inward360" and params.clip_to_box:
-        box = (tuple(bounds["scene_box"][0]), tuple(bounds["scene_box"][1]))
-        ray_space = RaySpace(box=box)
-        decisions.append("inward 360: world rays, each clipped to the scene box and its image's near/far")
-    else:
-        ray_space = RaySpace()
-        what = "unbounded 360: world rays over each image's near/far" if layout == "unbounded360" else "world rays over each image's near/far"
-        decisions.append(what + (", samples linear in disparity" if lindisp else ""))
-
-    kind = field_kind(params, scene)
-    field_box = ray_space.field_box(max(f["far"] for f in bounds["frames"]) if bounds["frames"] else None)
-    if field_box is None and layout != "unbounded360":
-        field_box = (tuple(bounds["scene_box"][0]), tuple(bounds["scene_box"][1]))
-    if kind == "grid":
-        grid_config = GridFieldConfig(
-            levels=params.grid_levels, min_resolution=params.grid_min_resolution,
-            max_resolution=params.grid_max_resolution, features=params.grid_features, hidden=params.grid_hidden,
-            dir_freqs=params.dir_freqs if params.positional_encoding else 0, view_dependent=params.view_dependence,
-        )
-        coarse, fine = GridField(*field_box, grid_config).to(device), None
-        decisions.append(f"grid field: {grid_config.levels} levels of {grid_config.resolutions()} cells a side, "
-                         f"{grid_config.features} features each, and a {grid_config.hidden}-wide MLP")
-    else:
-        coarse = NerfField(config).to(device)
-        fine = NerfField(config).to(device) if params.fine_network and params.hierarchical and params.n_fine > 0 else None
-        if params.field == "grid":
-            decisions.append("unbounded 360: the grid field needs a bounded box, so the MLP (Fig. 7) is trained")
-    use_grid = params.occupancy == "true" or (params.occupancy == "auto" and kind == "grid")
-    occupancy = marching = None
-    if use_grid and field_box is not None:
-        occupancy = OccupancyGrid(*field_box, params.occupancy_resolution).to(device)
-        marching = MarchingConfig(steps=params.march_steps, threshold=params.occupancy_threshold,
-                                  early_stop=params.early_stop)
-        decisions.append(f"empty-space skipping: a {params.occupancy_resolution}^3 occupancy grid over the field box, "
-                         f"{params.march_steps} marching steps along its diagonal, rays stop at transmittance "
-                         f"{params.early_stop:g} (instead of N_c + N_f samples per ray)")
-    elif use_grid:
-        decisions.append("no occupancy grid: an unbounded scene has no box to grid; Section 5.2's sampling instead")
-    background_kind = scene["background"]["value"]
-    color = scene["background_color"]["value"]
-    if background_kind in ("alpha", "color") and color is not None:
-        background = tuple(float(c) for c in color)
-        decisions.append(f"background {background_kind}: renders composited onto ({', '.join(f'{c:.2f}' for c in background)})")
-    else:
-        background = None
-        decisions.append("no background model: the background is part of the scene (composited onto black)")
-    if scene["photometric"]["value"] == "linear_raw":
-        decisions.append("linear RAW: trained on linear values; previews are sRGB-encoded")
-    noise = density_noise(params, scene)
-    if noise:
-        decisions.append(f"noise of std {noise:g} on raw density while training")
-    info = {"layout": layout, "photometric": scene["photometric"]["value"], "to_sfm": bounds["to_sfm"]}
-    return RadianceModel(coarse, fine, sampling, ray_space, background, info, occupancy, marching), decisions
-
-
-class ImageLoader:
-    """Training targets and cameras of frames, from the ingest / undistort images."""
-
-    def __init__(self, inputs: StageInputs, world: CameraSet, bounds: dict[str, Any], scene: dict[str, Any]) -> None:
-        self.inputs = inputs
-        self.world = world
-        self.bounds = bounds
-        self.scene = scene
-        self.roots = CameraSet.load(inputs["pinhole"]).extra.get("image_roots", {})
-        self.near_far = {f["name"]: (f["near"], f["far"]) for f in bounds["frames"]}
-        self.use_alpha = scene["background"]["value"] == "alpha"
-        color = scene["background_color"]["value"]
-        self.background = np.array(color if color is not None else (0.0, 0.0, 0.0), dtype=np.float32)
-
-    @staticmethod
-    def from_inputs(inputs: StageInputs) -> "ImageLoader":
-        """The loader of the train stage's inputs: the normalized world, its bounds and the scene decisions."""
-        return ImageLoader(
-            inputs, CameraSet.load(inputs["world"]), json.loads(inputs["bounds"].read_text(encoding="utf-8")),
-            json.loads(inputs["scene"].read_text(encoding="utf-8")),
-        )
-
-    def image(self, frame: Frame) -> np.ndarray:
-        """(H, W, 3) float32 in [0, 1]; alpha composited onto the background colour when the scene uses it."""
-        path = frame_image_path(frame.name, self.roots.get(frame.name, "ingest"), self.inputs["images"],
-                                self.inputs["undistorted_images"])
-        pixels = read_png(path)
-        scale = 65535.0 if pixels.dtype == np.uint16 else 255.0
-        pixels = pixels.astype(np.float32) / scale
-        if pixels.ndim == 2:
-            pixels = np.repeat(pixels[..., None], 3, axis=-1)
-        if pixels.shape[-1] == 4:
-            rgb, alpha = pixels[..., :3], pixels[..., 3:]
-            pixels = rgb * alpha + self.background * (1.0 - alpha) if self.use_alpha else rgb
-        camera = self.world.camera_of(frame)
-        if pixels.shape[:2] != (camera.height, camera.width):
-            raise StageError(f"train: {path} is {pixels.shape[1]}x{pixels.shape[0]} but its camera is "
-                             f"{camera.width}x{camera.height}; rerun with --force undistort")
-        return pixels
-
-    def intrinsics(self, frame: Frame) -> tuple[float, float, float, float]:
-        c = self.world.camera_of(frame)
-        return (c.fx, c.fy, c.cx, c.cy)
-
-    def pixel_set(self, frames: list[Frame]):
-        import torch
-
-        from nerfpipe.nerf.rays import pixel_centers
-        from nerfpipe.nerf.trainer import PixelSet
-
-        rgb, image, uv = [], [], []
-        for i, frame in enumerate(frames):
-            pixels = self.image(frame)
-            h, w = pixels.shape[:2]
-            rgb.append(torch.from_numpy(np.ascontiguousarray(pixels.reshape(-1, 3))))
-            uv.append(pixel_centers(w, h))
-            image.append(torch.full((h * w,), i, dtype=torch.int64))
-        return PixelSet(
-            rgb=torch.cat(rgb), image=torch.cat(image), uv=torch.cat(uv),
-            intrinsics=torch.tensor([self.intrinsics(f) for f in frames], dtype=torch.float32),
-            c2w=torch.tensor(np.array([f.c2w for f in frames]), dtype=torch.float32),
-            near=torch.tensor([self.near_far[f.name][0] for f in frames], dtype=torch.float32),
-            far=torch.tensor([self.near_far[f.name][1] for f in frames], dtype=torch.float32),
-        )
-
-
-def evaluate(model, loader: ImageLoader, frames: list[Frame], folder: Path | None, chunk: int,
-             ctx: StageContext | None = None) -> dict[str, Any]:
-    """Render each held-out view; PSNR and SSIM (kornia.metrics, 11x11 Gaussian window) against its image,
-    averaged over views as the paper does; with a ``folder``, ``<view>.render.png`` beside ``<view>.gt.png``."""
-    import kornia
-    import torch
-
-    from nerfpipe.imaging.png import write_png
-
-    if folder is not None:
-        folder.mkdir(parents=True, exist_ok=True)
-    started = time.perf_counter()
-    linear = model.info.get("photometric") == "linear_raw"
-    views = []
-    bar = ctx.progress(len(frames), "evaluate") if ctx is not None else contextlib.nullcontext(lambda n=1, info=None: None)
-    with bar as advance:
-        for frame in frames:
-            gt = loader.image(frame)
-            camera = loader.world.camera_of(frame)
-            near, far = loader.near_far[frame.name]
-            out = model.render_image(loader.intrinsics(frame), frame.c2w, camera.width, camera.height, near, far, chunk)
-            render = out["rgb"].clamp(0.0, 1.0)
-            target = torch.from_numpy(gt)
-            psnr = float(kornia.metrics.psnr(render, target, 1.0))
-            ssim = float(kornia.metrics.ssim(render.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None], 11).mean())
-            if folder is not None:
-                stem = view_file_stem(frame.name)
-                for suffix, pixels in (("render", render.numpy()), ("gt", gt)):
-                    shown = srgb_encode(pixels) if linear else pixels
-                    write_png(folder / f"{stem}.{suffix}.png", np.round(np.clip(shown, 0, 1) * 255).astype(np.uint8))
-            views.append({"name": frame.name, "psnr": round(psnr, 4), "ssim": round(ssim, 5)})
-            advance(1, info=f"{frame.name}: {psnr:.2f} dB")
-    if not views:
-        return {"psnr": None, "ssim": None, "views": [], "seconds": 0.0}
-    return {
-        "psnr": round(float(np.mean([v["psnr"] for v in views])), 4),
-        "ssim": round(float(np.mean([v["ssim"] for v in views])), 5),
-        "views": views,
-        "seconds": round(time.perf_counter() - started, 2),
-    }

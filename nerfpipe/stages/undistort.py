@@ -21,10 +21,9 @@ import numpy as np
 
 from nerfpipe.artifacts import ImageIndex
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
+from nerfpipe.imaging.png import read_png, write_png
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
-from nerfpipe.imaging.png import read_png, write_png
-
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.helpers import look_at
 from nerfpipe.export.paths import (
     focus_depth,
     orbit_of,
@@ -17,6 +16,7 @@ from nerfpipe.export.paths import (
     transform_poses,
 )
 from nerfpipe.geometry.cameras import mean_camera
+from tests.helpers import look_at
 
 
 def rotation_about(axis: np.ndarray, degrees: float) -> np.ndarray:

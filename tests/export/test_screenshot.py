@@ -13,7 +13,6 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.helpers import look_at
 from nerfpipe.export.screenshot import (
     FRUSTUM_LINES,
     FRUSTUM_POINTS,
@@ -33,6 +32,7 @@ from nerfpipe.export.screenshot import (
 )
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, Points
 from nerfpipe.pipeline import InputError
+from tests.helpers import look_at
 
 WHITE = np.array([255, 255, 255], dtype=np.uint8)
 

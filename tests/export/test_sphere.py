@@ -9,14 +9,25 @@ import numpy as np
 import pytest
 import torch
 
-from tests.helpers import look_at
 from nerfpipe.export.depth import DepthView, decode_depth_png, read_view, write_view
-from nerfpipe.export.mesh import Grid, clean, marching_cubes, read_mesh, surface_colors, transformed, tsdf_fusion, vertex_normals, write_mesh
-from nerfpipe.export.points import clean_cloud, transformed as cloud_transformed, views_to_points
+from nerfpipe.export.mesh import (
+    Grid,
+    clean,
+    marching_cubes,
+    read_mesh,
+    surface_colors,
+    transformed,
+    tsdf_fusion,
+    vertex_normals,
+    write_mesh,
+)
+from nerfpipe.export.points import clean_cloud, views_to_points
+from nerfpipe.export.points import transformed as cloud_transformed
 from nerfpipe.nerf.analytic import SphereField
 from nerfpipe.nerf.model import RadianceModel, RaySpace
 from nerfpipe.nerf.rays import camera_rays, pixel_centers
 from nerfpipe.nerf.renderer import SamplingConfig
+from tests.helpers import look_at
 
 CENTER = np.array([0.05, -0.03, 0.02])
 RADIUS = 0.45

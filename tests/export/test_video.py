@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.helpers import read_mp4
 from nerfpipe.export.video import colorize_depth, turbo_lut, write_mp4
 from nerfpipe.pipeline.errors import StageError
+from tests.helpers import read_mp4
 
 
 def test_mp4_has_the_frames_size_and_colour_written(tmp_path: Path) -> None:

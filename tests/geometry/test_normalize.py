@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-
-from nerfpipe.geometry import cameras
 import pytest
 
+from nerfpipe.geometry import cameras
 from nerfpipe.geometry.normalize import (
     Similarity,
     azimuth_coverage,

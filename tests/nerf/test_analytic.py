@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from tests.helpers import look_at
 from nerfpipe.nerf.analytic import SphereField
 from nerfpipe.nerf.rays import camera_rays, pixel_centers
 from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
+from tests.helpers import look_at
 
 
 def test_intersect_by_hand() -> None:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from tests.helpers import look_at
 from nerfpipe.nerf.model import RaySpace
 from nerfpipe.nerf.rays import camera_rays, pixel_centers
+from tests.helpers import look_at
 
 
 def ndc_space() -> RaySpace:

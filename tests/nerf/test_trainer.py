@@ -1,18 +1,18 @@
 """The trainer's batches while marching: rays per batch follow the samples per ray (Instant-NGP), and one
-step never evaluates much more than it asked for, however the occupancy grid changed."""
+step never evaluates much more than it asked for, however the occupancy grid changed. Its precision settings."""
 
 from __future__ import annotations
 
 import numpy as np
 import torch
 
-from tests.helpers import look_at
 from nerfpipe.nerf.field import FieldConfig, NerfField
 from nerfpipe.nerf.model import RadianceModel, RaySpace
 from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
 from nerfpipe.nerf.rays import pixel_centers
 from nerfpipe.nerf.renderer import SamplingConfig
-from nerfpipe.nerf.trainer import PixelSet, TrainConfig, Trainer
+from nerfpipe.nerf.trainer import PixelSet, TrainConfig, Trainer, set_precision
+from tests.helpers import look_at
 
 BOX = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
 
@@ -58,3 +58,22 @@ def test_the_batch_grows_smoothly_when_rays_get_shorter(tmp_path) -> None:
     assert trainer.samples == 0 and trainer.rays == 1024
     # wanted: 100000 rays (one sample a ray at least), capped at 16 x 1024; a fifth of the way there
     assert trainer.rays_per_batch == 0.8 * 1024 + 0.2 * 16 * 1024
+
+
+def test_tf32_is_set_for_cuda_training_only(monkeypatch) -> None:
+    # torch's flags are process-wide: monkeypatch puts them back after the test
+    monkeypatch.setattr(torch.backends.cuda.matmul, "allow_tf32", False)
+    monkeypatch.setattr(torch.backends.cudnn, "allow_tf32", False)
+    set_precision(TrainConfig(tf32=True), torch.device("cpu"))
+    set_precision(TrainConfig(tf32=False), torch.device("cuda"))
+    assert not torch.backends.cuda.matmul.allow_tf32 and not torch.backends.cudnn.allow_tf32
+    set_precision(TrainConfig(tf32=True), torch.device("cuda"))  # a flag only: needs no device
+    assert torch.backends.cuda.matmul.allow_tf32 and torch.backends.cudnn.allow_tf32
+
+
+def test_the_trainer_applies_its_configs_precision(tmp_path, monkeypatch) -> None:
+    applied = []
+    monkeypatch.setattr("nerfpipe.nerf.trainer.set_precision", lambda config, device: applied.append((config, device)))
+    config = TrainConfig(steps=1, tf32=True)
+    Trainer(marching_model(), pixels_of_one_view(8), config, tmp_path, torch.device("cpu"))
+    assert applied == [(config, torch.device("cpu"))]

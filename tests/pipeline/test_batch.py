@@ -14,12 +14,12 @@ from pathlib import Path
 
 import pytest
 
-from tests.helpers import TEMPLE, run_cli, slow_stages, two_stages
 from nerfpipe.pipeline import InputError, ParamError, Pipeline
-from nerfpipe.pipeline.batch import SUMMARY, Batch, BatchSettings, find_captures, run_stage_task, StageJob
+from nerfpipe.pipeline.batch import SUMMARY, Batch, BatchSettings, StageJob, find_captures, run_stage_task
 from nerfpipe.pipeline.executors import LocalExecutor
+from tests.helpers import TEMPLE, run_cli, slow_stages, two_stages
 
-STAGES = "helpers:two_stages"
+STAGES = "tests.helpers:two_stages"
 
 
 def make_captures(root: Path, sizes=(2, 3, 4)) -> list[Path]:

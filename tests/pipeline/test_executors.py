@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from tests.helpers import add, die_until, fail_with
 from nerfpipe.pipeline.errors import ParamError
 from nerfpipe.pipeline.executors import LocalExecutor, TaskFailure
+from tests.helpers import add, die_until, fail_with
 
 
 def drain(executor, handles):

@@ -10,7 +10,6 @@ import time
 
 from nerfpipe.pipeline import ArtifactStore, Pipeline
 from nerfpipe.stages import default_stages
-
 from tests.helpers import shared
 
 

@@ -11,7 +11,6 @@ import pytest
 
 from nerfpipe.pipeline import RunLockedError
 from nerfpipe.pipeline.lock import RunLock
-
 from tests.helpers import run_cli
 
 HOLD = """

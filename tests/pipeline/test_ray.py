@@ -18,9 +18,9 @@ from pathlib import Path
 
 import pytest
 
-from tests.helpers import TEMPLE, shared
 from nerfpipe.pipeline.batch import Batch, BatchSettings, find_captures
 from nerfpipe.pipeline.executors import LocalExecutor
+from tests.helpers import TEMPLE, shared
 
 ray = pytest.importorskip("ray", reason="the Ray executor's tests need `pip install nerfpipe[ray]`")
 pytestmark = pytest.mark.slow

@@ -10,7 +10,6 @@ import pytest
 
 from nerfpipe.pipeline import ArtifactStore, ParamError, Pipeline, UpstreamNotReadyError
 from nerfpipe.pipeline.hashing import sha256_file
-
 from tests.helpers import TEMPLE, two_stages
 
 

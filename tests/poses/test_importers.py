@@ -12,13 +12,12 @@ import numpy as np
 import pytest
 
 from nerfpipe import Pipeline
+from nerfpipe.artifacts import output_names
 from nerfpipe.geometry.cameras import CameraSet, invert_pose
 from nerfpipe.pipeline import InputError
 from nerfpipe.poses.importers import import_poses
 from nerfpipe.poses.layout import CaptureLayout, detect_layout
 from nerfpipe.stages import IngestStage
-from nerfpipe.artifacts import output_names
-
 from tests.helpers import TEMPLE, shared
 
 LEGO_FOCAL_400 = 0.5 * 400 / np.tan(0.5 * 0.6911112070083618)  # 555.5555 px

@@ -5,9 +5,9 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from tests.helpers import two_stages
-from nerfpipe.report import write_report
 from nerfpipe.pipeline import Pipeline
+from nerfpipe.report import write_report
+from tests.helpers import two_stages
 
 
 def test_report_of_a_partial_run(capture: Path, tmp_path: Path) -> None:

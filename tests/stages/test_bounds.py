@@ -13,7 +13,6 @@ from nerfpipe.geometry.cameras import OPENGL_TO_OPENCV, Camera, CameraSet, Frame
 from nerfpipe.geometry.normalize import Similarity, depths, in_view
 from nerfpipe.pipeline import ParamError
 from nerfpipe.stages.bounds import BoundsStage
-
 from tests.helpers import SavedCameras, look_at, shared
 
 

@@ -13,10 +13,9 @@ import pytest
 from nerfpipe import Pipeline
 from nerfpipe.pipeline import InputError
 from nerfpipe.pipeline.hashing import sha256_file
-from nerfpipe.stages import IngestStage
 from nerfpipe.poses.layout import discover_photos
+from nerfpipe.stages import IngestStage
 from nerfpipe.stages.ingest import target_size, to_bit_depth
-
 from tests.helpers import TEMPLE, shared
 
 

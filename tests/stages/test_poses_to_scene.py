@@ -12,7 +12,6 @@ import pytest
 
 from nerfpipe import Pipeline, default_stages
 from nerfpipe.geometry.cameras import CameraSet
-
 from tests.helpers import TEMPLE, run_cli, shared
 
 # The lego model's bounding box in the scene frame (the NSVF bounding box of the Blender scene, rounded out).

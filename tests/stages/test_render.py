@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 import torch
 
-from tests.helpers import look_at, read_mp4
 from nerfpipe.artifacts import Bounds, Decision, FrameBounds, SceneDecisions
-from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
+from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, mean_camera
+from nerfpipe.imaging.png import read_png, srgb_encode
+from nerfpipe.nerf.assembly import NDC_NEAR_FACTOR
 from nerfpipe.nerf.field import FieldConfig, NerfField
 from nerfpipe.nerf.model import RadianceModel, RaySpace
 from nerfpipe.nerf.renderer import SamplingConfig
@@ -26,10 +27,7 @@ from nerfpipe.pipeline.errors import ParamError, StageError
 from nerfpipe.pipeline.params import build_params
 from nerfpipe.pipeline.stage import StageContext, StageInputs
 from nerfpipe.stages.render import RenderParams, RenderStage, render_size
-from nerfpipe.nerf.assembly import NDC_NEAR_FACTOR
-from nerfpipe.geometry.cameras import mean_camera
-from nerfpipe.imaging.png import srgb_encode
-from nerfpipe.imaging.png import read_png
+from tests.helpers import look_at, read_mp4
 
 COLOUR = np.array([0.8, 0.3, 0.1])
 CAMERA = Camera.pinhole(60.0, 60.0, 32.0, 24.0, 64, 48)

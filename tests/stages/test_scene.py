@@ -10,14 +10,13 @@ import numpy as np
 import pytest
 
 from nerfpipe import Pipeline
+from nerfpipe.artifacts import Bounds, FrameBounds, SceneDecisions
 from nerfpipe.geometry.cameras import OPENGL_TO_OPENCV, Camera, CameraSet, Frame, Points, invert_pose
 from nerfpipe.geometry.normalize import in_view
 from nerfpipe.pipeline import ParamError, parse_assignments
 from nerfpipe.stages import IngestStage
 from nerfpipe.stages.bounds import BoundsStage
-from nerfpipe.artifacts import Bounds, FrameBounds, SceneDecisions
 from nerfpipe.stages.scene import SceneParams, SceneStage, decide_exposure, decide_layout, decide_photometric
-
 from tests.helpers import TEMPLE, SavedCameras, look_at, shared
 
 # README.txt of templeSparseRing: "The (tight) bounding box for the templeSparseRing model"

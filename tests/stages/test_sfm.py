@@ -15,7 +15,6 @@ from nerfpipe.geometry.align import rotation_angle_deg, umeyama
 from nerfpipe.geometry.cameras import CameraSet, invert_pose
 from nerfpipe.stages import IngestStage, SfmStage
 from nerfpipe.stages.sfm import SfmParams, choose_matcher
-
 from tests.helpers import TEMPLE, run_cli
 
 

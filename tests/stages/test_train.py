@@ -1,4 +1,4 @@
-"""The train stage: held-out splits, what it writes, resuming a killed training, and the paper's switches."""
+"""The train stage: its parameters and presets, what it writes, resuming a killed training, a run end to end."""
 
 from __future__ import annotations
 
@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 import torch
 
-from tests.helpers import TEMPLE, shared
-from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
-from nerfpipe.nerf.field import NerfField
+from nerfpipe.artifacts import ViewSplit
+from nerfpipe.nerf.assembly import build_model
 from nerfpipe.pipeline import Pipeline, param_specs
 from nerfpipe.pipeline.errors import ParamError
 from nerfpipe.pipeline.params import build_params
 from nerfpipe.stages import TrainParams, TrainStage, default_stages
-from nerfpipe.stages.train import build_model, split_views
+from tests.helpers import TEMPLE, shared
+from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
 
 # a training small enough for a test: lego at 32 px, a 2x32 MLP, 16 + 16 samples
 TINY = {
@@ -35,112 +35,18 @@ def tiny_cli_args() -> list[str]:
     return [f"--set={stage}.{k}={v}" for stage, values in TINY.items() for k, v in values.items()]
 
 
-def world_of(splits: list[str | None]) -> CameraSet:
-    frames = [Frame(f"img{i:02d}.png", 1, np.eye(4), s) for i, s in enumerate(splits)]
-    return CameraSet({}, frames)
-
-
-def test_held_out_views_follow_the_split_else_every_eighth() -> None:
-    with_val = world_of(["train"] * 6 + ["val"] * 4)
-    views = split_views(with_val, TrainParams())
-    assert [f.name for f in views.heldout] == [f"img{i:02d}.png" for i in range(6, 10)]
-    assert len(views.train) == 6 and views.rule == "the capture's val split"
-
-    test_beats_val = world_of(["train"] * 4 + ["val"] * 2 + ["test"] * 3)
-    assert [f.split for f in split_views(test_beats_val, TrainParams()).heldout] == ["test"] * 3
-
-    plain = world_of([None] * 17)
-    views = split_views(plain, TrainParams())
-    assert [f.name for f in views.heldout] == ["img00.png", "img08.png", "img16.png"]
-    assert len(views.train) == 14 and not {f.name for f in views.train} & {f.name for f in views.heldout}
-
-    subset = split_views(plain, TrainParams(train_images=4, eval_stride=2))
-    assert [f.name for f in subset.train] == ["img01.png", "img05.png", "img11.png", "img15.png"]  # train[round(linspace(0, 13, 4))]
-    assert [f.name for f in subset.heldout] == ["img00.png", "img16.png"]
-
-
 def test_paper_preset_has_the_papers_values() -> None:
     params = build_params("train", TrainParams, TrainStage.presets, "paper", {})
     assert (params.steps, params.batch_rays, params.n_coarse, params.n_fine) == (200_000, 4096, 64, 128)
     assert (params.depth, params.width, params.view_width, params.skip_after) == (8, 256, 128, 5)
     assert (params.pos_freqs, params.dir_freqs, params.lr, params.lr_final, params.adam_eps) == (10, 4, 5e-4, 5e-5, 1e-7)
     assert params.fine_network and params.density_activation == "relu" and not params.include_input
-    scene = scene_json("inward360")
-    model, _ = build_model(params, scene, world_of([None]), {"scene_box": [[-1] * 3, [1] * 3], "to_sfm": np.eye(4).tolist(),
-                                                               "frames": []}, torch.device("cpu"))
+    model, _ = build_model(params, scene_of("inward360"), world_of_one_camera(), bounds_of(), torch.device("cpu"))
     linear = [m for m in model.coarse.modules() if isinstance(m, torch.nn.Linear)]
     assert [(m.in_features, m.out_features) for m in linear] == (
         [(60, 256)] + [(256, 256)] * 4 + [(256 + 60, 256)] + [(256, 256)] * 2 + [(256, 1), (256, 256), (256 + 24, 128), (128, 3)]
     )
     assert model.fine is not None and model.sampling.n_fine == 128
-
-
-def scene_json(layout: str, background: str = "none", color=None, photometric: str = "srgb") -> dict:
-    return {"layout": {"value": layout}, "background": {"value": background}, "background_color": {"value": color},
-            "photometric": {"value": photometric}}
-
-
-@pytest.mark.parametrize(
-    "overrides, first_in, view_in, n_fine, fine",
-    [
-        # the view layer sees the 128-d feature and gamma(d) (with d itself, include_input)
-        ({}, 3 + 60, 128 + 3 + 24, 64, False),
-        ({"positional_encoding": False}, 3, 128 + 3, 64, False),  # Table 2 row 2: raw x and d
-        ({"view_dependence": False}, 63, 128, 64, False),  # row 3: colour from x alone
-        ({"hierarchical": False, "fine_network": True}, 63, 155, 0, False),  # row 4: N_c samples, one network
-        ({"pos_freqs": 5, "dir_freqs": 2}, 3 + 30, 128 + 3 + 12, 64, False),  # rows 7-8: L
-        ({"fine_network": True}, 63, 155, 64, True),
-    ],
-)
-def test_ablation_switches_build_the_tables_models(overrides, first_in, view_in, n_fine, fine) -> None:
-    params = TrainParams(field="mlp", **overrides)
-    bounds = {"scene_box": [[-1] * 3, [1] * 3], "to_sfm": np.eye(4).tolist(), "frames": []}
-    model, _ = build_model(params, scene_json("inward360"), world_of([None]), bounds, torch.device("cpu"))
-    assert model.coarse.trunk[0].in_features == first_in
-    assert model.coarse.view.in_features == view_in
-    assert model.sampling.n_fine == n_fine
-    assert (model.fine is not None) == fine
-
-
-def test_scene_decisions_choose_the_ray_space_and_background() -> None:
-    bounds = {"scene_box": [[-1] * 3, [1] * 3], "to_sfm": np.eye(4).tolist(), "frames": [{"near": 2.0, "far": 9.0}]}
-    world = CameraSet({1: Camera.pinhole(50, 50, 20, 15, 40, 30)},
-                      [Frame("a.png", 1, np.eye(4))])
-    cpu = torch.device("cpu")
-    inward, said = build_model(TrainParams(), scene_json("inward360", "alpha", [1, 1, 1]), world, bounds, cpu)
-    assert inward.ray_space.box == ((-1, -1, -1), (1, 1, 1)) and not inward.ray_space.ndc
-    assert inward.background == (1.0, 1.0, 1.0) and not inward.sampling.lindisp
-    assert any("clipped to the scene box" in line for line in said)
-    forward, said = build_model(TrainParams(field="mlp"), scene_json("forward"), world, bounds, cpu)
-    assert forward.ray_space.ndc and forward.ray_space.ndc_near == pytest.approx(0.75 * 2.0)
-    assert forward.ray_space.ndc_focal == 50 and forward.ray_space.ndc_size == (40, 30) and forward.background is None
-    assert any("noise of std 1" in line for line in said)  # the authors' regularizer for real forward scenes
-    assert forward.occupancy is None  # the paper's sampler unless asked
-    unbounded, _ = build_model(TrainParams(field="mlp"), scene_json("unbounded360"), world, bounds, cpu)
-    assert unbounded.sampling.lindisp and unbounded.ray_space.box is None
-
-
-def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:
-    from nerfpipe.nerf.grid_field import GridField
-
-    bounds = {"scene_box": [[-1] * 3, [1] * 3], "to_sfm": np.eye(4).tolist(), "frames": [{"near": 2.0, "far": 9.0}]}
-    world = CameraSet({1: Camera.pinhole(50, 50, 20, 15, 40, 30)}, [Frame("a.png", 1, np.eye(4))])
-    cpu = torch.device("cpu")
-    inward, said = build_model(TrainParams(), scene_json("inward360", "alpha", [1, 1, 1]), world, bounds, cpu)
-    assert isinstance(inward.coarse, GridField) and inward.fine is None
-    assert inward.occupancy is not None and inward.occupancy.resolution == 64
-    assert inward.occupancy.lo.tolist() == [-1] * 3 and inward.coarse.hi.tolist() == [1] * 3
-    assert any("empty-space skipping" in line for line in said)
-    forward, said = build_model(TrainParams(), scene_json("forward"), world, bounds, cpu)
-    # NDC's [-1, 1]^2 x [-1, 1 - 2 near / far]: the frustum out to the farthest bound
-    z_max = 1 - 2 * (0.75 * 2.0) / 9.0
-    assert forward.occupancy.hi.tolist() == pytest.approx([1, 1, z_max]) and forward.occupancy.lo.tolist() == [-1] * 3
-    assert not any("noise" in line for line in said)  # a regularizer of the MLP's raw density only
-    unbounded, said = build_model(TrainParams(), scene_json("unbounded360"), world, bounds, cpu)
-    assert isinstance(unbounded.coarse, NerfField) and unbounded.occupancy is None
-    assert any("needs a bounded box" in line for line in said)
-    mlp_grid, _ = build_model(TrainParams(field="mlp", occupancy="true"), scene_json("inward360"), world, bounds, cpu)
-    assert isinstance(mlp_grid.coarse, NerfField) and mlp_grid.occupancy is not None
 
 
 def test_bad_train_values_are_parameter_errors() -> None:
@@ -164,6 +70,8 @@ def test_training_writes_model_metrics_and_held_out_renders(tmp_path: Path) -> N
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["steps"] == 300 and metrics["heldout_rule"] == "the capture's val split"
     assert [v["name"] for v in metrics["views"]] == ["val/r_0.png", "val/r_25.png", "val/r_50.png", "val/r_75.png"]
+    views = ViewSplit.load(out / "views.json")
+    assert views.heldout == [v["name"] for v in metrics["views"]] and len(views.train) == 100
     for view in metrics["views"]:
         stem = view["name"][:-4].replace("/", "__")
         assert (out / "eval" / f"{stem}.render.png").is_file() and (out / "eval" / f"{stem}.gt.png").is_file()
@@ -257,10 +165,10 @@ def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
 
     import cv2
 
-    from tests.helpers import run_cli
     from nerfpipe.export.depth import DepthIndex
     from nerfpipe.export.mesh import read_mesh
     from nerfpipe.export.points import read_ply
+    from tests.helpers import run_cli
 
     def result_of(stage: str) -> Path:
         return run_dir / "stages" / stage / json.loads((run_dir / "stages" / stage / "latest.json").read_text())["key"]

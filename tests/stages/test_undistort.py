@@ -13,15 +13,13 @@ import numpy as np
 import pytest
 
 from nerfpipe import Pipeline
+from nerfpipe.artifacts import frame_image_path
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, Points
 from nerfpipe.geometry.distortion import max_distortion_displacement, undistort_pixels, undistortion_maps
+from nerfpipe.imaging.png import read_png, write_png
 from nerfpipe.pipeline import StageContext, StageError, StageInputs
 from nerfpipe.stages import IngestStage
-from nerfpipe.imaging.png import write_png
 from nerfpipe.stages.undistort import UndistortParams, UndistortStage
-from nerfpipe.artifacts import frame_image_path
-from nerfpipe.imaging.png import read_png
-
 from tests.helpers import SavedCameras, shared
 
 PATTERN = (9, 6)  # inner corners per row, rows

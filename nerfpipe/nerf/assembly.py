@@ -1,0 +1,209 @@
+"""The NeRF a scene calls for: its ray space, fields, occupancy grid and background, and its training schedule.
+
+Each builder takes the scene decisions (``nerfpipe.artifacts.SceneDecisions``) and the train parameters it
+reads, and returns what it built with the sentence that explains the choice (None when there is nothing to
+say); ``build_model`` puts them together. ``training_config`` turns the same parameters into the
+``TrainConfig`` of the trainer, for the train stage and for ``nerfpipe bench`` alike.
+
+``params`` is any object with the attributes of ``TrainParams`` (``nerfpipe.stages.train``); the ones read
+here are listed in ``TrainSettings``.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+import torch
+
+from nerfpipe.artifacts import Bounds, SceneDecisions
+from nerfpipe.geometry.cameras import CameraSet, mean_camera
+from nerfpipe.nerf.field import FieldConfig, NerfField
+from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
+from nerfpipe.nerf.model import Field, RadianceModel, RaySpace
+from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
+from nerfpipe.nerf.renderer import SamplingConfig
+from nerfpipe.nerf.trainer import TrainConfig
+
+NDC_NEAR_FACTOR = 0.75  # the NDC near plane at 0.75 x the nearest bound, as LLFF's bd_factor places it
+
+Box = tuple[tuple[float, ...], tuple[float, ...]]
+
+
+class TrainSettings(Protocol):
+    """The train parameters read here (``nerfpipe.stages.train.TrainParams`` documents each)."""
+
+    # fields
+    field: str
+    depth: int
+    width: int
+    view_width: int
+    skip_after: int
+    positional_encoding: bool
+    pos_freqs: int
+    dir_freqs: int
+    include_input: bool
+    view_dependence: bool
+    density_activation: str
+    fine_network: bool
+    grid_levels: int
+    grid_min_resolution: int
+    grid_max_resolution: int
+    grid_features: int
+    grid_hidden: int
+    # sampling and ray space
+    n_coarse: int
+    n_fine: int
+    hierarchical: bool
+    lindisp: str
+    clip_to_box: bool
+    occupancy: str
+    occupancy_resolution: int
+    march_steps: int
+    occupancy_threshold: float
+    early_stop: float
+    # optimization
+    steps: int
+    batch_rays: int
+    batch_samples: int
+    lr: float
+    lr_final: float
+    adam_eps: float
+    adam_beta2: float
+    density_noise: str
+    checkpoint_every: int
+    keep_checkpoints: int
+    seed: int
+    autocast: str
+    tf32: bool
+
+
+def field_kind(params: TrainSettings, layout: str) -> str:
+    """The grid field needs a bounded box to hold its grids: unbounded 360 scenes train the MLP."""
+    return "mlp" if layout == "unbounded360" else params.field
+
+
+def density_noise(params: TrainSettings, layout: str) -> float:
+    """The authors regularize real forward-facing scenes with noise of std 1 on the raw density; not synthetic
+    ones. The MLP's raw density only: the grid field has no such regularizer."""
+    if params.density_noise != "auto":
+        return float(params.density_noise)
+    return 1.0 if layout == "forward" and field_kind(params, layout) == "mlp" else 0.0
+
+
+def lindisp(params: TrainSettings, layout: str) -> bool:
+    """Sample linearly in disparity: by default for unbounded scenes, whose far bound is far away."""
+    return layout == "unbounded360" if params.lindisp == "auto" else params.lindisp == "true"
+
+
+def training_config(params: TrainSettings, layout: str) -> TrainConfig:
+    """The optimization the train parameters ask for (Section 5.3), with the scene's density noise and the
+    precision settings (``tf32``, ``autocast``)."""
+    return TrainConfig(
+        steps=params.steps, batch_rays=params.batch_rays, lr=params.lr, lr_final=params.lr_final,
+        adam_eps=params.adam_eps, adam_beta2=params.adam_beta2, batch_samples=params.batch_samples,
+        density_noise=density_noise(params, layout), seed=params.seed, checkpoint_every=params.checkpoint_every,
+        keep_checkpoints=params.keep_checkpoints, autocast=params.autocast, tf32=params.tf32,
+    )
+
+
+def build_ray_space(params: TrainSettings, layout: str, world: CameraSet, bounds: Bounds) -> tuple[RaySpace, str]:
+    """NDC rays of the mean camera for forward-facing captures (Section 6.1's real scenes), rays clipped to
+    the scene box for inward 360° ones, plain world rays otherwise."""
+    if layout == "forward":
+        c2ws = np.array([f.c2w for f in world.frames])
+        reference = world.camera_of(world.frames[0])
+        near_plane = NDC_NEAR_FACTOR * min(f.near for f in bounds.frames)
+        ray_space = RaySpace(ndc=True, ndc_c2w=tuple(map(tuple, mean_camera(c2ws).tolist())), ndc_focal=reference.fx,
+                             ndc_size=(reference.width, reference.height), ndc_near=near_plane)
+        return ray_space, (f"forward-facing: rays in NDC of the mean camera, near plane {near_plane:.3g}, "
+                           "samples linear in NDC depth (near to infinity)")
+    if layout == "inward360" and params.clip_to_box:
+        return RaySpace(box=scene_box(bounds)), "inward 360: world rays, each clipped to the scene box and its image's near/far"
+    what = "unbounded 360: world rays over each image's near/far" if layout == "unbounded360" else "world rays over each image's near/far"
+    return RaySpace(), what + (", samples linear in disparity" if lindisp(params, layout) else "")
+
+
+def scene_box(bounds: Bounds) -> Box:
+    return (tuple(bounds.scene_box[0]), tuple(bounds.scene_box[1]))
+
+
+def field_box(ray_space: RaySpace, layout: str, bounds: Bounds) -> Box | None:
+    """Where the fields and the occupancy grid live: the ray space's box (NDC: the frustum out to the farthest
+    bound), else the scene box; None for unbounded scenes."""
+    box = ray_space.field_box(max(f.far for f in bounds.frames) if bounds.frames else None)
+    if box is None and layout != "unbounded360":
+        box = scene_box(bounds)
+    return box
+
+
+def build_fields(params: TrainSettings, layout: str, box: Box | None,
+                 device: torch.device) -> tuple[tuple[Field, Field | None], str | None]:
+    """The coarse field and the fine one (None: the coarse one serves both): dense grids and a small MLP,
+    or the MLP of Fig. 7."""
+    if field_kind(params, layout) == "grid":
+        config = GridFieldConfig(
+            levels=params.grid_levels, min_resolution=params.grid_min_resolution,
+            max_resolution=params.grid_max_resolution, features=params.grid_features, hidden=params.grid_hidden,
+            dir_freqs=params.dir_freqs if params.positional_encoding else 0, view_dependent=params.view_dependence,
+        )
+        return (GridField(*box, config).to(device), None), (
+            f"grid field: {config.levels} levels of {config.resolutions()} cells a side, "
+            f"{config.features} features each, and a {config.hidden}-wide MLP")
+    config = FieldConfig(
+        depth=params.depth, width=params.width, skips=(params.skip_after - 1,) if params.skip_after else (),
+        view_width=params.view_width, pos_freqs=params.pos_freqs if params.positional_encoding else 0,
+        dir_freqs=params.dir_freqs if params.positional_encoding else 0, include_input=params.include_input,
+        view_dependent=params.view_dependence, density_activation=params.density_activation,
+    )
+    coarse = NerfField(config).to(device)
+    fine = NerfField(config).to(device) if params.fine_network and params.hierarchical and params.n_fine > 0 else None
+    said = "unbounded 360: the grid field needs a bounded box, so the MLP (Fig. 7) is trained" if params.field == "grid" else None
+    return (coarse, fine), said
+
+
+def build_occupancy(params: TrainSettings, layout: str, box: Box | None,
+                    device: torch.device) -> tuple[tuple[OccupancyGrid | None, MarchingConfig | None], str | None]:
+    """Empty-space skipping (Instant-NGP): an occupancy grid over the field box and the marching through it;
+    by default with the grid field. Neither without a box: Section 5.2's sampling then."""
+    if not (params.occupancy == "true" or (params.occupancy == "auto" and field_kind(params, layout) == "grid")):
+        return (None, None), None
+    if box is None:
+        return (None, None), "no occupancy grid: an unbounded scene has no box to grid; Section 5.2's sampling instead"
+    grid = OccupancyGrid(*box, params.occupancy_resolution).to(device)
+    marching = MarchingConfig(steps=params.march_steps, threshold=params.occupancy_threshold, early_stop=params.early_stop)
+    return (grid, marching), (
+        f"empty-space skipping: a {params.occupancy_resolution}^3 occupancy grid over the field box, "
+        f"{params.march_steps} marching steps along its diagonal, rays stop at transmittance "
+        f"{params.early_stop:g} (instead of N_c + N_f samples per ray)")
+
+
+def build_background(scene: SceneDecisions) -> tuple[tuple[float, ...] | None, str]:
+    """The colour renders are composited onto: the scene's backdrop (alpha or a constant colour), else none."""
+    kind, color = scene.background.value, scene.background_color.value
+    if kind in ("alpha", "color") and color is not None:
+        background = tuple(float(c) for c in color)
+        return background, f"background {kind}: renders composited onto ({', '.join(f'{c:.2f}' for c in background)})"
+    return None, "no background model: the background is part of the scene (composited onto black)"
+
+
+def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, bounds: Bounds,
+                device: torch.device) -> tuple[RadianceModel, list[str]]:
+    """The fields, sampling, ray space and background this scene calls for, and a sentence per choice."""
+    torch.manual_seed(params.seed)
+    layout = scene.layout.value
+    ray_space, ray_said = build_ray_space(params, layout, world, bounds)
+    box = field_box(ray_space, layout, bounds)
+    (coarse, fine), field_said = build_fields(params, layout, box, device)
+    (occupancy, marching), occupancy_said = build_occupancy(params, layout, box, device)
+    background, background_said = build_background(scene)
+    noise = density_noise(params, layout)
+    decisions = [
+        ray_said, field_said, occupancy_said, background_said,
+        "linear RAW: trained on linear values; previews are sRGB-encoded" if scene.photometric.value == "linear_raw" else None,
+        f"noise of std {noise:g} on raw density while training" if noise else None,
+    ]
+    sampling = SamplingConfig(params.n_coarse, params.n_fine if params.hierarchical else 0, lindisp(params, layout))
+    info = {"layout": layout, "photometric": scene.photometric.value, "to_sfm": bounds.to_sfm}
+    model = RadianceModel(coarse, fine, sampling, ray_space, background, info, occupancy, marching)
+    return model, [d for d in decisions if d is not None]

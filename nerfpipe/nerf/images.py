@@ -1,0 +1,124 @@
+"""The posed training images: which views train and which are held out, and their pixels as training targets.
+
+Held-out views: the capture's test (else val) split when it has one; otherwise every ``holdout_every``-th
+image, as the paper holds out 1/8 of its real scenes (Section 6.1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+from nerfpipe.artifacts import Bounds, SceneDecisions, frame_image_path
+from nerfpipe.geometry.cameras import CameraSet, Frame
+from nerfpipe.imaging.png import read_png
+from nerfpipe.nerf.rays import pixel_centers
+from nerfpipe.nerf.trainer import PixelSet
+from nerfpipe.pipeline.errors import StageError
+
+if TYPE_CHECKING:
+    from nerfpipe.pipeline.stage import StageInputs
+
+
+@dataclass
+class Views:
+    """The frames used for training and for evaluation, and why."""
+
+    train: list[Frame]
+    heldout: list[Frame]
+    rule: str
+
+
+def split_views(world: CameraSet, holdout_every: int = 8, train_images: int = 0, eval_stride: int = 1) -> Views:
+    """Held-out views: the test split, else the val split, else every ``holdout_every``-th image. Then
+    ``train_images`` (0: all) training views, evenly spaced, and every ``eval_stride``-th held-out view."""
+    frames = world.frames
+    splits = {f.split for f in frames}
+    for name in ("test", "val"):
+        if name in splits:
+            train = [f for f in frames if f.split == "train"] or [f for f in frames if f.split != name]
+            heldout = [f for f in frames if f.split == name]
+            rule = f"the capture's {name} split"
+            break
+    else:
+        heldout = frames[::holdout_every]
+        train = [f for i, f in enumerate(frames) if i % holdout_every != 0]
+        rule = f"every {holdout_every}th image"
+    if train_images and train_images < len(train):
+        keep = np.unique(np.linspace(0, len(train) - 1, train_images).round().astype(int))
+        train = [train[i] for i in keep]
+    heldout = heldout[::eval_stride]
+    if not train:
+        raise StageError(f"train: no training images left after holding out {rule}; lower train.holdout_every")
+    return Views(train, heldout, rule)
+
+
+class ImageLoader:
+    """Training targets and cameras of frames, from the ingest / undistort images.
+
+    ``images`` and ``undistorted_images`` are the image folders of ingest and undistort, ``pinhole`` the
+    folder of undistort's camera set (its ``extra["image_roots"]`` says which folder holds each frame);
+    ``world`` the normalized cameras, ``bounds`` their near/far and ``scene`` the background decisions.
+    """
+
+    def __init__(self, images: Path, undistorted_images: Path, pinhole: Path, world: CameraSet, bounds: Bounds,
+                 scene: SceneDecisions) -> None:
+        self.images, self.undistorted_images = Path(images), Path(undistorted_images)
+        self.world = world
+        self.bounds = bounds
+        self.scene = scene
+        self.roots = CameraSet.load(Path(pinhole)).extra.get("image_roots", {})
+        self.near_far = bounds.near_far()
+        self.use_alpha = scene.background.value == "alpha"
+        color = scene.background_color.value
+        self.background = np.array(color if color is not None else (0.0, 0.0, 0.0), dtype=np.float32)
+
+    @staticmethod
+    def from_inputs(inputs: StageInputs) -> ImageLoader:
+        """The loader of the train stage's inputs (``images``, ``undistorted_images``, ``pinhole``, ``world``,
+        ``bounds``, ``scene``)."""
+        return ImageLoader(inputs["images"], inputs["undistorted_images"], inputs["pinhole"],
+                           CameraSet.load(inputs["world"]), Bounds.load(inputs["bounds"]), SceneDecisions.load(inputs["scene"]))
+
+    def image(self, frame: Frame) -> np.ndarray:
+        """(H, W, 3) float32 in [0, 1]; alpha composited onto the background colour when the scene uses it."""
+        path = frame_image_path(frame.name, self.roots.get(frame.name, "ingest"), self.images, self.undistorted_images)
+        pixels = read_png(path)
+        scale = 65535.0 if pixels.dtype == np.uint16 else 255.0
+        pixels = pixels.astype(np.float32) / scale
+        if pixels.ndim == 2:
+            pixels = np.repeat(pixels[..., None], 3, axis=-1)
+        if pixels.shape[-1] == 4:
+            rgb, alpha = pixels[..., :3], pixels[..., 3:]
+            pixels = rgb * alpha + self.background * (1.0 - alpha) if self.use_alpha else rgb
+        camera = self.world.camera_of(frame)
+        if pixels.shape[:2] != (camera.height, camera.width):
+            raise StageError(f"train: {path} is {pixels.shape[1]}x{pixels.shape[0]} but its camera is "
+                             f"{camera.width}x{camera.height}; rerun with --force undistort")
+        return pixels
+
+    def intrinsics(self, frame: Frame) -> tuple[float, float, float, float]:
+        """(fx, fy, cx, cy) of the frame's pinhole camera."""
+        c = self.world.camera_of(frame)
+        return (c.fx, c.fy, c.cx, c.cy)
+
+    def pixel_set(self, frames: list[Frame]) -> PixelSet:
+        """Every pixel of ``frames``, with its image's camera and near/far: what the trainer draws rays from."""
+        rgb, image, uv = [], [], []
+        for i, frame in enumerate(frames):
+            pixels = self.image(frame)
+            h, w = pixels.shape[:2]
+            rgb.append(torch.from_numpy(np.ascontiguousarray(pixels.reshape(-1, 3))))
+            uv.append(pixel_centers(w, h))
+            image.append(torch.full((h * w,), i, dtype=torch.int64))
+        return PixelSet(
+            rgb=torch.cat(rgb), image=torch.cat(image), uv=torch.cat(uv),
+            intrinsics=torch.tensor([self.intrinsics(f) for f in frames], dtype=torch.float32),
+            c2w=torch.tensor(np.array([f.c2w for f in frames]), dtype=torch.float32),
+            near=torch.tensor([self.near_far[f.name][0] for f in frames], dtype=torch.float32),
+            far=torch.tensor([self.near_far[f.name][1] for f in frames], dtype=torch.float32),
+        )

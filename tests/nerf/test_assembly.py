@@ -1,0 +1,112 @@
+"""The model a scene calls for: ray space, fields, occupancy grid and background, each with its sentence;
+the paper's switches (Table 2); and the training configuration of the train parameters."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from nerfpipe.nerf.assembly import (
+    NDC_NEAR_FACTOR,
+    build_background,
+    build_model,
+    build_occupancy,
+    density_noise,
+    training_config,
+)
+from nerfpipe.nerf.field import NerfField
+from nerfpipe.nerf.grid_field import GridField
+from nerfpipe.stages.train import TrainParams
+from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
+
+CPU = torch.device("cpu")
+
+
+@pytest.mark.parametrize(
+    "overrides, first_in, view_in, n_fine, fine",
+    [
+        # the view layer sees the 128-d feature and gamma(d) (with d itself, include_input)
+        ({}, 3 + 60, 128 + 3 + 24, 64, False),
+        ({"positional_encoding": False}, 3, 128 + 3, 64, False),  # Table 2 row 2: raw x and d
+        ({"view_dependence": False}, 63, 128, 64, False),  # row 3: colour from x alone
+        ({"hierarchical": False, "fine_network": True}, 63, 155, 0, False),  # row 4: N_c samples, one network
+        ({"pos_freqs": 5, "dir_freqs": 2}, 3 + 30, 128 + 3 + 12, 64, False),  # rows 7-8: L
+        ({"fine_network": True}, 63, 155, 64, True),
+    ],
+)
+def test_ablation_switches_build_the_tables_models(overrides, first_in, view_in, n_fine, fine) -> None:
+    params = TrainParams(field="mlp", **overrides)
+    model, _ = build_model(params, scene_of("inward360"), world_of_one_camera(), bounds_of(), CPU)
+    assert model.coarse.trunk[0].in_features == first_in
+    assert model.coarse.view.in_features == view_in
+    assert model.sampling.n_fine == n_fine
+    assert (model.fine is not None) == fine
+
+
+def test_scene_decisions_choose_the_ray_space_and_background() -> None:
+    world, bounds = world_of_one_camera(), bounds_of((2.0, 9.0))
+    inward, said = build_model(TrainParams(), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, CPU)
+    assert inward.ray_space.box == ((-1, -1, -1), (1, 1, 1)) and not inward.ray_space.ndc
+    assert inward.background == (1.0, 1.0, 1.0) and not inward.sampling.lindisp
+    assert said[0] == "inward 360: world rays, each clipped to the scene box and its image's near/far"
+    assert inward.info == {"layout": "inward360", "photometric": "srgb", "to_sfm": np.eye(4).tolist()}
+    forward, said = build_model(TrainParams(field="mlp"), scene_of("forward"), world, bounds, CPU)
+    assert forward.ray_space.ndc and forward.ray_space.ndc_near == pytest.approx(NDC_NEAR_FACTOR * 2.0)
+    assert forward.ray_space.ndc_focal == 50 and forward.ray_space.ndc_size == (40, 30) and forward.background is None
+    assert said == [  # one sentence a choice, in this order: ray space, (field, occupancy,) background, noise
+        "forward-facing: rays in NDC of the mean camera, near plane 1.5, samples linear in NDC depth (near to infinity)",
+        "no background model: the background is part of the scene (composited onto black)",
+        "noise of std 1 on raw density while training",  # the authors' regularizer for real forward scenes
+    ]
+    assert forward.occupancy is None  # the paper's sampler unless asked
+    unbounded, said = build_model(TrainParams(field="mlp"), scene_of("unbounded360", photometric="linear_raw"),
+                                  world, bounds, CPU)
+    assert unbounded.sampling.lindisp and unbounded.ray_space.box is None
+    assert said == ["unbounded 360: world rays over each image's near/far, samples linear in disparity",
+                    "no background model: the background is part of the scene (composited onto black)",
+                    "linear RAW: trained on linear values; previews are sRGB-encoded"]
+
+
+def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:
+    world, bounds = world_of_one_camera(), bounds_of((2.0, 9.0))
+    inward, said = build_model(TrainParams(), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, CPU)
+    assert isinstance(inward.coarse, GridField) and inward.fine is None
+    assert inward.occupancy is not None and inward.occupancy.resolution == 64
+    assert inward.occupancy.lo.tolist() == [-1] * 3 and inward.coarse.hi.tolist() == [1] * 3
+    assert said[1] == "grid field: 2 levels of [32, 96] cells a side, 4 features each, and a 64-wide MLP"
+    assert said[2].startswith("empty-space skipping: a 64^3 occupancy grid over the field box")
+    forward, said = build_model(TrainParams(), scene_of("forward"), world, bounds, CPU)
+    # NDC's [-1, 1]^2 x [-1, 1 - 2 near / far]: the frustum out to the farthest bound
+    z_max = 1 - 2 * (0.75 * 2.0) / 9.0
+    assert forward.occupancy.hi.tolist() == pytest.approx([1, 1, z_max]) and forward.occupancy.lo.tolist() == [-1] * 3
+    assert not any("noise" in line for line in said)  # a regularizer of the MLP's raw density only
+    unbounded, said = build_model(TrainParams(), scene_of("unbounded360"), world, bounds, CPU)
+    assert isinstance(unbounded.coarse, NerfField) and unbounded.occupancy is None
+    assert "unbounded 360: the grid field needs a bounded box, so the MLP (Fig. 7) is trained" in said
+    mlp_grid, _ = build_model(TrainParams(field="mlp", occupancy="true"), scene_of("inward360"), world, bounds, CPU)
+    assert isinstance(mlp_grid.coarse, NerfField) and mlp_grid.occupancy is not None
+
+
+def test_occupancy_and_background_builders_say_why_not() -> None:
+    (grid, marching), said = build_occupancy(TrainParams(field="mlp", occupancy="true"), "unbounded360", None, CPU)
+    assert grid is None and marching is None
+    assert said == "no occupancy grid: an unbounded scene has no box to grid; Section 5.2's sampling instead"
+    assert build_occupancy(TrainParams(field="mlp"), "inward360", ((-1.0,) * 3, (1.0,) * 3), CPU) == ((None, None), None)
+    assert build_background(scene_of("inward360", "color", [0, 0.5, 1])) == (
+        (0.0, 0.5, 1.0), "background color: renders composited onto (0.00, 0.50, 1.00)")
+    assert build_background(scene_of("inward360", "alpha", None))[0] is None  # no colour decided: none
+
+
+def test_training_config_carries_the_schedule_noise_and_precision() -> None:
+    params = TrainParams(steps=700, batch_rays=512, lr=3e-3, lr_final=1e-4, adam_eps=1e-8, adam_beta2=0.995,
+                         batch_samples=0, seed=4, checkpoint_every=50, keep_checkpoints=3, autocast="bf16", tf32=True,
+                         field="mlp")
+    config = training_config(params, "forward")
+    assert (config.steps, config.batch_rays, config.lr, config.lr_final, config.adam_eps, config.adam_beta2) == (
+        700, 512, 3e-3, 1e-4, 1e-8, 0.995)
+    assert (config.batch_samples, config.seed, config.checkpoint_every, config.keep_checkpoints) == (0, 4, 50, 3)
+    assert config.autocast == "bf16" and config.tf32 and config.density_noise == 1.0
+    assert not training_config(TrainParams(), "forward").tf32
+    assert density_noise(TrainParams(), "forward") == 0.0  # the grid field has no raw-density regularizer
+    assert density_noise(TrainParams(field="mlp", density_noise="0.5"), "inward360") == 0.5

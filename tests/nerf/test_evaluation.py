@@ -1,0 +1,51 @@
+"""Held-out evaluation: PSNR and SSIM per view and averaged, the eval images, progress, no views."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from nerfpipe.imaging.png import read_png, srgb_encode
+from nerfpipe.nerf.evaluation import evaluate
+from tests.nerf.scenes import loader_of
+
+
+class HalfBright:
+    """A stand-in model: renders every view as 0.5 everywhere."""
+
+    def __init__(self, photometric: str = "srgb") -> None:
+        self.info = {"photometric": photometric}
+        self.calls = []
+
+    def render_image(self, intrinsics, c2w, width, height, near, far, chunk):
+        self.calls.append((intrinsics, width, height, near, far, chunk))
+        return {"rgb": torch.full((height, width, 3), 0.5)}
+
+
+def test_evaluate_scores_each_view_writes_its_images_and_reports_progress(image_folders, tmp_path) -> None:
+    loader = loader_of(image_folders)
+    frames = loader.world.frames[1:]  # grey at 128/255, then white
+    model, advanced = HalfBright(), []
+    result = evaluate(model, loader, frames, tmp_path / "eval", 64, lambda n=1, info=None: advanced.append((n, info)))
+    grey_psnr = -10 * math.log10((128 / 255 - 0.5) ** 2)
+    white_psnr = -10 * math.log10(0.25)  # 6.02 dB
+    assert [v["name"] for v in result["views"]] == ["grey.png", "b.png"]
+    assert [v["psnr"] for v in result["views"]] == pytest.approx([grey_psnr, white_psnr], abs=1e-3)
+    assert result["psnr"] == pytest.approx((grey_psnr + white_psnr) / 2, abs=1e-3)
+    assert 0 < result["ssim"] <= 1 and result["seconds"] >= 0
+    assert [c[1:] for c in model.calls] == [(12, 8, 2.0, 6.0, 64), (12, 8, 3.0, 7.0, 64)]  # each view's size and near/far
+    assert advanced == [(1, f"grey.png: {result['views'][0]['psnr']:.2f} dB"), (1, f"b.png: {white_psnr:.2f} dB")]
+    assert sorted(p.name for p in (tmp_path / "eval").iterdir()) == ["b.gt.png", "b.render.png", "grey.gt.png",
+                                                                      "grey.render.png"]
+    assert (read_png(tmp_path / "eval" / "b.render.png") == 128).all()
+
+
+def test_linear_raw_previews_are_srgb_encoded_and_no_views_give_no_score(image_folders, tmp_path) -> None:
+    loader = loader_of(image_folders)
+    evaluate(HalfBright("linear_raw"), loader, loader.world.frames[2:], tmp_path, 64)
+    expected = np.round(srgb_encode(np.array(0.5)) * 255)
+    assert (read_png(tmp_path / "b.render.png") == expected).all()
+    assert evaluate(HalfBright(), loader, [], None, 64) == {"psnr": None, "ssim": None, "views": [], "seconds": 0.0}
