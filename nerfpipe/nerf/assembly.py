@@ -57,6 +57,7 @@ class TrainSettings(Protocol):
     hierarchical: bool
     lindisp: str
     clip_to_box: bool
+    contract: str
     occupancy: str
     occupancy_resolution: int
     march_steps: int
@@ -78,9 +79,20 @@ class TrainSettings(Protocol):
     tf32: bool
 
 
-def field_kind(params: TrainSettings, layout: str) -> str:
-    """The grid field needs a bounded box to hold its grids: unbounded 360 scenes train the MLP."""
-    return "mlp" if layout == "unbounded360" else params.field
+def contracts(params: TrainSettings, scene: SceneDecisions) -> bool:
+    """Whether space beyond the scene box is contracted (mip-NeRF 360): by default for unbounded scenes, and
+    for inward 360 ones whose background is part of the scene (no backdrop colour, no alpha), since a box
+    would cut off the floor and walls the photos show and train them as density inside it."""
+    if params.contract != "auto":
+        return params.contract == "true"
+    layout = scene.layout.value
+    return layout == "unbounded360" or (layout == "inward360" and scene.background.value == "none")
+
+
+def field_kind(params: TrainSettings, layout: str, contracted: bool = False) -> str:
+    """The grid field needs a bounded space to hold its grids: a box, NDC's frustum or the contracted cube;
+    an unbounded scene that is not contracted trains the MLP."""
+    return "mlp" if layout == "unbounded360" and not contracted else params.field
 
 
 def density_noise(params: TrainSettings, layout: str) -> float:
@@ -107,9 +119,17 @@ def training_config(params: TrainSettings, layout: str) -> TrainConfig:
     )
 
 
-def build_ray_space(params: TrainSettings, layout: str, world: CameraSet, bounds: Bounds) -> tuple[RaySpace, str]:
-    """NDC rays of the mean camera for forward-facing captures (Section 6.1's real scenes), rays clipped to
-    the scene box for inward 360° ones, plain world rays otherwise."""
+def build_ray_space(params: TrainSettings, scene: SceneDecisions, world: CameraSet, bounds: Bounds) -> tuple[RaySpace, str]:
+    """NDC rays of the mean camera for forward-facing captures (Section 6.1's real scenes), world rays in
+    contracted space for scenes that reach beyond their box (``contracts``), rays clipped to the scene box
+    for inward 360° ones with a backdrop, plain world rays otherwise."""
+    layout = scene.layout.value
+    if contracts(params, scene):
+        why = ("unbounded 360" if layout == "unbounded360" else
+               f"{layout.replace('inward360', 'inward 360')} with the background part of the scene")
+        return RaySpace(contraction=scene_box(bounds)), (
+            f"{why}: world rays over each image's near/far; the scene box at full resolution and the space "
+            "beyond it contracted into a shell around it (mip-NeRF 360, Eq. 10), steps growing with distance")
     if layout == "forward":
         c2ws = np.array([f.c2w for f in world.frames])
         reference = world.camera_of(world.frames[0])
@@ -137,11 +157,11 @@ def field_box(ray_space: RaySpace, layout: str, bounds: Bounds) -> Box | None:
     return box
 
 
-def build_fields(params: TrainSettings, layout: str, box: Box | None,
-                 device: torch.device) -> tuple[tuple[Field, Field | None], str | None]:
+def build_fields(params: TrainSettings, layout: str, box: Box | None, device: torch.device,
+                 contracted: bool = False) -> tuple[tuple[Field, Field | None], str | None]:
     """The coarse field and the fine one (None: the coarse one serves both): dense grids and a small MLP,
     or the MLP of Fig. 7."""
-    if field_kind(params, layout) == "grid":
+    if field_kind(params, layout, contracted) == "grid":
         config = GridFieldConfig(
             levels=params.grid_levels, min_resolution=params.grid_min_resolution,
             max_resolution=params.grid_max_resolution, features=params.grid_features, hidden=params.grid_hidden,
@@ -162,11 +182,11 @@ def build_fields(params: TrainSettings, layout: str, box: Box | None,
     return (coarse, fine), said
 
 
-def build_occupancy(params: TrainSettings, layout: str, box: Box | None,
-                    device: torch.device) -> tuple[tuple[OccupancyGrid | None, MarchingConfig | None], str | None]:
+def build_occupancy(params: TrainSettings, layout: str, box: Box | None, device: torch.device,
+                    contracted: bool = False) -> tuple[tuple[OccupancyGrid | None, MarchingConfig | None], str | None]:
     """Empty-space skipping (Instant-NGP): an occupancy grid over the field box and the marching through it;
     by default with the grid field. Neither without a box: Section 5.2's sampling then."""
-    if not (params.occupancy == "true" or (params.occupancy == "auto" and field_kind(params, layout) == "grid")):
+    if not (params.occupancy == "true" or (params.occupancy == "auto" and field_kind(params, layout, contracted) == "grid")):
         return (None, None), None
     if box is None:
         return (None, None), "no occupancy grid: an unbounded scene has no box to grid; Section 5.2's sampling instead"
@@ -192,10 +212,11 @@ def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, 
     """The fields, sampling, ray space and background this scene calls for, and a sentence per choice."""
     torch.manual_seed(params.seed)
     layout = scene.layout.value
-    ray_space, ray_said = build_ray_space(params, layout, world, bounds)
+    ray_space, ray_said = build_ray_space(params, scene, world, bounds)
+    contracted = ray_space.contraction is not None
     box = field_box(ray_space, layout, bounds)
-    (coarse, fine), field_said = build_fields(params, layout, box, device)
-    (occupancy, marching), occupancy_said = build_occupancy(params, layout, box, device)
+    (coarse, fine), field_said = build_fields(params, layout, box, device, contracted)
+    (occupancy, marching), occupancy_said = build_occupancy(params, layout, box, device, contracted)
     background, background_said = build_background(scene)
     noise = density_noise(params, layout)
     decisions = [

@@ -8,12 +8,13 @@ import itertools
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from nerfpipe.nerf.contraction import BOUND, Contraction
 from nerfpipe.nerf.field import FieldConfig, NerfField
 from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
 from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid, render_marched_segments
@@ -28,6 +29,9 @@ class RaySpace:
     ``ndc``: forward-facing; rays go into the frame of ``ndc_c2w`` (the mean camera, OpenCV) and through
     ``ndc_rays`` with ``ndc_focal``, ``ndc_size`` and ``ndc_near``; sampled over t' in [0, 1].
     ``box``: bounded (inward 360); each ray's [near, far] is clipped to the box (min, max corners).
+    ``contraction``: the box (min, max corners) kept at full resolution, with everything beyond it
+    contracted (``nerfpipe.nerf.contraction``, mip-NeRF 360 Eq. 10): world rays over each image's near/far,
+    the fields and the occupancy grid in contracted space, [-2, 2]^3.
     """
 
     ndc: bool = False
@@ -36,6 +40,12 @@ class RaySpace:
     ndc_size: tuple[int, int] = (0, 0)
     ndc_near: float = 1.0
     box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    contraction: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+
+    @property
+    def contracted(self) -> Contraction | None:
+        """The map of world points into the fields' contracted space, when this space has one."""
+        return None if self.contraction is None else Contraction(*self.contraction)
 
     def _reference(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         ref = torch.as_tensor(self.ndc_c2w, dtype=like.dtype, device=like.device)
@@ -85,7 +95,9 @@ class RaySpace:
         return (z - o_z) / d_z
 
     def to_field(self, points: Tensor) -> Tensor:
-        """World points (..., 3) where the field is queried: themselves, or their NDC coordinates."""
+        """World points (..., 3) where the field is queried: themselves, or their NDC or contracted coordinates."""
+        if self.contraction is not None:
+            return self.contracted.to_field(points)
         if not self.ndc:
             return points
         rotation, center, flip = self._reference(points)
@@ -94,6 +106,8 @@ class RaySpace:
 
     def from_field(self, points: Tensor) -> Tensor:
         """The inverse of ``to_field``: field coordinates (..., 3) back to world points."""
+        if self.contraction is not None:
+            return self.contracted.from_field(points)
         if not self.ndc:
             return points
         rotation, center, flip = self._reference(points)
@@ -102,7 +116,10 @@ class RaySpace:
 
     def field_box(self, far: float | None = None) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
         """The box of field coordinates that holds the scene: the scene box, or NDC's [-1, 1]^3 cut at the
-        depth ``far`` of the reference camera (z' = 1 - 2 near / far), as z' = 1 lies at infinity."""
+        depth ``far`` of the reference camera (z' = 1 - 2 near / far), as z' = 1 lies at infinity; the
+        contracted cube [-2, 2]^3."""
+        if self.contraction is not None:
+            return (-BOUND, -BOUND, -BOUND), (BOUND, BOUND, BOUND)
         if self.ndc:
             z_max = 1.0 - 2.0 * self.ndc_near / far if far is not None else 1.0
             return (-1.0, -1.0, -1.0), (1.0, 1.0, z_max)
@@ -130,16 +147,37 @@ class RadianceModel:
     occupancy: OccupancyGrid | None = None
     marching: MarchingConfig | None = None
 
+    @property
+    def field_kind(self) -> str:
+        """``grid`` (dense grids and a small MLP) or ``mlp`` (Fig. 7)."""
+        return "grid" if isinstance(self.coarse, GridField) else "mlp"
+
     def fields(self) -> list[Field]:
         return [self.coarse] + ([self.fine] if self.fine is not None else [])
+
+    def world_field(self, field: Field) -> Field | Callable[..., tuple[Tensor, Tensor]]:
+        """``field`` as a function of the points rays reach: in contracted space the rays are world rays,
+        and their points are contracted before the field sees them."""
+        contraction = self.ray_space.contracted
+        if contraction is None:
+            return field
+        return lambda points, viewdirs, *rest: field(contraction.to_field(points), viewdirs, *rest)
+
+    def world_density(self, field: Field) -> Callable[[Tensor], Tensor]:
+        """``field.query_density`` of the points rays reach (see ``world_field``)."""
+        contraction = self.ray_space.contracted
+        if contraction is None:
+            return field.query_density
+        return lambda points: field.query_density(contraction.to_field(points))
 
     def render_batch(self, rays: RayBatch, chunk: int = 8192) -> dict[str, Tensor]:
         """Deterministic rendering of rays without gradients: rgb (R, 3), depth, disparity, acc (R,), in the
         ray space's own depth (t, or NDC t'); and ``samples``, the field evaluations per ray on average."""
         for f in self.fields():
             f.eval()
+        coarse, fine = self.world_field(self.coarse), None if self.fine is None else self.world_field(self.fine)
         if self.occupancy is None:
-            out = render_chunked(self.coarse, self.fine, rays, self.sampling, self.background_tensor(), chunk)
+            out = render_chunked(coarse, fine, rays, self.sampling, self.background_tensor(), chunk)
             s = self.sampling
             out["samples"] = torch.tensor(float(s.n_coarse + (s.n_coarse + s.n_fine if s.n_fine else 0)))
             return out
@@ -148,8 +186,9 @@ class RadianceModel:
         background = self.background_tensor()
         for start in range(0, len(rays), chunk):
             r = rays.slice(start, start + chunk)
-            out, n = render_marched_segments(self.coarse, r.origins, r.directions, r.viewdirs, r.near, r.far,
-                                             self.occupancy, self.marching, background)
+            out, n = render_marched_segments(coarse, r.origins, r.directions, r.viewdirs, r.near, r.far,
+                                             self.occupancy, self.marching, background,
+                                             contraction=self.ray_space.contracted)
             evaluated += n
             for key in parts:
                 parts[key].append(out[key])
@@ -209,9 +248,9 @@ class RadianceModel:
 
     def save(self, folder: Path) -> None:
         torch.save(self.state(), folder / "model.pt")
-        grid = isinstance(self.coarse, GridField)
+        grid = self.field_kind == "grid"
         doc = {
-            "field_kind": "grid" if grid else "mlp",
+            "field_kind": self.field_kind,
             "field": asdict(self.coarse.config),
             "field_box": [self.coarse.lo.tolist(), self.coarse.hi.tolist()] if grid else None,
             "fine_network": self.fine is not None,
@@ -249,6 +288,7 @@ class RadianceModel:
             ndc_c2w=None if rs["ndc_c2w"] is None else tuple(tuple(r) for r in rs["ndc_c2w"]),
             ndc_focal=rs["ndc_focal"], ndc_size=tuple(rs["ndc_size"]), ndc_near=rs["ndc_near"],
             box=None if rs["box"] is None else (tuple(rs["box"][0]), tuple(rs["box"][1])),
+            contraction=None if rs.get("contraction") is None else (tuple(rs["contraction"][0]), tuple(rs["contraction"][1])),
         )
         background = None if doc["background"] is None else tuple(doc["background"])
         model = RadianceModel(coarse, fine, SamplingConfig(**doc["sampling"]), ray_space, background, doc.get("info", {}),

@@ -27,6 +27,7 @@ from typing import Callable
 import torch
 from torch import Tensor, nn
 
+from nerfpipe.nerf.contraction import Contraction
 from nerfpipe.nerf.rendering import Composite, composite, optical_depth
 
 DensityFn = Callable[[Tensor], Tensor]
@@ -80,6 +81,11 @@ class OccupancyGrid(nn.Module):
         self.register_buffer("hi", hi_t)
         self.register_buffer("density", torch.full((resolution**3,), -1.0))
         self.register_buffer("occupied", torch.ones(resolution**3, dtype=torch.bool))
+
+    def reset(self) -> None:
+        """As new: every cell occupied and never evaluated."""
+        self.density.fill_(-1.0)
+        self.occupied.fill_(True)
 
     @property
     def diagonal(self) -> float:
@@ -181,9 +187,11 @@ def pack_left(valid: Tensor, *values: Tensor, fill: Tensor) -> tuple[Tensor, lis
 
 
 def march(origins: Tensor, directions: Tensor, near: Tensor, far: Tensor, grid: OccupancyGrid, steps: int,
-          randomized: bool, generator: torch.Generator | None = None) -> PackedSamples:
+          randomized: bool, generator: torch.Generator | None = None,
+          contraction: Contraction | None = None) -> PackedSamples:
     """Constant steps of ``grid.diagonal / steps`` in field space along each ray inside [near, far], kept
-    where the grid is occupied.
+    where the grid is occupied. With a ``contraction``, rays are world rays, the grid lies in contracted
+    space, and the steps are of that length in contracted space (``contracted_steps``).
 
     Step k of a ray stands for the interval [near + k dt, near + (k + 1) dt] cut at far, with
     dt = diagonal / (steps |d|), so the steps tile [near, far]; its sample lies a fraction u into it, one u
@@ -199,28 +207,59 @@ def march(origins: Tensor, directions: Tensor, near: Tensor, far: Tensor, grid: 
     if n_rays == 0:
         empty = origins.new_zeros((0, 1))
         return PackedSamples(empty, empty, empty, empty.bool())
-    norm = torch.linalg.vector_norm(directions, dim=-1).clamp_min(1e-12)
-    dt = grid.diagonal / steps / norm
-    length = (far - near).clamp_min(0.0)
-    most = torch.nan_to_num(length / dt, nan=0.0, posinf=0.0)
-    n_steps = int(torch.ceil(most.max()).item()) if n_rays else 0
-    n_steps = max(min(n_steps, 4 * steps + 1), 1)  # rays longer than the box's diagonal (unclipped) stop at 4 diagonals
+    if contraction is None:
+        starts, ends = constant_steps(directions, near, far, grid.diagonal / steps, 4 * steps + 1)
+    else:
+        starts, ends = contracted_steps(origins, directions, near, far, contraction, grid.diagonal / steps, 4 * steps + 1)
     if randomized:
         u = torch.rand((n_rays, 1), generator=generator, device=origins.device, dtype=origins.dtype)
     else:
         u = torch.full((n_rays, 1), 0.5, device=origins.device, dtype=origins.dtype)
-    k = torch.arange(n_steps, device=origins.device, dtype=origins.dtype)
-    starts = near.unsqueeze(-1) + k * dt.unsqueeze(-1)  # (R, S)
-    ends = torch.minimum(starts + dt.unsqueeze(-1), far.unsqueeze(-1))
     inside = starts < far.unsqueeze(-1)
     t = starts + u * (ends - starts).clamp_min(0.0)
     points = origins.unsqueeze(-2) + t.unsqueeze(-1) * directions.unsqueeze(-2)
+    if contraction is not None:
+        points = contraction.to_field(points)
     keep = torch.zeros_like(inside)
     if bool(inside.any()):
         keep[inside] = grid.is_occupied(points[inside])
     fill = far.unsqueeze(-1)
     valid, (t, starts, ends) = pack_left(keep, t, starts, ends, fill=fill)
     return PackedSamples(t, starts, ends, valid)
+
+
+def constant_steps(directions: Tensor, near: Tensor, far: Tensor, step: float, most: int) -> tuple[Tensor, Tensor]:
+    """Steps of length ``step`` in the rays' own space tiling [near, far]: starts and ends (R, S), the
+    last step of a ray cut at far, S the most any ray needs (at most ``most``: rays longer than that many
+    steps, unclipped ones, stop there)."""
+    norm = torch.linalg.vector_norm(directions, dim=-1).clamp_min(1e-12)
+    dt = step / norm
+    length = (far - near).clamp_min(0.0)
+    needed = torch.nan_to_num(length / dt, nan=0.0, posinf=0.0)
+    n_steps = int(torch.ceil(needed.max()).item()) if len(near) else 0
+    n_steps = max(min(n_steps, most), 1)
+    k = torch.arange(n_steps, device=directions.device, dtype=directions.dtype)
+    starts = near.unsqueeze(-1) + k * dt.unsqueeze(-1)
+    return starts, torch.minimum(starts + dt.unsqueeze(-1), far.unsqueeze(-1))
+
+
+def contracted_steps(origins: Tensor, directions: Tensor, near: Tensor, far: Tensor, contraction: Contraction,
+                     step: float, most: int) -> tuple[Tensor, Tensor]:
+    """Steps of about ``step`` in contracted space along world rays, tiling [near, far]: inside the scene
+    box a constant world step, beyond it one that grows with the squared distance from the box
+    (``Contraction.step_scale``), so far content gets as many samples as its size in the grid. Each step's
+    length is set at its start. Returns starts and ends (R, S); S is at most ``most``."""
+    base = step / contraction.field_length(directions).clamp_min(1e-12)
+    t = near.clone()
+    edges = [t]
+    for _ in range(most):
+        scale = contraction.step_scale(contraction.to_field(origins + t.unsqueeze(-1) * directions))
+        t = torch.minimum(t + base * scale, far)
+        edges.append(t)
+        if not bool((t < far).any()):
+            break
+    stacked = torch.stack(edges, dim=-1)
+    return stacked[:, :-1], stacked[:, 1:]
 
 
 FieldFn = Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]
@@ -282,7 +321,8 @@ def leading_rays(budget: int, samples: PackedSamples, *per_ray: Tensor) -> tuple
 def render_marched(field: FieldFn, density_fn: DensityFn, origins: Tensor, directions: Tensor, viewdirs: Tensor,
                    near: Tensor, far: Tensor, grid: OccupancyGrid, config: MarchingConfig,
                    background: Tensor | None = None, randomized: bool = True,
-                   generator: torch.Generator | None = None, max_samples: int = 0) -> tuple[Composite, int]:
+                   generator: torch.Generator | None = None, max_samples: int = 0,
+                   contraction: Contraction | None = None) -> tuple[Composite, int]:
     """Render rays by marching the occupancy grid, with gradients (training).
 
     ``max_samples`` (0: no limit) bounds the work of one call, whatever the grid became since the caller
@@ -292,7 +332,7 @@ def render_marched(field: FieldFn, density_fn: DensityFn, origins: Tensor, direc
 
     Returns the composite (Eq. 3 over the marched intervals) and how many samples the field evaluated.
     """
-    samples = march(origins, directions, near, far, grid, config.steps, randomized, generator)
+    samples = march(origins, directions, near, far, grid, config.steps, randomized, generator, contraction)
     per_ray = (origins, directions, viewdirs, far)
     if max_samples > 0:
         samples, *per_ray = leading_rays(4 * max_samples, samples, *per_ray)
@@ -307,14 +347,15 @@ def render_marched(field: FieldFn, density_fn: DensityFn, origins: Tensor, direc
 @torch.no_grad()
 def render_marched_segments(field: FieldFn, origins: Tensor, directions: Tensor, viewdirs: Tensor, near: Tensor,
                             far: Tensor, grid: OccupancyGrid, config: MarchingConfig,
-                            background: Tensor | None = None, segment: int = 16) -> tuple[dict[str, Tensor], int]:
+                            background: Tensor | None = None, segment: int = 16,
+                            contraction: Contraction | None = None) -> tuple[dict[str, Tensor], int]:
     """Render rays without gradients, ``segment`` samples of each ray at a time, dropping each ray once its
     transmittance is below ``config.early_stop``: the same sums as ``composite`` over every sample, less
     the rays' remaining weight (at most ``early_stop`` each).
 
     Returns rgb (R, 3), depth, disparity, acc (R,) as ``render_chunked`` does, and the samples evaluated.
     """
-    samples = march(origins, directions, near, far, grid, config.steps, randomized=False)
+    samples = march(origins, directions, near, far, grid, config.steps, randomized=False, contraction=contraction)
     n_rays, width = samples.t.shape
     dtype = torch.float64 if origins.dtype == torch.float64 else torch.float32
     T = torch.ones(n_rays, dtype=dtype, device=origins.device)

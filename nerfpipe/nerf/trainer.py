@@ -3,6 +3,7 @@ Eq. 6, Adam with an exponentially decaying learning rate; checkpoints that a kil
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
 import math
@@ -99,6 +100,47 @@ def load_latest_checkpoint(folder: Path, device: torch.device) -> dict | None:
     return None
 
 
+def mean_colour_psnr(rgb: Tensor) -> float:
+    """PSNR of a render that is the training pixels' mean colour everywhere (rgb: (P, 3)): the level a
+    training that learns nothing of the scene settles at."""
+    return mse_to_psnr(float(((rgb - rgb.mean(dim=0)) ** 2).mean()))
+
+
+@dataclass
+class StallGuard:
+    """Tells a training that learns nothing: one whose batch PSNR (an exponential moving average, weight
+    ``smoothing`` per step) is within ``margin_db`` of the mean-colour level at ``check_step``.
+
+    The first time, the trainer restarts from its initial weights with a fresh occupancy grid and half the
+    learning rate (a diverged optimizer or an occupancy grid that lost the scene recover that way); a stall
+    that outlasts the restart, or one found at the last step, is reported and left as it is.
+    """
+
+    floor_db: float  # the mean-colour level
+    check_step: int
+    margin_db: float = 1.0
+    smoothing: float = 0.1
+    ema: float | None = None
+    restarted_at: int | None = None
+    stalled: bool = False
+
+    def observe(self, step: int, psnr: float, last: bool) -> str:
+        """After ``step``: "restart", "stalled" (the first time a stall is found and no restart is left) or "ok"."""
+        self.ema = psnr if self.ema is None else (1 - self.smoothing) * self.ema + self.smoothing * psnr
+        due = last or step == self.check_step or (self.restarted_at is not None and step == self.restarted_at + self.check_step)
+        if not due or self.stalled or self.ema > self.floor_db + self.margin_db:
+            return "ok"
+        if self.restarted_at is None and not last:
+            self.restarted_at, self.ema = step, None
+            return "restart"
+        self.stalled = True
+        return "stalled"
+
+    def report(self) -> dict:
+        return {"mean_colour_psnr": round(self.floor_db, 3), "batch_psnr_ema": None if self.ema is None else round(self.ema, 3),
+                "restarted_at": self.restarted_at, "stalled": self.stalled}
+
+
 def set_precision(config: TrainConfig, device: torch.device) -> None:
     """TF32 matmuls and convolutions on CUDA when ``config.tf32``; nothing otherwise. torch's flags are
     process-wide and stay set, so evaluation after training computes as training did."""
@@ -135,6 +177,9 @@ class Trainer:
         self.rays = 0  # rays of the last step
         self.total_samples = 0
         self.total_rays = 0
+        self.lr_scale = 1.0  # halved by a restart after a stall
+        self.guard = StallGuard(mean_colour_psnr(self.pixels.rgb), check_step=min(max(200, config.steps // 8), config.steps))
+        self._initial = copy.deepcopy(model.state())
 
     @property
     def checkpoint_dir(self) -> Path:
@@ -150,6 +195,11 @@ class Trainer:
         self.step, self.elapsed = int(state["step"]), float(state["elapsed"])
         self.rays_per_batch = float(state.get("rays_per_batch", self.config.batch_rays))
         self.total_samples, self.total_rays = int(state.get("total_samples", 0)), int(state.get("total_rays", 0))
+        self.lr_scale = float(state.get("lr_scale", 1.0))
+        if int(state.get("restarted_at", -1)) >= 0:
+            self.guard.restarted_at = int(state["restarted_at"])
+        if float(state.get("psnr_ema", -1.0)) >= 0:  # the guard goes on as if never stopped
+            self.guard.ema = float(state["psnr_ema"])
         self.resumed_from = self.step
         self._truncate_metrics(self.step)
         return self.step
@@ -189,12 +239,13 @@ class Trainer:
         noise = self.config.density_noise
 
         def field(fn: Field) -> Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]:
-            return lambda x, d: fn(x, d, noise)
+            world = self.model.world_field(fn)
+            return lambda x, d: world(x, d, noise)
 
         if noise > 0:  # the noise, too, is a function of (seed, step): resuming does not change it
             torch.manual_seed(self.config.seed * 1_000_003 + step)
         for group in self.optimizer.param_groups:
-            group["lr"] = learning_rate(self.config, step)
+            group["lr"] = learning_rate(self.config, step) * self.lr_scale
         model = self.model
         with _autocast(self.device, self.config.autocast):
             if model.occupancy is not None:
@@ -202,9 +253,9 @@ class Trainer:
                 # a grid update can make every ray longer at once: at most twice the samples wanted, whatever
                 # the number of rays drawn
                 final, self.samples = render_marched(
-                    field(model.coarse), model.coarse.query_density, rays.origins, rays.directions, rays.viewdirs,
-                    rays.near, rays.far, model.occupancy, model.marching, self.background, True, generator,
-                    max_samples=2 * self.config.batch_samples)
+                    field(model.coarse), model.world_density(model.coarse), rays.origins, rays.directions,
+                    rays.viewdirs, rays.near, rays.far, model.occupancy, model.marching, self.background, True,
+                    generator, max_samples=2 * self.config.batch_samples, contraction=model.ray_space.contracted)
                 out = {"coarse": final}
                 self.rays = len(final.rgb)
                 target = target[:self.rays]
@@ -227,6 +278,28 @@ class Trainer:
         self.scaler.update()
         final = losses.get("fine", losses["coarse"])
         return float(loss.detach()), mse_to_psnr(float(final.detach()))
+
+    def restart(self) -> None:
+        """Back to the initial weights with a fresh occupancy grid and optimizer, at half the learning rate."""
+        self.model.load_state(copy.deepcopy(self._initial))
+        if self.model.occupancy is not None:
+            self.model.occupancy.reset()
+        self.optimizer.state.clear()
+        self.lr_scale *= 0.5
+        self.rays_per_batch = float(self.config.batch_rays)
+
+    def watch(self, psnr: float) -> None:
+        """Let the stall guard see this step's batch PSNR, and act on what it says."""
+        verdict = self.guard.observe(self.step, psnr, self.step == self.config.steps)
+        floor = self.guard.floor_db
+        if verdict == "restart":
+            log.warning("train: batch PSNR stalled near %.1f dB, the level of a render in the mean colour, at step %d; "
+                        "restarting from the initial weights at half the learning rate", floor, self.step)
+            self.restart()
+        elif verdict == "stalled":
+            log.warning("train: batch PSNR %.1f dB is still at the level of a render in the mean colour (%.1f dB) at "
+                        "step %d: the renders will be close to one flat colour; check the poses and the scene "
+                        "decisions (nerfpipe status)", self.guard.ema, floor, self.step)
 
     def samples_per_step(self, rays: int | None = None) -> int:
         """Field evaluations of a step of ``rays`` rays with Section 5.2's sampling: N_c, then N_c + N_f."""
@@ -256,6 +329,7 @@ class Trainer:
                 if self.device.type == "cuda":
                     torch.cuda.synchronize(self.device)
                 self.step += 1
+                self.watch(psnr)
                 window_steps += 1
                 window_samples += self.samples
                 window_rays += rays
@@ -267,7 +341,7 @@ class Trainer:
                     span = max(self.elapsed - window_start, 1e-9)
                     rate = window_steps / span
                     record = {"step": self.step, "wall": round(self.elapsed, 3), "loss": loss, "psnr": round(psnr, 4),
-                              "lr": learning_rate(config, self.step), "steps_per_s": round(rate, 3),
+                              "lr": learning_rate(config, self.step) * self.lr_scale, "steps_per_s": round(rate, 3),
                               "samples_per_s": round(window_samples / span),
                               "samples_per_ray": round(window_samples / max(window_rays, 1), 2),
                               "rays_per_batch": rays}
@@ -281,7 +355,9 @@ class Trainer:
                 if self.step % config.checkpoint_every == 0 or self.step == config.steps:
                     save_checkpoint(self.checkpoint_dir, self.step, self.elapsed, self.model, self.optimizer,
                                     config.keep_checkpoints, {"rays_per_batch": self.rays_per_batch,
-                                    "total_samples": self.total_samples, "total_rays": self.total_rays})
+                                    "total_samples": self.total_samples, "total_rays": self.total_rays,
+                                    "lr_scale": self.lr_scale, "restarted_at": self.guard.restarted_at or -1,
+                                    "psnr_ema": -1.0 if self.guard.ema is None else self.guard.ema})
                     log.info("train: step %d/%d, loss %.5f, batch PSNR %.2f dB, %.0f s", self.step, config.steps,
                              loss, psnr, self.elapsed)
                 self.elapsed += time.perf_counter() - started

@@ -39,6 +39,7 @@ class ExportMeshParams:
     poisson: bool = field(default=False, metadata={"help": "also a screened Poisson surface of the point cloud (mesh_poisson.*)"})
     poisson_depth: int = field(default=8, metadata={"help": "Poisson octree depth"})
     min_component: float = field(default=0.05, metadata={"help": "drop connected pieces with fewer triangles than this fraction of the largest"})
+    region: Literal["box", "all"] = field(default="box", metadata={"help": "contracted scenes: mesh the scene box, or all of space out to where the contraction ends"})
     target_faces: int = field(default=200_000, metadata={"help": "simplify to at most this many triangles (0: keep all)"})
     device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
 
@@ -109,16 +110,17 @@ class ExportMeshStage(Stage):
         model = RadianceModel.load(inputs["model"].parent, device)
         far = max(f.far for f in bounds.frames)
         if params.method == "marching_cubes":
-            box = model.ray_space.field_box(far) or (tuple(lo), tuple(hi))
+            box = mesh_box(model.ray_space, far, (lo, hi), params.region)
             grid = Grid.over(box[0], box[1], params.resolution)
             field = model.fine if model.fine is not None else model.coarse
             ctx.log.info("export_mesh: marching cubes on %s voxels of %.4g at density %g",
                          "x".join(map(str, grid.cells)), grid.voxel, params.density_threshold)
             mesh = marching_cubes(field.query_density, grid, params.density_threshold, params.block, device=device)
-            if model.ray_space.ndc:
+            warped = model.ray_space.ndc or model.ray_space.contraction is not None
+            if warped:
                 mesh.vertices = model.ray_space.from_field(torch.as_tensor(mesh.vertices)).numpy()
-            # NDC voxels vary in world size: the scene box's share stands in for them
-            voxel = float((hi - lo).max()) / params.resolution if model.ray_space.ndc else grid.voxel
+            # NDC and contracted voxels vary in world size: the scene box's share stands in for them
+            voxel = float((hi - lo).max()) / params.resolution if warped else grid.voxel
         else:
             index = DepthIndex.load(inputs["depth_index"])
             views = [(read_view(inputs["depth"], v), v.K(), np.asarray(v.c2w)) for v in index.views if v.role == "train"]
@@ -152,3 +154,12 @@ class ExportMeshStage(Stage):
                      len(mesh.vertices))
         return summary
 
+
+def mesh_box(ray_space, far: float, scene_box: tuple[np.ndarray, np.ndarray], region: str):
+    """The box of field coordinates marching cubes samples: NDC's frustum out to ``far``; in contracted
+    space the scene box ([-1, 1]^3 there) or, for ``region="all"``, the whole contracted cube short of its
+    surface (which lies at infinity); the scene box otherwise."""
+    if ray_space.contraction is not None:
+        edge = 1.0 if region == "box" else 1.99
+        return (-edge,) * 3, (edge,) * 3
+    return ray_space.field_box(far) or (tuple(scene_box[0]), tuple(scene_box[1]))

@@ -28,7 +28,7 @@ class ExportPointsParams:
     target_points: int = field(default=200_000, metadata={"help": "grow the voxel until at most this many points remain (0: no limit)"})
     outlier_neighbors: int = field(default=20, metadata={"help": "neighbours of the statistical outlier test"})
     outlier_std: float = field(default=2.0, metadata={"help": "drop points whose mean neighbour distance is this many std above the mean"})
-    crop_to_box: bool = field(default=True, metadata={"help": "keep points inside the scene box only (bounded scenes)"})
+    crop_to_box: bool = field(default=True, metadata={"help": "360 scenes: keep the points inside the scene box only (false: all of them, background included)"})
 
     def __post_init__(self) -> None:
         if not 0 <= self.acc_threshold <= 1:
@@ -72,7 +72,7 @@ class ExportPointsStage(Stage):
             raise StageError("export_points: the depth export holds no training views; "
                              "run it with --set export_depth.views=all")
         views = [(read_view(inputs["depth"], v), v.K(), np.asarray(v.c2w)) for v in train]
-        box = bounds.scene_box if params.crop_to_box and scene.layout.value == "inward360" else None
+        box = bounds.scene_box if params.crop_to_box and scene.layout.value in ("inward360", "unbounded360") else None
         cloud, _ = views_to_points(views, params.acc_threshold, box)
         if len(cloud) == 0:
             raise StageError(f"export_points: no pixel of {len(train)} views reaches opacity {params.acc_threshold}; "

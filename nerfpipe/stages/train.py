@@ -66,7 +66,8 @@ class TrainParams:
     adam_beta2: float = param(default=0.99, metadata={"help": "Adam beta2 (the paper: 0.999; Instant-NGP: 0.99)"})
     density_noise: str = param(default="auto", metadata={"help": "std of noise on raw density: auto (1.0 for forward-facing real captures, else 0) or a number"})
     lindisp: Literal["auto", "true", "false"] = param(default="auto", metadata={"help": "sample linearly in disparity; auto: for unbounded scenes"})
-    clip_to_box: bool = param(default=True, metadata={"help": "inward 360: clip each ray to the scene box"})
+    clip_to_box: bool = param(default=True, metadata={"help": "inward 360 with a backdrop: clip each ray to the scene box"})
+    contract: Literal["auto", "true", "false"] = param(default="auto", metadata={"help": "contract the space beyond the scene box (mip-NeRF 360); auto: unbounded scenes and inward 360 ones without a backdrop"})
     train_images: int = param(default=0, metadata={"help": "train on this many images, evenly spaced (Table 2 rows 5-6); 0: all"})
     holdout_every: int = param(default=8, metadata={"help": "without a val/test split, hold out every n-th image (the paper: 8)"})
     eval_stride: int = param(default=1, metadata={"help": "evaluate every n-th held-out view"})
@@ -156,6 +157,13 @@ class TrainStage(Stage):
                  f"PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f}"]
         if s.get("resumed_from"):
             lines.append(f"resumed from the checkpoint at step {s['resumed_from']}")
+        guard = s.get("stall_guard") or {}
+        if guard.get("restarted_at"):
+            lines.append(f"batch PSNR stalled at the mean-colour level ({guard['mean_colour_psnr']:.1f} dB); restarted "
+                         f"at step {guard['restarted_at']} at half the learning rate")
+        if guard.get("stalled"):
+            lines.append(f"STALLED: batch PSNR {guard['batch_psnr_ema']:.1f} dB stayed at the mean-colour level "
+                         f"({guard['mean_colour_psnr']:.1f} dB); the renders are close to one flat colour")
         return lines
 
     def run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext) -> dict[str, Any]:
@@ -173,7 +181,7 @@ class TrainStage(Stage):
             return self._run(inputs, out, params, ctx, device)
 
     def _run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext, device) -> dict[str, Any]:
-        from nerfpipe.nerf.assembly import build_model, field_kind, training_config
+        from nerfpipe.nerf.assembly import build_model, training_config
         from nerfpipe.nerf.evaluation import evaluate
         from nerfpipe.nerf.images import ImageLoader, split_views
         from nerfpipe.nerf.trainer import Trainer
@@ -201,7 +209,7 @@ class TrainStage(Stage):
             "train_seconds": round(trainer.elapsed, 2),
             "samples_per_s": round(trainer.total_samples / max(trainer.elapsed, 1e-9)),
             "samples_per_ray": round(trainer.total_samples / max(trainer.total_rays, 1), 2),
-            "field": field_kind(params, layout),
+            "field": model.field_kind,
             "occupancy": None if model.occupancy is None else round(model.occupancy.occupancy(), 4),
             "device": str(device),
             "train_images": len(views.train),
@@ -210,6 +218,7 @@ class TrainStage(Stage):
             "psnr": evaluation["psnr"],
             "ssim": evaluation["ssim"],
             "resumed_from": resumed,
+            "stall_guard": trainer.guard.report(),
             "decisions": decisions,
         }
         write_json_atomic(out / "metrics.json", {**summary, "views": evaluation["views"], "eval_seconds": evaluation["seconds"]})

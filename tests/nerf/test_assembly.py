@@ -63,9 +63,27 @@ def test_scene_decisions_choose_the_ray_space_and_background() -> None:
     unbounded, said = build_model(TrainParams(field="mlp"), scene_of("unbounded360", photometric="linear_raw"),
                                   world, bounds, CPU)
     assert unbounded.sampling.lindisp and unbounded.ray_space.box is None
-    assert said == ["unbounded 360: world rays over each image's near/far, samples linear in disparity",
+    assert unbounded.ray_space.contraction == ((-1, -1, -1), (1, 1, 1))  # the scene box, kept as it is
+    assert said == ["unbounded 360: world rays over each image's near/far; the scene box at full resolution and the "
+                    "space beyond it contracted into a shell around it (mip-NeRF 360, Eq. 10), steps growing with distance",
                     "no background model: the background is part of the scene (composited onto black)",
                     "linear RAW: trained on linear values; previews are sRGB-encoded"]
+    clipped, said = build_model(TrainParams(field="mlp", contract="false"), scene_of("unbounded360"), world, bounds, CPU)
+    assert clipped.ray_space.contraction is None and said[0] == (
+        "unbounded 360: world rays over each image's near/far, samples linear in disparity")
+
+
+def test_inward_captures_contract_unless_a_backdrop_or_alpha_bounds_them() -> None:
+    world, bounds = world_of_one_camera(), bounds_of((2.0, 9.0))
+    for background, color in (("alpha", [1, 1, 1]), ("color", [0, 0, 0])):
+        model, _ = build_model(TrainParams(), scene_of("inward360", background, color), world, bounds, CPU)
+        assert model.ray_space.box is not None and model.ray_space.contraction is None
+    room, said = build_model(TrainParams(), scene_of("inward360", "none"), world, bounds, CPU)
+    assert room.ray_space.box is None and room.ray_space.contraction == ((-1, -1, -1), (1, 1, 1))
+    assert said[0].startswith("inward 360 with the background part of the scene: world rays over each image's near/far")
+    assert room.coarse.lo.tolist() == [-2] * 3 and room.occupancy.hi.tolist() == [2] * 3  # the contracted cube
+    forced, _ = build_model(TrainParams(contract="true"), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, CPU)
+    assert forced.ray_space.contraction is not None
 
 
 def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:
@@ -82,7 +100,10 @@ def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:
     assert forward.occupancy.hi.tolist() == pytest.approx([1, 1, z_max]) and forward.occupancy.lo.tolist() == [-1] * 3
     assert not any("noise" in line for line in said)  # a regularizer of the MLP's raw density only
     unbounded, said = build_model(TrainParams(), scene_of("unbounded360"), world, bounds, CPU)
-    assert isinstance(unbounded.coarse, NerfField) and unbounded.occupancy is None
+    assert isinstance(unbounded.coarse, GridField) and unbounded.occupancy is not None  # no MLP fallback
+    assert unbounded.coarse.lo.tolist() == [-2] * 3 and unbounded.coarse.hi.tolist() == [2] * 3
+    uncontracted, said = build_model(TrainParams(contract="false"), scene_of("unbounded360"), world, bounds, CPU)
+    assert isinstance(uncontracted.coarse, NerfField) and uncontracted.occupancy is None
     assert "unbounded 360: the grid field needs a bounded box, so the MLP (Fig. 7) is trained" in said
     mlp_grid, _ = build_model(TrainParams(field="mlp", occupancy="true"), scene_of("inward360"), world, bounds, CPU)
     assert isinstance(mlp_grid.coarse, NerfField) and mlp_grid.occupancy is not None

@@ -534,3 +534,48 @@ def test_marching_degenerate_rays_give_the_background() -> None:
     # and an empty batch
     none, n = render_marched_segments(field, o[:0], d[:0], d[:0], near[:0], far[:0], grid, config, grey)
     assert n == 0 and none["rgb"].shape == (0, 3)
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("density", EXTREME_DENSITIES)
+def test_contracted_marching_keeps_bounds_and_gradients(mode: str, density: float) -> None:
+    """World rays from outside the scene box to far bounds up to 1e6 through contracted space, at every
+    extreme density: a bounded number of steps, sane composites, finite gradients, depth within [near, far]."""
+    from nerfpipe.nerf.contraction import Contraction
+    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid, render_marched, render_marched_segments
+
+    field = _Constant(density)
+    contraction = Contraction((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
+    grid = OccupancyGrid((-2.0,) * 3, (2.0,) * 3, 8)
+    config = MarchingConfig(steps=64, early_stop=1e-4)
+    o, d, _, _ = _box_rays()
+    o = o * 2.0  # cameras at 6 units, outside the box, in the contracted shell
+    near = torch.full((len(o),), 0.1)
+    far = torch.logspace(0, 6, len(o))  # 1 .. 1e6 units away
+    white = torch.ones(3)
+    world = lambda x, v, *rest: field(contraction.to_field(x), v, *rest)  # noqa: E731
+    density_fn = lambda x: field.query_density(contraction.to_field(x))  # noqa: E731
+    with precision(mode):
+        result, evaluated = render_marched(world, density_fn, o, d, d, near, far, grid, config, white,
+                                           generator=torch.Generator().manual_seed(0), contraction=contraction)
+    assert_sane(result, white)
+    assert evaluated <= len(o) * (4 * config.steps + 1)
+    result.rgb.sum().backward()
+    assert torch.isfinite(field.raw.grad) and bool(torch.isfinite(field.color.grad).all())
+    with torch.no_grad(), precision(mode):
+        rendered, _ = render_marched_segments(world, o, d, d, near, far, grid, config, white, contraction=contraction)
+    assert bool(torch.isfinite(rendered["rgb"]).all())
+    assert bool(((rendered["depth"] >= near - 1e-4) & (rendered["depth"] <= far * (1 + 1e-5))).all())
+    torch.testing.assert_close(rendered["acc"], result.acc.detach(), atol=2e-4, rtol=0)
+
+
+def test_contraction_of_extreme_coordinates_is_finite_with_finite_gradients() -> None:
+    from nerfpipe.nerf.contraction import Contraction, contract
+
+    x = torch.tensor([[0.0, 0.0, 0.0], [1e-30, 0.0, 0.0], [1.0, 1.0, 1.0], [F32_MAX, -F32_MAX, 0.0], [3e38, 1.0, 1.0]],
+                     requires_grad=True)
+    y = contract(x)
+    y.sum().backward()
+    assert bool(torch.isfinite(y).all()) and float(y.detach().abs().max()) <= 2.0 and bool(torch.isfinite(x.grad).all())
+    steps = Contraction.step_scale(y.detach())
+    assert bool(torch.isfinite(steps).all()) and float(steps.min()) == 1.0

@@ -4,6 +4,7 @@ step never evaluates much more than it asked for, however the occupancy grid cha
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from nerfpipe.nerf.field import FieldConfig, NerfField
@@ -11,7 +12,7 @@ from nerfpipe.nerf.model import RadianceModel, RaySpace
 from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
 from nerfpipe.nerf.rays import pixel_centers
 from nerfpipe.nerf.renderer import SamplingConfig
-from nerfpipe.nerf.trainer import PixelSet, TrainConfig, Trainer, set_precision
+from nerfpipe.nerf.trainer import PixelSet, StallGuard, TrainConfig, Trainer, mean_colour_psnr, set_precision
 from tests.helpers import look_at
 
 BOX = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
@@ -77,3 +78,43 @@ def test_the_trainer_applies_its_configs_precision(tmp_path, monkeypatch) -> Non
     config = TrainConfig(steps=1, tf32=True)
     Trainer(marching_model(), pixels_of_one_view(8), config, tmp_path, torch.device("cpu"))
     assert applied == [(config, torch.device("cpu"))]
+
+
+def test_mean_colour_level_by_hand() -> None:
+    # half the pixels black, half white: the mean colour 0.5 is off by 0.5 everywhere, MSE 0.25, 6.02 dB
+    rgb = torch.cat([torch.zeros((10, 3)), torch.ones((10, 3))])
+    assert mean_colour_psnr(rgb) == pytest.approx(6.0206, abs=1e-4)
+
+
+def test_the_stall_guard_restarts_once_then_reports() -> None:
+    guard = StallGuard(floor_db=10.0, check_step=4, smoothing=0.5)
+    verdicts = [guard.observe(step, psnr, last=False) for step, psnr in enumerate([10.0, 10.0, 10.0, 10.0, 10.5], 1)]
+    assert verdicts == ["ok", "ok", "ok", "restart", "ok"]  # 10.0 at step 4 is within 1 dB of the floor
+    assert guard.restarted_at == 4 and guard.ema == 10.5  # the average starts again after a restart
+    assert [guard.observe(step, 10.2, last=False) for step in (6, 7, 8)] == ["ok", "ok", "stalled"]  # 4 + 4
+    # the average: 10.5 -> 10.35 -> 10.275 -> 10.2375, within 1 dB of the floor at step 8
+    assert guard.ema == pytest.approx(10.2375)
+    assert guard.report() == {"mean_colour_psnr": 10.0, "batch_psnr_ema": 10.237, "restarted_at": 4,
+                              "stalled": True}
+    assert guard.observe(9, 10.0, last=True) == "ok"  # said once
+
+
+def test_a_training_well_above_the_floor_passes_and_a_last_step_stall_is_reported_without_restart() -> None:
+    learning = StallGuard(floor_db=10.0, check_step=2, smoothing=1.0)
+    assert [learning.observe(s, 20.0, last=s == 3) for s in (1, 2, 3)] == ["ok", "ok", "ok"]
+    short = StallGuard(floor_db=10.0, check_step=5, smoothing=1.0)
+    assert [short.observe(s, 10.5, last=s == 3) for s in (1, 2, 3)] == ["ok", "ok", "stalled"]
+    assert short.restarted_at is None
+
+
+def test_a_restart_restores_the_initial_weights_and_grid_at_half_the_learning_rate(tmp_path) -> None:
+    model = marching_model()
+    trainer = Trainer(model, pixels_of_one_view(), TrainConfig(steps=3, batch_rays=256, lr=1e-2, lr_final=1e-3), tmp_path,
+                      torch.device("cpu"))
+    initial = {k: v.clone() for k, v in model.coarse.state_dict().items()}
+    trainer.run()
+    model.occupancy.occupied[:10] = False
+    assert any(not torch.equal(initial[k], v) for k, v in model.coarse.state_dict().items())
+    trainer.restart()
+    assert all(torch.equal(initial[k], v) for k, v in model.coarse.state_dict().items())
+    assert bool(model.occupancy.occupied.all()) and trainer.lr_scale == 0.5 and not trainer.optimizer.state
