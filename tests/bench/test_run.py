@@ -32,7 +32,7 @@ def test_bench_writes_figures_resumes_and_lets_set_win(tmp_path: Path) -> None:
     args = ["bench", capture, "--out", run_dir, "--size", "24", "--config", "draft", "--config", "no PE",
             "--budget", "60", "--checkpoints", "0.5", "--eval-views", "2", "--set", "train.steps=12",
             "--set", "train.eval_stride=1"]
-    first = run_cli(*args, timeout=300)
+    first = run_cli(*args, timeout=900)
     assert first.returncode == 0, first.stderr[-3000:]
 
     folder = run_dir / "bench"
@@ -55,10 +55,10 @@ def test_bench_writes_figures_resumes_and_lets_set_win(tmp_path: Path) -> None:
     assert (folder / "psnr_time.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
     # a rerun with the same settings keeps both results; a changed setting trains again
-    again = run_cli(*args, timeout=300)
+    again = run_cli(*args, timeout=900)
     assert again.returncode == 0 and again.stderr.count("kept from the last benchmark") == 2
     assert json.loads((folder / "bench.json").read_text())["results"] == doc["results"]
-    changed = run_cli(*[a if a != "train.steps=12" else "train.steps=8" for a in args], timeout=300)
+    changed = run_cli(*[a if a != "train.steps=12" else "train.steps=8" for a in args], timeout=900)
     assert changed.returncode == 0 and "kept from the last benchmark" not in changed.stderr
     assert [r["steps"] for r in json.loads((folder / "bench.json").read_text())["results"]] == [8, 8]
 

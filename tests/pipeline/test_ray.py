@@ -139,7 +139,7 @@ def test_nerfpipe_batch_on_ray_from_the_command_line(captures, tmp_path):
 
     out = tmp_path / "runs"
     result = run_cli("batch", captures, "--out", out, "--executor", "ray", "--until", "scene", "--set", "ingest.max_size=40",
-                     timeout=300)
+                     timeout=900)
     assert result.returncode == 1, result.stderr[-2000:]  # lego_broken fails
     assert "3 of 4 captures done, 1 failed" in result.stdout and "Traceback" not in result.stderr
     summary = json.loads((out / "batch.json").read_text())

@@ -145,7 +145,7 @@ def test_nerfpipe_run_on_the_bundled_capture_trains_evaluates_and_exports(tmp_pa
     # exports sized for a tiny field: its densities stay low, so the mesh threshold and opacity cut are too
     args += ["--set=export_mesh.resolution=64", "--set=export_mesh.density_threshold=2",
              "--set=export_points.acc_threshold=0.5", "--set=render.frames=4"]
-    result = run_cli("run", TEMPLE, "--out", run_dir, *args, timeout=300)
+    result = run_cli("run", TEMPLE, "--out", run_dir, *args, timeout=1200)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "train: held-out PSNR" in result.stderr
     metrics = json.loads(next((run_dir / "stages" / "train").glob("*/metrics.json")).read_text())
