@@ -7,6 +7,8 @@ frames (OpenCV ``c2w``) and, for COLMAP models, sparse points. Formats:
   parameters are kept; ``c2w = inverse(cam_from_world)``.
 - ``transforms``: NeRF / instant-ngp / nerfstudio ``transforms*.json``. ``transform_matrix`` is an
   OpenGL c2w, so ``c2w = transform_matrix @ OPENGL_TO_OPENCV``; ``f = 0.5 w / tan(0.5 camera_angle_x)``.
+  instant-ngp's ``aabb_scale`` (how many times the cameras' unit cube the scene extends) goes to
+  ``extra["aabb_scale"]``, a hint for the later stages.
 - ``llff``: ``poses_bounds.npy`` (N, 17): a 3x5 ``[R | t | hwf]`` c2w whose columns are LLFF's
   [down, right, backwards]; OpenCV's [right, down, forward] is ``[c1, c0, -c2]``. Rows follow the sorted
   image names. Near/far go to ``extra["llff_bounds"]``.
@@ -242,8 +244,11 @@ def import_transforms(layout: CaptureLayout, photos: _Photos) -> CameraSet:
     frames: list[Frame] = []
     unregistered: list[str] = []
     seen: set[str] = set()
+    extra: dict[str, Any] = {"pose_files": _rel(layout, layout.pose_files)}
     for pose_file in layout.pose_files:
         doc = _read_json(pose_file)
+        if "aabb_scale" in doc:  # several files (splits) with different scales: the largest box covers all
+            extra["aabb_scale"] = max(aabb_scale(doc["aabb_scale"], pose_file), extra.get("aabb_scale", 0.0))
         shared = {k: doc[k] for k in INTRINSIC_KEYS if k in doc}
         for i, entry in enumerate(doc["frames"]):
             path = resolve_inside(layout.capture, entry["file_path"], pose_file, IMAGE_SUFFIXES)
@@ -261,8 +266,20 @@ def import_transforms(layout: CaptureLayout, photos: _Photos) -> CameraSet:
             camera = to_ingested_size(transforms_camera(values, record, pose_file, where), record, pose_file, where)
             c2w = c2w_gl @ OPENGL_TO_OPENCV
             frames.append(Frame(record["name"], table.add(camera), c2w, layout.splits.get(relpath)))
-    return CameraSet(table.cameras, frames, None, "transforms_json", sorted(unregistered),
-                     {"pose_files": _rel(layout, layout.pose_files)})
+    return CameraSet(table.cameras, frames, None, "transforms_json", sorted(unregistered), extra)
+
+
+def aabb_scale(value: Any, pose_file: Path) -> float:
+    """instant-ngp's ``aabb_scale``, checked: a positive number (instant-ngp uses powers of two, 1 to 128).
+
+    instant-ngp fits the cameras into the unit cube and marches rays through a cube ``aabb_scale`` times
+    as large around the same centre: 1 for an object inside the camera ring (NeRF's synthetic scenes),
+    up to 128 for a background far beyond the cameras.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise InputError(pose_file, f"aabb_scale is {value!r}, not a positive number",
+                         "instant-ngp's aabb_scale is a power of two from 1 to 128; fix or remove it")
+    return float(value)
 
 
 def transform_matrix(entry: dict[str, Any], pose_file: Path, where: str) -> np.ndarray:

@@ -221,6 +221,7 @@ def decide_background(
         "border_color": [round(float(c), 4) for c in color],
         "border_within_tolerance": round(within, 4),
         "border_p90_distance": round(float(np.percentile(distance, 90)), 4),
+        "tolerance": params.background_tolerance,  # training masks the backdrop with it (nerfpipe.imaging.masks)
     }
     rgb = tuple(float(c) for c in color)
     border_text = (
@@ -240,19 +241,46 @@ def decide_background(
 
 
 # -- lens, photometry, exposure ---------------------------------------------------------------------------
+LENS_PER_CAMERA_MAX = 3  # up to this many cameras the lens evidence names each one
+
+
 def decide_lens(pinhole: CameraSet) -> tuple[str, str, dict[str, Any]]:
+    """``undistorted`` when the undistort stage resampled any camera's images, else ``pinhole``; the evidence
+    names each camera when there are at most ``LENS_PER_CAMERA_MAX``, else summarises them all."""
     record = pinhole.extra.get("undistortion") or {}
     if not record:
         return "pinhole", "no undistortion record: the cameras were pinhole as given", {"cameras": {}}
-    parts, undistorted = [], False
-    for camera_id, info in sorted(record.items(), key=lambda kv: str(kv[0])):
-        done = bool(info.get("undistorted"))
-        undistorted |= done
+    cameras = sorted(record.items(), key=lambda kv: str(kv[0]))
+    done = sum(bool(info.get("undistorted")) for _, info in cameras)
+    value = "undistorted" if done else "pinhole"
+    if len(cameras) > LENS_PER_CAMERA_MAX:
+        return value, _lens_summary([info.get("max_displacement_px", 0.0) for _, info in cameras], done), {"cameras": record}
+    parts = []
+    for camera_id, info in cameras:
         shift = info.get("max_displacement_px", 0.0)
         size = "beyond 90° off-axis (fisheye)" if shift is None else f"by up to {float(shift):.2f} px"
-        parts.append(f"camera {camera_id}: distortion moves pixels {size}, {'undistorted' if done else 'left as is'}")
-    value = "undistorted" if undistorted else "pinhole"
+        parts.append(f"camera {camera_id}: distortion moves pixels {size}, "
+                     f"{'undistorted' if info.get('undistorted') else 'left as is'}")
     return value, "; ".join(parts), {"cameras": record}
+
+
+def _lens_summary(shifts: list[float | None], undistorted: int) -> str:
+    """'71 cameras: distortion 0.2-29 px, 70 undistorted, 1 left as is' (None: a fisheye beyond 90°)."""
+    finite = [float(s) for s in shifts if s is not None]
+    beyond = len(shifts) - len(finite)
+    spread = []
+    if finite:
+        lo, hi = _px(min(finite)), _px(max(finite))
+        spread.append(f"distortion {lo} px" if lo == hi else f"distortion {lo}-{hi} px")
+    if beyond:
+        spread.append(f"{beyond} beyond 90° off-axis (fisheye)")
+    left = len(shifts) - undistorted
+    return f"{len(shifts)} cameras: {', '.join(spread)}, {undistorted} undistorted, {left} left as is"
+
+
+def _px(value: float) -> str:
+    """Two significant digits, never in exponent form: 0.2, 3.1, 29, 140."""
+    return f"{value:.0f}" if value >= 10 else f"{value:.2g}"
 
 
 def decide_photometric(records: list[dict[str, Any]]) -> tuple[str, str, dict[str, Any]]:
@@ -294,7 +322,7 @@ class SceneStage(Stage):
     """Decide the scene layout, background, lens and photometry from the data, with the evidence."""
 
     name = "scene"
-    version = 1
+    version = 2
     Params = SceneParams
     requires = ("images", "images_json", "pinhole", "world", "bounds", "undistorted_images")
     provides = {"scene": "scene.json"}
@@ -336,6 +364,9 @@ class SceneStage(Stage):
         photometric, photometric_text, photometric_numbers = decide_photometric(records)
         exposure, exposure_text, exposure_numbers = decide_exposure(records)
 
+        chosen_layout = layout if params.layout == "auto" else params.layout
+        if chosen_layout == "inward360" and chosen_background == "none":
+            layout_text += "; with no backdrop the background is part of the scene, so the space beyond the box is contracted"
         scene = SceneDecisions(
             layout=Decision.made(layout, layout_text, layout_numbers, params.layout),
             background=Decision.made(background, background_text, background_numbers, params.background),

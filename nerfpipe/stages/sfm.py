@@ -6,14 +6,23 @@ photos carry GPS, sequential for video frames) and incremental or global mapping
 from ingest seeds the intrinsics. When not every photo registers, mapping is retried once with relaxed
 options and the better model is kept; below ``min_registered`` the stage fails and says what to try.
 COLMAP's own log goes to ``colmap.log`` in the stage folder.
+
+Imported poses without sparse points (LLFF, ``transforms.json``, Middlebury) get points triangulated
+from SIFT matches with the poses held fixed (``sfm.triangulate``), so the bounds stage derives near/far
+and the scene box from data as it does after SfM; when that fails or yields too few points, the stage
+says so and the bounds fall back to the pose file's near/far (LLFF) or the rig guess.
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import re
+import shutil
 import sys
+import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Literal
@@ -21,7 +30,7 @@ from typing import Any, Iterator, Literal
 import numpy as np
 
 from nerfpipe.artifacts import ImageIndex
-from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, invert_pose
+from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, Points, invert_pose
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.poses.layout import detect_layout
@@ -52,6 +61,17 @@ class SfmParams:
     min_registered: float = field(default=0.5, metadata={"help": "fail when fewer than this fraction of photos register"})
     min_images: int = field(default=3, metadata={"help": "fewest photos SfM will try"})
     seed: int = field(default=0, metadata={"help": "random seed of COLMAP's RANSAC and mapper"})
+    triangulate: Literal["auto", "true", "false"] = field(
+        default="auto",
+        metadata={"help": "imported poses: triangulate sparse points from SIFT matches with the poses fixed; auto when "
+                          "the pose file has neither points nor near/far and the photos have no alpha (renders of an "
+                          "object inside the camera ring, which the rig box holds); true also replaces a model's own "
+                          "points; false never"},
+    )
+    min_triangulated_points: int = field(
+        default=100, metadata={"help": "fewer triangulated points than this: keep none and say so (bounds then use "
+                                       "the pose file's near/far, or the rig guess)"}
+    )
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_registered <= 1.0:
@@ -60,13 +80,15 @@ class SfmParams:
             raise ValueError("max_image_size and max_features must be at least 64")
         if self.min_images < 2:
             raise ValueError(f"min_images must be at least 2, got {self.min_images}")
+        if self.min_triangulated_points < 1:
+            raise ValueError(f"min_triangulated_points must be at least 1, got {self.min_triangulated_points}")
 
 
 class SfmStage(Stage):
     """Camera poses + sparse points: COLMAP SfM through pycolmap, or the capture's own pose files."""
 
     name = "sfm"
-    version = 2  # 2: seeded two-view RANSAC and mapper
+    version = 3  # 2: seeded two-view RANSAC and mapper; 3: triangulated points for imported poses
     Params = SfmParams
     presets = {
         "draft": {"max_image_size": 800, "max_features": 4096},
@@ -85,7 +107,11 @@ class SfmStage(Stage):
         if "mean_reprojection_error_px" in s:
             line += (f", mean reprojection error {s['mean_reprojection_error_px']} px, "
                      f"mean track length {s['mean_track_length']}, {s['points']} points")
-        lines = [line]
+        lines = [line + points_line(s)]
+        if s.get("triangulation_fallback"):
+            lines.append(f"warning: {s['triangulation_fallback']}")
+        if s.get("aabb_scale"):
+            lines.append(aabb_hint(s["aabb_scale"]))
         if s.get("unregistered"):
             lines.append("unregistered: " + ", ".join(s["unregistered"]))
         return lines
@@ -102,15 +128,166 @@ class SfmStage(Stage):
         if params.poses == "sfm" or layout.kind == "folder":
             cameras, summary = run_sfm(inputs["images"], records, out, params, ctx)
         else:
-            from nerfpipe.poses.importers import import_poses
-
-            cameras = import_poses(layout, records)
-            summary = {"method": f"imported {layout.kind}", "registered": len(cameras.frames), "total": len(records),
-                       "unregistered": cameras.unregistered}
-            ctx.log.info("sfm: imported %d camera poses from %s", len(cameras.frames),
-                         ", ".join(p.name for p in layout.pose_files))
+            cameras, summary = import_with_points(inputs["images"], layout, records, out, params, ctx)
         cameras.save(out / "model")
         return summary
+
+
+def points_line(s: dict[str, Any]) -> str:
+    """Where an import's points came from, for ``describe``: '' for SfM (its line already counts them)."""
+    source = s.get("points_from")
+    if source == "triangulated":
+        t = s["triangulation"]
+        return (f", {s['points']} points triangulated with the poses fixed "
+                f"({t['matcher']} matching, {t['seconds']:.0f} s, mean reprojection error {t['mean_reprojection_error_px']} px)")
+    if source == "pose file":
+        return f", {s['points']} points from the pose file"
+    return ", no sparse points" if source == "none" else ""
+
+
+def needs_points(cameras: CameraSet, records: list[dict]) -> bool:
+    """Whether imported poses call for triangulated points: the pose file has no points and no near/far
+    (LLFF's come from COLMAP's points), and the photos are no alpha renders (a synthetic object inside
+    the camera ring, which the bounds stage's rig box holds)."""
+    has_alpha = bool(records) and all(r.get("has_alpha") for r in records)
+    return cameras.points is None and not cameras.extra.get("llff_bounds") and not has_alpha
+
+
+def aabb_hint(scale: float) -> str:
+    return (f"hint: instant-ngp aabb_scale {scale:g}: the scene extends {scale:g}x the cameras' unit cube"
+            + (" (content well beyond the cameras)" if scale > 1 else " (an object inside the camera ring)"))
+
+
+# -- imported poses, and points triangulated for them -----------------------------------------------------
+
+
+def import_with_points(
+    image_dir: Path, layout: Any, records: list[dict], out: Path, params: SfmParams, ctx: StageContext
+) -> tuple[CameraSet, dict[str, Any]]:
+    """The capture's own poses; points triangulated for them as ``sfm.triangulate`` asks, else its own."""
+    from nerfpipe.poses.importers import import_poses
+
+    cameras = import_poses(layout, records)
+    summary: dict[str, Any] = {"method": f"imported {layout.kind}", "registered": len(cameras.frames),
+                               "total": len(records), "unregistered": cameras.unregistered}
+    ctx.log.info("sfm: imported %d camera poses from %s", len(cameras.frames), ", ".join(p.name for p in layout.pose_files))
+    own = cameras.points
+    if params.triangulate == "true" or (params.triangulate == "auto" and needs_points(cameras, records)):
+        points, triangulation = triangulate_known_poses(image_dir, cameras, records, out, params, ctx)
+        summary["triangulation"] = triangulation
+        # the model keeps what the run found, not how long it took, so equal runs write equal models
+        cameras.extra["triangulation"] = {k: v for k, v in triangulation.items() if k != "seconds"}
+        if points is not None:
+            cameras.points, summary["points_from"] = points, "triangulated"
+        else:
+            instead = ("the pose file's own points" if own is not None else
+                       "the pose file's near/far" if cameras.extra.get("llff_bounds") else "the rig guess")
+            summary["triangulation_fallback"] = f"{triangulation['reason']}; bounds fall back to {instead}"
+            summary["points_from"] = "pose file" if own is not None else "none"
+            ctx.log.warning("sfm: %s", summary["triangulation_fallback"])
+    else:
+        summary["points_from"] = "pose file" if own is not None else "none"
+    summary["points"] = 0 if cameras.points is None else len(cameras.points.xyz)
+    if "aabb_scale" in cameras.extra:
+        summary["aabb_scale"] = cameras.extra["aabb_scale"]
+        ctx.log.info("sfm: %s", aabb_hint(cameras.extra["aabb_scale"]))
+    return cameras, summary
+
+
+def choose_triangulation_matcher(records: list[dict], params: SfmParams) -> tuple[str, str]:
+    """As ``choose_matcher``, but known poses give every photo a position: a large capture that is not a
+    video is matched with its nearest cameras (spatial) instead of exhaustively."""
+    n = len(records)
+    if params.matcher == "spatial":
+        return "spatial", "set by sfm.matcher: neighbours by the known camera positions"
+    if params.matcher != "auto" or n <= params.exhaustive_max:
+        return choose_matcher(records, params)
+    if _looks_like_video(records):
+        return "sequential", f"{n} photos named as numbered frames"
+    return "spatial", f"{n} photos > sfm.exhaustive_max {params.exhaustive_max}: neighbours by the known camera positions"
+
+
+def triangulate_known_poses(
+    image_dir: Path, cameras: CameraSet, records: list[dict], out: Path, params: SfmParams, ctx: StageContext
+) -> tuple[Points | None, dict[str, Any]]:
+    """Triangulate in a scratch folder, so the stage's result holds only what is the same on every run;
+    COLMAP's log is kept as ``colmap.log`` when triangulation does not give the points."""
+    with tempfile.TemporaryDirectory(prefix="nerfpipe-triangulate-") as scratch:
+        points, info = _triangulate_in(Path(scratch), image_dir, cameras, records, params, ctx)
+        if points is None and (Path(scratch) / "colmap.log").exists():
+            shutil.copy2(Path(scratch) / "colmap.log", out / "colmap.log")
+            info["log"] = "colmap.log"
+    return points, info
+
+
+def _triangulate_in(
+    work: Path, image_dir: Path, cameras: CameraSet, records: list[dict], params: SfmParams, ctx: StageContext
+) -> tuple[Points | None, dict[str, Any]]:
+    """The pycolmap script: SIFT on the posed photos, matching, then COLMAP's point triangulator with the
+    known poses and intrinsics held fixed, its files in ``work``. Returns the points, or None (with the
+    reason) when COLMAP fails or keeps fewer than ``min_triangulated_points``; and what happened."""
+    import pycolmap
+
+    from nerfpipe.poses.triangulate import (
+        known_poses_model, max_pose_change, triangulated_points, write_to_database,
+    )
+
+    start = time.monotonic()
+    names = [f.name for f in cameras.frames]
+    by_name = {r["name"]: r for r in records}
+    matcher, why = choose_triangulation_matcher([by_name[n] for n in names], params)
+    info: dict[str, Any] = {"photos": len(names), "matcher": matcher, "matcher_reason": why}
+    if len(names) < 2:
+        return None, {**info, "status": "failed", "reason": f"triangulation needs 2 posed photos, the pose file has {len(names)}"}
+    colmap_dir = work / "colmap"
+    colmap_dir.mkdir()
+    database, log_path = colmap_dir / "database.db", work / "colmap.log"
+    pycolmap.set_random_seed(params.seed)
+    pycolmap.Database.open(database).close()
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.max_image_size = params.max_image_size
+    extraction.sift.max_num_features = params.max_features
+    options = pycolmap.IncrementalPipelineOptions()
+    options.random_seed = params.seed
+    options.mapper.random_seed = params.seed
+    ctx.log.info("sfm: triangulating points for the %d known poses: SIFT, %s matching (%s)", len(names), matcher, why)
+    model = known_poses_model(pycolmap, cameras)
+    try:
+        with colmap_log(pycolmap, log_path):
+            with pycolmap.Database.open(database) as db:
+                write_to_database(model, db)
+            pycolmap.extract_features(database, image_dir, names, pycolmap.CameraMode.PER_IMAGE,
+                                      pycolmap.ImageReaderOptions(), extraction, device=pycolmap.Device.auto)
+            if matcher == "spatial":
+                _write_known_positions(pycolmap, database, cameras)
+            _match(pycolmap, database, matcher, params, known_positions=matcher == "spatial")
+            (colmap_dir / "triangulated").mkdir()
+            model = pycolmap.triangulate_points(model, database, image_dir, colmap_dir / "triangulated", options=options)
+    except Exception as err:  # COLMAP raises ValueError / RuntimeError when there is too little to work with
+        info.update(status="failed", seconds=round(time.monotonic() - start, 1))
+        return None, {**info, "reason": f"triangulation failed ({type(err).__name__}: {str(err).strip()[:200]})"}
+    points = triangulated_points(model, cameras)
+    count = 0 if points is None else len(points.xyz)
+    info.update(points=count, seconds=round(time.monotonic() - start, 1),
+                max_pose_change=float(f"{max_pose_change(model, cameras):.3g}"),
+                mean_reprojection_error_px=round(float(model.compute_mean_reprojection_error()), 4) if count else None,
+                mean_track_length=round(float(model.compute_mean_track_length()), 3) if count else None)
+    if count < params.min_triangulated_points:
+        return None, {**info, "status": "too_few", "reason": f"triangulation kept only {count} points "
+                      f"(< sfm.min_triangulated_points {params.min_triangulated_points})"}
+    ctx.log.info("sfm: triangulated %d points in %.0f s, mean reprojection error %.3f px, mean track length %.2f",
+                 count, info["seconds"], info["mean_reprojection_error_px"], info["mean_track_length"])
+    return points, {**info, "status": "ok"}
+
+
+def _write_known_positions(pycolmap: Any, database: Path, cameras: CameraSet) -> None:
+    """Each photo's known camera centre as a Cartesian position prior, which spatial matching pairs by."""
+    centers = {f.name: f.center for f in cameras.frames}
+    with pycolmap.Database.open(database) as db:
+        for image in db.read_all_images():
+            db.write_pose_prior(pycolmap.PosePrior(
+                corr_data_id=image.data_id, position=np.asarray(centers[image.name], dtype=np.float64),
+                coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN))
 
 
 # -- structure from motion ---------------------------------------------------------------------------
@@ -280,7 +457,7 @@ def _looks_like_video(records: list[dict]) -> bool:
     return len(steps) > 0 and float(np.median(steps)) <= 2
 
 
-def _match(pycolmap: Any, database: Path, matcher: str, params: SfmParams) -> None:
+def _match(pycolmap: Any, database: Path, matcher: str, params: SfmParams, known_positions: bool = False) -> None:
     device = pycolmap.Device.auto
     # two-view RANSAC is seeded too, so the same photos give the same matches, and the same model
     verification = pycolmap.TwoViewGeometryOptions()
@@ -291,6 +468,12 @@ def _match(pycolmap: Any, database: Path, matcher: str, params: SfmParams) -> No
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = params.sequential_overlap
         pycolmap.match_sequential(database, pairing_options=pairing, verification_options=verification, device=device)
+    elif known_positions:
+        # Cartesian positions in the pose file's units: 3D distances, no distance cut-off, nearest neighbours
+        pairing = pycolmap.SpatialPairingOptions()
+        pairing.ignore_z = False
+        pairing.max_distance = math.inf
+        pycolmap.match_spatial(database, pairing_options=pairing, verification_options=verification, device=device)
     else:
         with pycolmap.Database.open(database) as db:
             if db.num_pose_priors() == 0:

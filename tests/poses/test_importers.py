@@ -437,6 +437,33 @@ def test_malformed_transforms_frame(tmp_path, frame, message):
     assert err.value.path == capture / "transforms.json"
 
 
+def test_instant_ngp_aabb_scale_is_recorded_as_a_hint(tmp_path):
+    """instant-ngp's aabb_scale (the scene's extent in units of the cameras' unit cube) lands in
+    ``extra["aabb_scale"]``; across split files the largest wins; a file without it records nothing."""
+    capture = temple_capture(tmp_path / "cap", 2)
+    frame = {"file_path": "templeSR0001.png", "transform_matrix": np.eye(4).tolist()}
+    (capture / "transforms_train.json").write_text(json.dumps({"camera_angle_x": 0.7, "aabb_scale": 4, "frames": [frame]}))
+    (capture / "transforms_test.json").write_text(json.dumps(
+        {"camera_angle_x": 0.7, "aabb_scale": 16, "frames": [{**frame, "file_path": "templeSR0002.png"}]}))
+    cameras = _import(capture)
+    assert cameras.extra["aabb_scale"] == 16.0
+    cameras.save(tmp_path)
+    assert CameraSet.load(tmp_path).extra["aabb_scale"] == 16.0
+    (capture / "transforms_test.json").unlink()
+    (capture / "transforms_train.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": [frame]}))
+    assert "aabb_scale" not in _import(capture).extra
+
+
+@pytest.mark.parametrize("value", [0, -2, "16", True, None])
+def test_a_bad_aabb_scale_is_refused(tmp_path, value):
+    capture = temple_capture(tmp_path / "cap", 1)
+    (capture / "transforms.json").write_text(json.dumps({"camera_angle_x": 0.7, "aabb_scale": value, "frames": [
+        {"file_path": "templeSR0001.png", "transform_matrix": np.eye(4).tolist()}]}))
+    with pytest.raises(InputError, match="aabb_scale is .*, not a positive number") as err:
+        _import(capture)
+    assert err.value.path == capture / "transforms.json"
+
+
 def test_transforms_without_focal_length(tmp_path):
     capture = temple_capture(tmp_path / "cap", 1)
     (capture / "transforms.json").write_text(json.dumps(

@@ -123,6 +123,7 @@ def test_temple_ring_is_inward360_on_a_black_background(temple_run):
     assert background["value"] == "color"
     assert background["measured"]["border_color"] == [0.0, 0.0, 0.0]
     assert 0.9 <= background["measured"]["border_within_tolerance"] < 0.97
+    assert background["measured"]["tolerance"] == 0.1  # training masks the backdrop with the same tolerance
     assert scene["background_color"]["value"] == [0.0, 0.0, 0.0]
     assert scene["lens"]["value"] == "pinhole" and scene["photometric"]["value"] == "srgb"
     assert scene["exposure_varies"]["value"] is False and "known for 0 of 16 photos" in scene["exposure_varies"]["evidence"]
@@ -214,6 +215,31 @@ def test_lens_evidence_per_camera():
     assert evidence == ("camera 1: distortion moves pixels by up to 0.12 px, left as is; "
                         "camera 2: distortion moves pixels beyond 90° off-axis (fisheye), undistorted")
     assert decide_lens(CameraSet({}, []))[0] == "pinhole"
+
+
+def test_lens_evidence_sums_up_one_camera_per_photo():
+    """71 phone frames, a camera each: one sentence with the spread and the counts, not 71 clauses."""
+    from nerfpipe.stages.scene import decide_lens
+
+    record = {str(i): {"model": "SIMPLE_RADIAL", "max_displacement_px": 0.2 + 0.4 * i, "undistorted": True}
+              for i in range(1, 72)}
+    record["1"] = {"model": "SIMPLE_RADIAL", "max_displacement_px": 0.2, "undistorted": False}
+    value, evidence, measured = decide_lens(CameraSet({}, [], extra={"undistortion": record}))
+    assert value == "undistorted"
+    assert evidence == "71 cameras: distortion 0.2-29 px, 70 undistorted, 1 left as is"
+    assert measured == {"cameras": record}  # the per-camera numbers stay on record
+
+    record["71"]["max_displacement_px"] = None  # a fisheye beyond 90 degrees
+    for info in record.values():
+        info["undistorted"] = False
+    value, evidence, _ = decide_lens(CameraSet({}, [], extra={"undistortion": record}))
+    assert value == "pinhole"
+    assert evidence == "71 cameras: distortion 0.2-28 px, 1 beyond 90° off-axis (fisheye), 0 undistorted, 71 left as is"
+
+    four = {str(i): {"max_displacement_px": 3.0, "undistorted": True} for i in range(1, 5)}
+    assert decide_lens(CameraSet({}, [], extra={"undistortion": four}))[1] == "4 cameras: distortion 3 px, 4 undistorted, 0 left as is"
+    three = {str(i): {"max_displacement_px": 3.0, "undistorted": True} for i in range(1, 4)}
+    assert decide_lens(CameraSet({}, [], extra={"undistortion": three}))[1].count("camera ") == 3  # named one by one
 
 
 # -- layout on synthetic rigs ----------------------------------------------------------------------------

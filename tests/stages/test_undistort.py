@@ -263,6 +263,40 @@ def test_a_threshold_above_the_displacement_passes_through(capture, tmp_path, ca
     ]
 
 
+def test_one_camera_per_photo_is_logged_in_sum(capture, tmp_path, caplog):
+    """Four photos, each its own camera: three distorted ones are named one by one, four are summed up
+    (as phone captures with a camera per frame would otherwise list 71 cameras in one line)."""
+    names = sorted(p.with_suffix(".png").name for p in capture.glob("*.png"))
+    ks = (0.01, 0.02, 0.04, 0.08)  # 1, 2, 4 and 8 px at the corner (800 * k * 0.5^3)
+    cameras = {i + 1: Camera("SIMPLE_RADIAL", 640, 480, (800.0, 320.0, 240.0, k)) for i, k in enumerate(ks)}
+    shifts = [max_distortion_displacement(c) for c in cameras.values()]
+    model = CameraSet(cameras, [Frame(n, i + 1, np.eye(4)) for i, n in enumerate(names)], source="test")
+    with caplog.at_level(logging.INFO, logger="nerfpipe"):
+        _, undistorted, _ = run_undistort(capture, tmp_path / "run", model)
+    assert sorted(p.name for p in undistorted.iterdir()) == names
+    line = next(m for m in caplog.messages if m.startswith("undistort: ") and "cameras" in m)
+    assert line == (f"undistort: 4 cameras: max displacement {shifts[0]:.2g}-{shifts[3]:.2g} px; "
+                    "4 undistorted (4 images)")
+
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="nerfpipe"):
+        run_undistort(capture, tmp_path / "run", model, threshold_px=1.5)  # camera 1 stays as it is
+    line = next(m for m in caplog.messages if m.startswith("undistort: undistorted"))
+    assert line.startswith(f"undistort: undistorted 1 image of camera 2 (max displacement {shifts[1]:.1f} px); ")
+    assert line.endswith(f"1 camera within 1.5 px (max {shifts[0]:.2f} px) passes through untouched")
+
+
+def test_the_summed_up_log_line_for_71_cameras():
+    displacement = {i: 0.2 + 0.4 * i for i in range(1, 72)}  # 0.6 .. 28.6 px
+    displacement[72] = float("inf")  # a fisheye beyond 90 degrees
+    displacement[1] = 0.21
+    written = {i: 1 for i in range(2, 73)}
+    line = UndistortStage._log_line(displacement, written, 0.5)
+    assert line == ("72 cameras: max displacement 0.21-29 px, 1 beyond 90° off-axis; "
+                    "71 undistorted (71 images), 1 within 0.5 px left as is")
+    assert "camera 7 " not in line and len(line) < 120
+
+
 def test_threshold_and_interpolation_move_only_the_undistort_key(capture, tmp_path):
     model = one_camera(Camera("PINHOLE", 640, 480, (800.0, 800.0, 320.0, 240.0)), ["templeSR0001.png"])
 
