@@ -81,11 +81,19 @@ class OccupancyGrid(nn.Module):
         self.register_buffer("hi", hi_t)
         self.register_buffer("density", torch.full((resolution**3,), -1.0))
         self.register_buffer("occupied", torch.ones(resolution**3, dtype=torch.bool))
+        # cells some training camera sees (``restrict_to``); not saved: ``occupied`` already leaves the rest out
+        self.register_buffer("seen", torch.ones(resolution**3, dtype=torch.bool), persistent=False)
 
     def reset(self) -> None:
-        """As new: every cell occupied and never evaluated."""
+        """As new: every cell some camera sees occupied, none evaluated."""
         self.density.fill_(-1.0)
-        self.occupied.fill_(True)
+        self.occupied.copy_(self.seen)
+
+    def restrict_to(self, seen: Tensor) -> None:
+        """Mark the cells no training camera sees (``seen`` (R^3,) False) empty for good, as Instant-NGP does:
+        nothing there is ever trained, and a field's initial density would otherwise keep them occupied."""
+        self.seen.copy_(seen)
+        self.occupied &= seen
 
     @property
     def diagonal(self) -> float:
@@ -149,7 +157,33 @@ class OccupancyGrid(nn.Module):
         known = self.density >= 0
         mean = float((self.density[known] * step_size).mean()) if bool(known.any()) else 0.0
         limit = min(threshold, mean)
-        self.occupied.copy_(~known | (self.density * step_size > limit))
+        self.occupied.copy_((~known | (self.density * step_size > limit)) & self.seen)
+
+
+@torch.no_grad()
+def cells_seen(grid: OccupancyGrid, to_world: Callable[[Tensor], Tensor], intrinsics: Tensor, c2w: Tensor,
+               chunk: int = 65536) -> Tensor:
+    """Which cells' centres lie in front of and inside the view of at least one pinhole camera.
+
+    Args:
+        to_world: field coordinates (M, 3) -> world points (the ray space's ``from_field``).
+        intrinsics: (I, 4) fx, fy, cx, cy, the image spanning [0, 2 cx] x [0, 2 cy]; c2w: (I, 4, 4) OpenCV.
+    Returns:
+        (R^3,) bool.
+    """
+    n = grid.resolution**3
+    seen = torch.zeros(n, dtype=torch.bool, device=grid.occupied.device)
+    rotation, center = c2w[:, :3, :3], c2w[:, :3, 3]
+    for start in range(0, n, chunk):
+        index = torch.arange(start, min(start + chunk, n), device=seen.device)
+        world = to_world(grid.cell_points(index, jitter=False))
+        local = (world.unsqueeze(0) - center.unsqueeze(1)) @ rotation  # (I, M, 3) in each camera's frame
+        z = local[..., 2]
+        u = intrinsics[:, 0:1] * local[..., 0] / z.clamp_min(1e-9) + intrinsics[:, 2:3]
+        v = intrinsics[:, 1:2] * local[..., 1] / z.clamp_min(1e-9) + intrinsics[:, 3:4]
+        inside = (z > 0) & (u >= 0) & (u <= 2 * intrinsics[:, 2:3]) & (v >= 0) & (v <= 2 * intrinsics[:, 3:4])
+        seen[index] = inside.any(dim=0)
+    return seen
 
 
 @dataclass

@@ -17,7 +17,7 @@ import torch
 from torch import Tensor
 
 from nerfpipe.nerf.model import Field, RadianceModel
-from nerfpipe.nerf.occupancy import render_marched
+from nerfpipe.nerf.occupancy import cells_seen, render_marched
 from nerfpipe.nerf.renderer import render_rays
 
 log = logging.getLogger("nerfpipe.nerf.trainer")
@@ -178,6 +178,9 @@ class Trainer:
         self.total_samples = 0
         self.total_rays = 0
         self.lr_scale = 1.0  # halved by a restart after a stall
+        if model.occupancy is not None and not model.ray_space.ndc:  # NDC's frustum is the cameras' view by design
+            px = self.pixels
+            model.occupancy.restrict_to(cells_seen(model.occupancy, model.ray_space.from_field, px.intrinsics, px.c2w))
         self.guard = StallGuard(mean_colour_psnr(self.pixels.rgb), check_step=min(max(200, config.steps // 8), config.steps))
         self._initial = copy.deepcopy(model.state())
 

@@ -233,3 +233,22 @@ def test_a_marching_model_saves_and_loads_with_its_grid(tmp_path) -> None:
     for key in ("rgb", "depth", "acc"):
         torch.testing.assert_close(a[key], b[key])
     assert 0 < float(a["samples"]) < 64
+
+
+def test_cells_no_camera_sees_are_empty_for_good() -> None:
+    from nerfpipe.nerf.occupancy import cells_seen
+
+    grid = OccupancyGrid((-1.0,) * 3, (1.0,) * 3, 4)  # cell centres at +-0.25, +-0.75
+    # one camera at the origin looking down +z (OpenCV), a 90 degree field of view: |x|, |y| <= z
+    c2w = torch.eye(4)[None]
+    intrinsics = torch.tensor([[10.0, 10.0, 10.0, 10.0]])
+    seen = cells_seen(grid, lambda points: points, intrinsics, c2w)
+    centres = grid.cell_points(torch.arange(64), jitter=False)
+    expected = (centres[:, 2] > 0) & (centres[:, 0].abs() <= centres[:, 2]) & (centres[:, 1].abs() <= centres[:, 2])
+    assert torch.equal(seen, expected) and int(seen.sum()) == 2 * 2 + 4 * 4  # z = 0.25: the 4 middle cells; z = 0.75: all 16
+    grid.restrict_to(seen)
+    assert torch.equal(grid.occupied, seen)
+    grid.update(lambda points: torch.full((len(points),), 100.0), step_size=0.1, threshold=0.01, all_cells=True)
+    assert torch.equal(grid.occupied, seen)  # dense everywhere, yet the unseen cells stay empty
+    grid.reset()
+    assert torch.equal(grid.occupied, seen)
