@@ -19,7 +19,6 @@ import contextlib
 import math
 import os
 import re
-import shutil
 import sys
 import tempfile
 import time
@@ -210,14 +209,10 @@ def choose_triangulation_matcher(records: list[dict], params: SfmParams) -> tupl
 def triangulate_known_poses(
     image_dir: Path, cameras: CameraSet, records: list[dict], out: Path, params: SfmParams, ctx: StageContext
 ) -> tuple[Points | None, dict[str, Any]]:
-    """Triangulate in a scratch folder, so the stage's result holds only what is the same on every run;
-    COLMAP's log is kept as ``colmap.log`` when triangulation does not give the points."""
+    """Triangulate in a scratch folder, so the stage's result holds only what is the same on every run (COLMAP's
+    database and its log, which has timestamps, stay out; a failure's reason is in the summary)."""
     with tempfile.TemporaryDirectory(prefix="nerfpipe-triangulate-") as scratch:
-        points, info = _triangulate_in(Path(scratch), image_dir, cameras, records, params, ctx)
-        if points is None and (Path(scratch) / "colmap.log").exists():
-            shutil.copy2(Path(scratch) / "colmap.log", out / "colmap.log")
-            info["log"] = "colmap.log"
-    return points, info
+        return _triangulate_in(Path(scratch), image_dir, cameras, records, params, ctx)
 
 
 def _triangulate_in(

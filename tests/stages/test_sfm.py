@@ -236,7 +236,7 @@ def test_a_failed_triangulation_falls_back_to_the_rig_and_says_so(tmp_path, capl
     assert s["triangulation_fallback"].endswith("; bounds fall back to the rig guess")
     assert f"sfm: {s['triangulation_fallback']}" in [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
     assert CameraSet.load(outcome.path / "model").points is None
-    assert (outcome.path / "colmap.log").stat().st_size > 0  # what COLMAP said, for whoever asks why
+    assert not (outcome.path / "colmap.log").exists()  # COLMAP's log has timestamps: equal runs, equal results
     # instant-ngp's aabb_scale: kept for later stages, and a hint in the summary
     assert CameraSet.load(outcome.path / "model").extra["aabb_scale"] == 16.0 and s["aabb_scale"] == 16.0
     lines = SfmStage().describe(outcome.path, {"summary": s})
