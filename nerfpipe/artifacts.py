@@ -229,6 +229,15 @@ class SceneDecisions:
         """Forward-facing captures are trained in NDC (Section 6.1's real scenes)."""
         return self.layout.value == "forward"
 
+    def backdrop(self) -> tuple[tuple[float, float, float], float] | None:
+        """(colour, tolerance) of a constant backdrop: the background decision is ``color`` with a colour, and
+        the tolerance is the one the scene analysis matched border pixels with (``measured["tolerance"]``,
+        the largest per-channel difference); None otherwise (alpha, none, or a scene.json without it)."""
+        color, tolerance = self.background_color.value, self.background.measured.get("tolerance")
+        if self.background.value != "color" or color is None or tolerance is None:
+            return None
+        return (float(color[0]), float(color[1]), float(color[2])), float(tolerance)
+
     def decisions(self) -> dict[str, Decision]:
         return {name: getattr(self, name) for name in self.NAMES}
 

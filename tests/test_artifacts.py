@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -86,6 +87,19 @@ def scene_example() -> SceneDecisions:
         exposure_varies=Decision.made(False, "one exposure", {}),
         near=0.25, far=3.0, scene_box=([-1.0, -1.0, -0.5], [1.0, 1.0, 0.5]),
     )
+
+
+def test_the_backdrop_is_the_colour_and_tolerance_of_a_color_background():
+    scene = scene_example()
+    assert scene.backdrop() is None  # a scene.json written before the tolerance was recorded: no masks
+    measured = {"border_color": [0, 0, 0], "tolerance": 0.1}
+    color = replace(scene, background=Decision.made("color", "border", measured))
+    assert color.backdrop() == ((0.0, 0.0, 0.0), 0.1)
+    # the user's colour is the backdrop's, matched with the tolerance the analysis used
+    assert replace(color, background_color=Decision.made([0.0] * 3, "", {}, [0.5, 0.5, 0.5])).backdrop() == ((0.5,) * 3, 0.1)
+    for other in ("alpha", "none"):
+        assert replace(color, background=Decision.made(other, "border", measured)).backdrop() is None
+    assert replace(color, background_color=Decision.made(None, "", {})).backdrop() is None
 
 
 def test_scene_decisions_round_trip_ndc_and_describe(tmp_path):

@@ -259,6 +259,30 @@ def auto_view(
     return ViewCamera((fy, fy, width / 2, height / 2), c2w, width, height)
 
 
+def photo_view(bounds_min: np.ndarray, bounds_max: np.ndarray, camera: ViewCamera, width: int = 800,
+               height: int = 600) -> ViewCamera:
+    """A camera that frames an axis-aligned box as a capture camera saw it: from that camera's side of the box
+    centre, with its image-up (minus its y axis, as far as it is perpendicular to the new view axis), at the
+    distance where the box's bounding sphere fits ``auto_view``'s field of view. A picture of the export
+    then reads like the photo (Middlebury's temple lies on its side in every photo, and so in its picture).
+
+    Args:
+        bounds_min, bounds_max: (3,).
+    """
+    lo, hi = np.asarray(bounds_min, dtype=np.float64), np.asarray(bounds_max, dtype=np.float64)
+    target = (lo + hi) / 2
+    radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-9)
+    direction = camera.center - target
+    if np.linalg.norm(direction) <= 1e-9 * radius:  # the camera sits at the centre: look along its own axis
+        direction = -camera.c2w[:3, 2]
+    direction = direction / np.linalg.norm(direction)
+    fy = (height / 2) / math.tan(math.radians(FOV_Y_DEG) / 2)
+    half_fov = min(math.radians(FOV_Y_DEG) / 2, math.atan((width / 2) / fy))
+    distance = 1.05 * radius / math.sin(half_fov)
+    c2w = _look_at(target + distance * direction, target, -camera.c2w[:3, 1])
+    return ViewCamera((fy, fy, width / 2, height / 2), c2w, width, height)
+
+
 # -- rendering ----------------------------------------------------------------------------------------
 
 

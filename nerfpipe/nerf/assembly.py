@@ -199,11 +199,19 @@ def build_occupancy(params: TrainSettings, layout: str, box: Box | None, device:
 
 
 def build_background(scene: SceneDecisions) -> tuple[tuple[float, ...] | None, str]:
-    """The colour renders are composited onto: the scene's backdrop (alpha or a constant colour), else none."""
+    """The colour renders are composited onto: the scene's backdrop (alpha or a constant colour), else none.
+    A constant backdrop is also masked while training (``SceneDecisions.backdrop``, ``Trainer.backdrop_targets``)."""
     kind, color = scene.background.value, scene.background_color.value
     if kind in ("alpha", "color") and color is not None:
         background = tuple(float(c) for c in color)
-        return background, f"background {kind}: renders composited onto ({', '.join(f'{c:.2f}' for c in background)})"
+        shown = ", ".join(f"{c:.2f}" for c in background)
+        backdrop = scene.backdrop()
+        if backdrop is None:
+            return background, f"background {kind}: renders composited onto ({shown})"
+        return background, (
+            f"background color: the backdrop (pixels within {backdrop[1]:g} of ({shown}) joined to the image border, "
+            "grown by GrabCut over what looks like them) "
+            f"trains empty space against a random colour per ray; renders composited onto ({shown})")
     return None, "no background model: the background is part of the scene (composited onto black)"
 
 

@@ -15,6 +15,7 @@ import torch
 
 from nerfpipe.artifacts import Bounds, SceneDecisions, frame_image_path
 from nerfpipe.geometry.cameras import CameraSet, Frame
+from nerfpipe.imaging.masks import object_mask
 from nerfpipe.imaging.png import read_png
 from nerfpipe.nerf.rays import pixel_centers
 from nerfpipe.nerf.trainer import PixelSet
@@ -76,6 +77,7 @@ class ImageLoader:
         self.use_alpha = scene.background.value == "alpha"
         color = scene.background_color.value
         self.background = np.array(color if color is not None else (0.0, 0.0, 0.0), dtype=np.float32)
+        self.backdrop = scene.backdrop()
 
     @staticmethod
     def from_inputs(inputs: StageInputs) -> ImageLoader:
@@ -84,22 +86,40 @@ class ImageLoader:
         return ImageLoader(inputs["images"], inputs["undistorted_images"], inputs["pinhole"],
                            CameraSet.load(inputs["world"]), Bounds.load(inputs["bounds"]), SceneDecisions.load(inputs["scene"]))
 
-    def image(self, frame: Frame) -> np.ndarray:
-        """(H, W, 3) float32 in [0, 1]; alpha composited onto the background colour when the scene uses it."""
+    def stored(self, frame: Frame) -> np.ndarray:
+        """(H, W, 3 or 4) float32 in [0, 1]: the frame's image as ingest or undistort wrote it (grey as RGB)."""
         path = frame_image_path(frame.name, self.roots.get(frame.name, "ingest"), self.images, self.undistorted_images)
         pixels = read_png(path)
         scale = 65535.0 if pixels.dtype == np.uint16 else 255.0
         pixels = pixels.astype(np.float32) / scale
         if pixels.ndim == 2:
             pixels = np.repeat(pixels[..., None], 3, axis=-1)
-        if pixels.shape[-1] == 4:
-            rgb, alpha = pixels[..., :3], pixels[..., 3:]
-            pixels = rgb * alpha + self.background * (1.0 - alpha) if self.use_alpha else rgb
         camera = self.world.camera_of(frame)
         if pixels.shape[:2] != (camera.height, camera.width):
             raise StageError(f"train: {path} is {pixels.shape[1]}x{pixels.shape[0]} but its camera is "
                              f"{camera.width}x{camera.height}; rerun with --force undistort")
         return pixels
+
+    def image(self, frame: Frame) -> np.ndarray:
+        """(H, W, 3) float32 in [0, 1]; alpha composited onto the background colour when the scene uses it."""
+        pixels = self.stored(frame)
+        if pixels.shape[-1] == 4:
+            rgb, alpha = pixels[..., :3], pixels[..., 3:]
+            pixels = rgb * alpha + self.background * (1.0 - alpha) if self.use_alpha else rgb
+        return pixels
+
+    def alpha(self, frame: Frame) -> np.ndarray | None:
+        """(H, W) bool: alpha >= 0.5, for an image with an alpha channel; else None."""
+        pixels = self.stored(frame)
+        return pixels[..., 3] >= 0.5 if pixels.shape[-1] == 4 else None
+
+    def foreground(self, frame: Frame, pixels: np.ndarray | None = None) -> np.ndarray | None:
+        """(H, W) bool: the frame's pixels that are not the constant backdrop (``nerfpipe.imaging.masks.object_mask``,
+        with the scene's backdrop colour and tolerance); None when the scene has no constant backdrop.
+        ``pixels``: the frame's ``image``, when already read."""
+        if self.backdrop is None:
+            return None
+        return object_mask(self.image(frame) if pixels is None else pixels, *self.backdrop)
 
     def intrinsics(self, frame: Frame) -> tuple[float, float, float, float]:
         """(fx, fy, cx, cy) of the frame's pinhole camera."""
@@ -107,11 +127,15 @@ class ImageLoader:
         return (c.fx, c.fy, c.cx, c.cy)
 
     def pixel_set(self, frames: list[Frame]) -> PixelSet:
-        """Every pixel of ``frames``, with its image's camera and near/far: what the trainer draws rays from."""
-        rgb, image, uv = [], [], []
+        """Every pixel of ``frames``, with its image's camera and near/far: what the trainer draws rays from;
+        against a constant backdrop, with each pixel's ``alpha`` (``foreground``)."""
+        rgb, image, uv, alpha = [], [], [], []
         for i, frame in enumerate(frames):
             pixels = self.image(frame)
             h, w = pixels.shape[:2]
+            foreground = self.foreground(frame, pixels)
+            if foreground is not None:
+                alpha.append(torch.from_numpy(foreground.reshape(-1).astype(np.float32)))
             rgb.append(torch.from_numpy(np.ascontiguousarray(pixels.reshape(-1, 3))))
             uv.append(pixel_centers(w, h))
             image.append(torch.full((h * w,), i, dtype=torch.int64))
@@ -121,4 +145,13 @@ class ImageLoader:
             c2w=torch.tensor(np.array([f.c2w for f in frames]), dtype=torch.float32),
             near=torch.tensor([self.near_far[f.name][0] for f in frames], dtype=torch.float32),
             far=torch.tensor([self.near_far[f.name][1] for f in frames], dtype=torch.float32),
+            alpha=torch.cat(alpha) if alpha else None,
         )
+
+
+def describe_masks(pixels: PixelSet) -> str | None:
+    """A sentence on the backdrop masks of a pixel set (None without): how much of it is backdrop."""
+    if pixels.alpha is None:
+        return None
+    backdrop = 100.0 * (1.0 - float(pixels.alpha.float().mean()))
+    return f"backdrop masks: {backdrop:.1f}% of the training pixels are backdrop, trained as empty space"

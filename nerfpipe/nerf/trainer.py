@@ -45,7 +45,11 @@ class TrainConfig:
 @dataclass
 class PixelSet:
     """Every training pixel. rgb: (P, 3) targets in [0, 1]; image: (P,) int64 image index; uv: (P, 2) pixel
-    centres; intrinsics: (I, 4) (fx, fy, cx, cy); c2w: (I, 4, 4); near, far: (I,)."""
+    centres; intrinsics: (I, 4) (fx, fy, cx, cy); c2w: (I, 4, 4); near, far: (I,).
+
+    Against a constant backdrop (``nerfpipe.imaging.masks``), or None: alpha: (P,) float32, 1 on the
+    object, 0 on the backdrop; ``Trainer.backdrop_targets`` says what each teaches.
+    """
 
     rgb: Tensor
     image: Tensor
@@ -54,9 +58,12 @@ class PixelSet:
     c2w: Tensor
     near: Tensor
     far: Tensor
+    alpha: Tensor | None = None
+
+    FIELDS = ("rgb", "image", "uv", "intrinsics", "c2w", "near", "far", "alpha")
 
     def to(self, device: torch.device) -> "PixelSet":
-        return PixelSet(*(getattr(self, k).to(device) for k in ("rgb", "image", "uv", "intrinsics", "c2w", "near", "far")))
+        return PixelSet(*(None if getattr(self, k) is None else getattr(self, k).to(device) for k in self.FIELDS))
 
 
 def mse_to_psnr(mse: float) -> float:
@@ -238,7 +245,8 @@ class Trainer:
         index, generator = self.batch(step)
         image = px.image[index]
         rays = self.model.ray_space.rays(px.uv[index], px.intrinsics[image], px.c2w[image], px.near[image], px.far[image])
-        target = px.rgb[index]
+        target, backdrop = self.backdrop_targets(index, px.rgb[index], generator)
+        background = self.background if backdrop is None else None  # per ray colours: composited below
         noise = self.config.density_noise
 
         def field(fn: Field) -> Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]:
@@ -257,7 +265,7 @@ class Trainer:
                 # the number of rays drawn
                 final, self.samples = render_marched(
                     field(model.coarse), model.world_density(model.coarse), rays.origins, rays.directions,
-                    rays.viewdirs, rays.near, rays.far, model.occupancy, model.marching, self.background, True,
+                    rays.viewdirs, rays.near, rays.far, model.occupancy, model.marching, background, True,
                     generator, max_samples=2 * self.config.batch_samples, contraction=model.ray_space.contracted)
                 out = {"coarse": final}
                 self.rays = len(final.rgb)
@@ -269,9 +277,12 @@ class Trainer:
                     self.rays_per_batch = min(0.8 * self.rays_per_batch + 0.2 * wanted, wanted)
             else:
                 out = render_rays(field(model.coarse), None if model.fine is None else field(model.fine),
-                                  rays, model.sampling, self.background, randomized=True, generator=generator)
+                                  rays, model.sampling, background, randomized=True, generator=generator)
                 self.samples = self.samples_per_step(len(index))
                 self.rays = len(index)
+        if backdrop is not None:  # "over" onto each ray's colour, as composite() does onto one (Eq. 3 + background)
+            for c in out.values():
+                c.rgb = c.rgb + (1.0 - c.acc).clamp_min(0.0).unsqueeze(-1) * backdrop[:self.rays]
         # Eq. 6: squared error of the coarse and the fine rendering (a mean rather than a sum over the batch)
         losses = {name: torch.mean((c.rgb - target) ** 2) for name, c in out.items()}
         loss = sum(losses.values())
@@ -281,6 +292,23 @@ class Trainer:
         self.scaler.update()
         final = losses.get("fine", losses["coarse"])
         return float(loss.detach()), mse_to_psnr(float(final.detach()))
+
+    def backdrop_targets(self, index: Tensor, target: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor | None]:
+        """Targets (R, 3) and the colour (R, 3) each ray's render is composited onto, with backdrop masks
+        (``PixelSet.alpha``); without them, ``target`` and None (the model's background, if any).
+
+        Instant-NGP's random background for images with alpha: each ray draws a colour c ~ U[0, 1]^3 (from
+        ``generator``: a function of (seed, step)). A backdrop pixel's target is c, which only empty space
+        renders whatever c is; an object pixel keeps its photo colour over c, so it must be opaque. A fixed
+        colour instead cannot tell empty space from a surface of that colour: trained against black, the
+        temple's backdrop may as well be black density.
+        """
+        px = self.pixels
+        if px.alpha is None or self.background is None:
+            return target, None
+        random = torch.rand((len(index), 3), generator=generator, device=target.device, dtype=target.dtype)
+        alpha = px.alpha[index].unsqueeze(-1)
+        return alpha * target + (1.0 - alpha) * random, random
 
     def restart(self) -> None:
         """Back to the initial weights with a fresh occupancy grid and optimizer, at half the learning rate."""

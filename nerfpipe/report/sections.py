@@ -127,7 +127,7 @@ GEOMETRY = (("export_mesh", "mesh", "mesh"), ("export_points", "points", "point 
 
 
 def mesh_and_points(run: RunData) -> str | None:
-    """Screenshots of the exported mesh and point cloud, seen from the side of the SfM cameras."""
+    """Screenshots of the exported mesh and point cloud, seen as the first SfM camera saw the scene."""
     shown = [(stage, artifact, label) for stage, artifact, label in GEOMETRY if stage in run.results]
     if not shown:
         return None
@@ -141,14 +141,17 @@ def mesh_and_points(run: RunData) -> str | None:
 
 def geometry_shot(run: RunData, stage: str, artifact: str, label: str, cameras: list[Any]) -> str:
     """Write ``img/{artifact}.png``, a screenshot of a mesh or point cloud artifact; return its figure."""
-    from nerfpipe.export.screenshot import auto_view, load_mesh, load_points, screenshot
+    from nerfpipe.export.screenshot import auto_view, load_mesh, load_points, photo_view, screenshot
 
     path = run.artifact(stage, artifact)
     geometry = {"mesh": load_mesh(path)} if artifact == "mesh" else {"points": load_points(path)}
-    # framed on the geometry, seen from the cameras' side: framing the camera ring too leaves the object tiny
-    box = next(iter(geometry.values())).get_axis_aligned_bounding_box()
-    view = auto_view(np.asarray(box.min_bound), np.asarray(box.max_bound), cameras, SHOT_WIDTH, SHOT_HEIGHT)
-    write_png(run.img / f"{artifact}.png", screenshot(cameras=cameras, view=view, **geometry))
+    # framed on the geometry (framing the camera ring too leaves the object tiny), seen as the first photo saw it,
+    # so the picture can be held against the photos
+    aabb = next(iter(geometry.values())).get_axis_aligned_bounding_box()
+    box = np.asarray(aabb.min_bound), np.asarray(aabb.max_bound)
+    view = photo_view(*box, cameras[0], SHOT_WIDTH, SHOT_HEIGHT) if cameras else auto_view(*box, [], SHOT_WIDTH, SHOT_HEIGHT)
+    # no frusta: in this close view they are the few cameras behind the object, drawn over it
+    write_png(run.img / f"{artifact}.png", screenshot(view=view, **geometry))
     return figure(f"img/{artifact}.png", f"{label}: " + "; ".join(run.describe(stage)))
 
 

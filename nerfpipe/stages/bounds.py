@@ -5,7 +5,8 @@ of ``nerfpipe.geometry.normalize`` and writes:
 
 - ``world/``: the same CameraSet (names, cameras, splits unchanged) with every c2w and point transformed;
 - ``bounds.json``: ``to_world`` (4x4 similarity SfM -> normalized) and ``to_sfm`` (its inverse) so exports
-  can go back, ``scale``, ``up`` (in the SfM frame), ``scene_box`` and per-frame ``near`` / ``far`` in
+  can go back, ``scale``, ``up`` (in the SfM frame), ``scene_box`` (with points: their robust box, which
+  normalization maps to [-1, 1]^3, grown by ``box_margin`` on every side) and per-frame ``near`` / ``far`` in
   normalized units, and the ``method`` that produced them: ``points`` (depth percentiles of the sparse
   points each image sees, as LLFF computes the bounds of the NeRF paper's forward-facing scenes) or
   ``rig`` (no points, e.g. an imported ``transforms.json``: a sphere around the rig's look-at centre).
@@ -53,6 +54,10 @@ class BoundsParams:
     box_mad_k: float = field(
         default=5.0, metadata={"help": "points farther from the median than median + k MADs are left out of the scene box"}
     )
+    box_margin: float = field(
+        default=0.1, metadata={"help": "the sparse points' box grows by this fraction of its extent on every side: "
+                               "points are only where features matched, and the object goes on beyond them"}
+    )
     min_points: int = field(
         default=10, metadata={"help": "fewest sparse points an image must see for point-based near/far (else rig-based)"}
     )
@@ -69,6 +74,8 @@ class BoundsParams:
             raise ValueError(f"margin must be in [0, 1), got {self.margin}")
         if not 0.0 <= self.box_outlier_quantile < 0.5:
             raise ValueError(f"box_outlier_quantile must be in [0, 0.5), got {self.box_outlier_quantile}")
+        if not 0.0 <= self.box_margin <= 1.0:
+            raise ValueError(f"box_margin must be in [0, 1], got {self.box_margin}")
         if self.box_mad_k <= 0:
             raise ValueError(f"box_mad_k must be positive, got {self.box_mad_k}")
         if self.min_points < 1:
@@ -116,7 +123,7 @@ class BoundsStage(Stage):
     """Normalize the world (z up, scene in [-1, 1]^3) and compute per-image near/far bounds."""
 
     name = "bounds"
-    version = 1
+    version = 2  # 2: the points' scene box grows by box_margin
     Params = BoundsParams
     requires = ("pinhole",)
     provides = {"world": "world", "bounds": "bounds.json"}
@@ -172,6 +179,8 @@ class BoundsStage(Stage):
     def _from_points(world: CameraSet, params: BoundsParams, ctx: StageContext):
         """The robust box of the sparse points, and near/far from the points each image sees."""
         lo, hi = robust_box(world.points.xyz, params.box_outlier_quantile, params.box_mad_k)
+        grow = params.box_margin * (hi - lo)
+        lo, hi = lo - grow, hi + grow
         # images that see too few points fall back to the sphere around the scene box
         box_center, box_radius = (lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0)
         frames = []

@@ -136,7 +136,7 @@ class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
     name = "train"
-    version = 3
+    version = 4  # 4: constant backdrops masked (random colour per ray), and evaluated so; metrics.json says its protocol
     Params = TrainParams
     presets = PRESETS
     requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")
@@ -154,7 +154,9 @@ class TrainStage(Stage):
             return [f"{s['steps']} steps in {s['train_seconds']:.0f} s on {s['device']}; no held-out views to evaluate"]
         lines = [f"{s['steps']} steps in {s['train_seconds']:.0f} s on {s['device']} "
                  f"({s['samples_per_s']:.0f} samples/s); {s['heldout']} held-out views ({s['heldout_rule']}): "
-                 f"PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f}"]
+                 f"PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f}"
+                 + (f" against the masked photos ({s['psnr_photo']:.2f} dB against the photos as taken)"
+                    if s.get("psnr_photo") is not None else "")]
         if s.get("resumed_from"):
             lines.append(f"resumed from the checkpoint at step {s['resumed_from']}")
         guard = s.get("stall_guard") or {}
@@ -183,7 +185,7 @@ class TrainStage(Stage):
     def _run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext, device) -> dict[str, Any]:
         from nerfpipe.nerf.assembly import build_model, training_config
         from nerfpipe.nerf.evaluation import evaluate
-        from nerfpipe.nerf.images import ImageLoader, split_views
+        from nerfpipe.nerf.images import ImageLoader, describe_masks, split_views
         from nerfpipe.nerf.trainer import Trainer
 
         loader = ImageLoader.from_inputs(inputs)
@@ -196,6 +198,10 @@ class TrainStage(Stage):
         ViewSplit([f.name for f in views.train], [f.name for f in views.heldout], views.rule).save(out / "views.json")
 
         trainer = Trainer(model, loader.pixel_set(views.train), training_config(params, layout), out, device)
+        masks = describe_masks(trainer.pixels)
+        if masks is not None:
+            decisions.append(masks)
+            ctx.log.info("train: %s", masks)
         resumed = trainer.resume()
         if resumed is not None:
             ctx.log.info("train: resuming from the checkpoint at step %d of %d", resumed, params.steps)
@@ -217,12 +223,16 @@ class TrainStage(Stage):
             "heldout_rule": views.rule,
             "psnr": evaluation["psnr"],
             "ssim": evaluation["ssim"],
+            **({"psnr_photo": evaluation["psnr_photo"]} if "psnr_photo" in evaluation else {}),
             "resumed_from": resumed,
             "stall_guard": trainer.guard.report(),
             "decisions": decisions,
+            "protocol": evaluation["protocol"],
         }
         write_json_atomic(out / "metrics.json", {**summary, "views": evaluation["views"], "eval_seconds": evaluation["seconds"]})
         if evaluation["psnr"] is not None:
-            ctx.log.info("train: held-out PSNR %.2f dB, SSIM %.3f over %d views", evaluation["psnr"], evaluation["ssim"],
-                         len(views.heldout))
+            photo = f" (against the photos as taken, backdrop included: {evaluation['psnr_photo']:.2f} dB)" \
+                if "psnr_photo" in evaluation else ""
+            ctx.log.info("train: held-out PSNR %.2f dB, SSIM %.3f over %d views%s", evaluation["psnr"], evaluation["ssim"],
+                         len(views.heldout), photo)
         return summary

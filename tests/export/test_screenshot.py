@@ -18,6 +18,7 @@ from nerfpipe.export.screenshot import (
     FRUSTUM_POINTS,
     ViewCamera,
     auto_view,
+    photo_view,
     cameras_of,
     capture_up,
     default_frustum_size,
@@ -295,6 +296,23 @@ def test_capture_up_of_a_rolled_orbit_is_the_orbit_normal():
     view = auto_view(np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0]), ring(n=12, roll_90=True))
     assert view.c2w[:3, 1] @ [0.0, 0.0, 1.0] < -0.5 and view.center[0] > 0 and abs(view.center[1]) < 1e-9
     assert np.isclose(math.degrees(math.asin(-view.c2w[2, 2])), math.degrees(math.atan(1 / 3)) + 20)
+
+
+@pytest.mark.parametrize("roll_90", [False, True])
+def test_photo_view_sees_the_box_as_the_photo_did(roll_90):
+    camera = ring(n=8, radius=4.0, height=2.0, roll_90=roll_90)[1]
+    view = photo_view(*BOX, camera, 640, 480)
+    box_centre = (BOX[0] + BOX[1]) / 2
+    # on the line from the box centre through the photo's camera, looking at the centre
+    along = (view.center - box_centre) / np.linalg.norm(view.center - box_centre)
+    seen = (camera.center - box_centre) / np.linalg.norm(camera.center - box_centre)
+    assert np.allclose(along, seen) and np.allclose(view.c2w[:3, 2], -along)
+    # the photo's image-up, as far as it is perpendicular to the view axis: a rolled photo gives a rolled view
+    up = -camera.c2w[:3, 1]
+    up = (up - (up @ along) * along) / np.linalg.norm(up - (up @ along) * along)
+    assert np.allclose(-view.c2w[:3, 1], up, atol=1e-9)
+    uv, depth = view.project(box_corners(*BOX))
+    assert np.all(depth > 0) and np.all((uv >= 0) & (uv <= [640, 480]))
 
 
 def test_view_camera_checks_its_fields():

@@ -12,10 +12,14 @@ from nerfpipe.imaging.png import write_png
 from nerfpipe.nerf.images import ImageLoader
 
 
-def scene_of(layout: str, background: str = "none", color=None, photometric: str = "srgb") -> SceneDecisions:
-    """Scene decisions with the values the assembly reads; the rest as a plain capture's."""
+def scene_of(layout: str, background: str = "none", color=None, photometric: str = "srgb",
+             tolerance: float | None = None) -> SceneDecisions:
+    """Scene decisions with the values the assembly reads; the rest as a plain capture's. ``tolerance``: the
+    backdrop tolerance the scene analysis measured with (none recorded when None)."""
     box = ([-1.0] * 3, [1.0] * 3)
-    return SceneDecisions(Decision(layout, ""), Decision(background, ""), Decision(color, ""), Decision("pinhole", ""),
+    measured = {} if tolerance is None else {"tolerance": tolerance}
+    return SceneDecisions(Decision(layout, ""), Decision(background, "", False, measured), Decision(color, ""),
+                          Decision("pinhole", ""),
                           Decision(photometric, ""), Decision(False, ""), 2.0, 9.0, box)
 
 
@@ -49,9 +53,11 @@ def write_image_folders(root: Path) -> dict[str, Path]:
     return {"images": images, "undistorted_images": undistorted, "pinhole": pinhole}
 
 
-def loader_of(folders: dict[str, Path], background: str = "alpha", width: int = WIDTH) -> ImageLoader:
-    """A loader of the three images (cameras ``width`` x 8; near/far (1, 5), (2, 6), (3, 7)) over a blue backdrop."""
+def loader_of(folders: dict[str, Path], background: str = "alpha", width: int = WIDTH,
+              tolerance: float | None = None) -> ImageLoader:
+    """A loader of the three images (cameras ``width`` x 8; near/far (1, 5), (2, 6), (3, 7)) over a blue backdrop
+    (``tolerance``: the one the scene analysis recorded for a ``color`` background)."""
     world = CameraSet({1: Camera.pinhole(10.0, 10.0, 6.0, 4.0, width, HEIGHT)}, [Frame(name, 1, np.eye(4)) for name in IMAGES])
     bounds = bounds_of((1.0, 5.0), (2.0, 6.0), (3.0, 7.0), names=IMAGES)
-    scene = scene_of("inward360", background, [0.0, 0.0, 1.0] if background != "none" else None)
+    scene = scene_of("inward360", background, [0.0, 0.0, 1.0] if background != "none" else None, tolerance=tolerance)
     return ImageLoader(folders["images"], folders["undistorted_images"], folders["pinhole"], world, bounds, scene)

@@ -117,6 +117,9 @@ def test_occupancy_and_background_builders_say_why_not() -> None:
     assert build_background(scene_of("inward360", "color", [0, 0.5, 1])) == (
         (0.0, 0.5, 1.0), "background color: renders composited onto (0.00, 0.50, 1.00)")
     assert build_background(scene_of("inward360", "alpha", None))[0] is None  # no colour decided: none
+    assert build_background(scene_of("inward360", "color", [0, 0, 0], tolerance=0.1)) == ((0.0, 0.0, 0.0), (
+        "background color: the backdrop (pixels within 0.1 of (0.00, 0.00, 0.00) joined to the image border, "
+        "grown by GrabCut over what looks like them) trains empty space against a random colour per ray; renders composited onto (0.00, 0.00, 0.00)"))
 
 
 def test_training_config_carries_the_schedule_noise_and_precision() -> None:

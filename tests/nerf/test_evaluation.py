@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from nerfpipe.imaging.png import read_png, srgb_encode
-from nerfpipe.nerf.evaluation import evaluate
+from nerfpipe.imaging.png import read_png, srgb_encode, write_png
+from nerfpipe.nerf.evaluation import evaluate, protocol
 from tests.nerf.scenes import loader_of
 
 
@@ -48,4 +48,37 @@ def test_linear_raw_previews_are_srgb_encoded_and_no_views_give_no_score(image_f
     evaluate(HalfBright("linear_raw"), loader, loader.world.frames[2:], tmp_path, 64)
     expected = np.round(srgb_encode(np.array(0.5)) * 255)
     assert (read_png(tmp_path / "b.render.png") == expected).all()
-    assert evaluate(HalfBright(), loader, [], None, 64) == {"psnr": None, "ssim": None, "views": [], "seconds": 0.0}
+    assert evaluate(HalfBright(), loader, [], None, 64) == {"psnr": None, "ssim": None, "views": [], "seconds": 0.0,
+                                                            "protocol": protocol(loader)}
+
+
+def test_the_protocol_says_what_renders_are_compared_with(image_folders) -> None:
+    assert protocol(loader_of(image_folders)) == (
+        "renders composited onto (0.00, 0.00, 1.00) against the photos composited onto it by their alpha")
+    # a constant backdrop with its tolerance recorded: the photos masked as in training, and the photos as taken
+    assert protocol(loader_of(image_folders, background="color", tolerance=0.1)) == (
+        "renders composited onto the backdrop colour (0.00, 0.00, 1.00) against the photos composited onto it by "
+        "their backdrop masks, as alpha captures are (psnr_photo: against the photos as taken)")
+    # no tolerance (an older scene.json), no masks: the photos as taken
+    assert protocol(loader_of(image_folders, background="color")) == "renders against the original photos"
+    assert protocol(loader_of(image_folders, background="none")) == "renders against the original photos"
+
+
+def test_against_a_backdrop_the_masked_photo_is_scored_and_the_photo_as_taken_beside_it(image_folders, tmp_path) -> None:
+    # grey.png becomes a blue backdrop around a red block; its corner pixel is 20/255 off blue (within 0.1): the
+    # mask makes it pure blue in the target, the photo keeps it
+    pixels = np.zeros((8, 12, 3), np.uint8)
+    pixels[..., 2] = 255
+    pixels[0, 0] = (20, 0, 255)
+    pixels[2:6, 3:8] = (255, 0, 0)
+    write_png(image_folders["images"] / "grey.png", pixels)
+    loader = loader_of(image_folders, background="color", tolerance=0.1)
+    result = evaluate(HalfBright(), loader, [loader.world.frames[1]], tmp_path, 64)
+    # against the masked photo every channel is 0 or 1, so 0.5 is off by 0.5 everywhere: 6.02 dB
+    (view,) = result["views"]
+    assert view["psnr"] == pytest.approx(-10 * math.log10(0.25), abs=1e-3)
+    # the photo as taken: the corner's red channel is off by 0.5 - 20/255 instead
+    mse = (95 * 0.25 + ((0.5 - 20 / 255) ** 2 + 0.25 + 0.25) / 3) / 96
+    assert view["psnr_photo"] == pytest.approx(-10 * math.log10(mse), abs=1e-3)
+    assert result["psnr_photo"] == view["psnr_photo"] and result["protocol"] == protocol(loader)
+    assert read_png(tmp_path / "grey.gt.png")[0, 0].tolist() == [0, 0, 255]  # the target written is the masked one

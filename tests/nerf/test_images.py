@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from nerfpipe.geometry.cameras import CameraSet, Frame
+from nerfpipe.imaging.png import write_png
 from nerfpipe.nerf.images import ImageLoader, split_views
 from nerfpipe.pipeline.errors import StageError
 from tests.nerf.scenes import loader_of
@@ -57,6 +58,33 @@ def test_the_pixel_set_holds_every_pixel_with_its_camera_and_bounds(image_folder
     assert pixels.intrinsics.tolist() == [[10.0, 10.0, 6.0, 4.0]] * 2
     assert pixels.near.tolist() == [2.0, 3.0] and pixels.far.tolist() == [6.0, 7.0]
     torch.testing.assert_close(pixels.c2w, torch.eye(4).expand(2, 4, 4))
+
+
+def test_a_constant_backdrop_gives_each_pixel_its_foreground_alpha(image_folders) -> None:
+    # grey.png becomes the blue backdrop (one border pixel 0.08 off it, within the tolerance 0.1) around a
+    # red ring, rows 2-5 and columns 3-7, whose 2x3 inside is blue too: enclosed, but GrabCut gives it to the
+    # backdrop (nerfpipe.imaging.masks.object_mask): a hole through the ring, not a blue part of it
+    pixels = np.zeros((8, 12, 3), np.uint8)
+    pixels[..., 2] = 255
+    pixels[0, 0] = (20, 0, 255)
+    pixels[2:6, 3:8] = (255, 0, 0)
+    pixels[3:5, 4:7] = (0, 0, 255)
+    write_png(image_folders["images"] / "grey.png", pixels)
+    loader = loader_of(image_folders, background="color", tolerance=0.1)
+    grey = loader.world.frames[1]
+    expected = np.zeros((8, 12), bool)
+    expected[2:6, 3:8] = True
+    expected[3:5, 4:7] = False
+    np.testing.assert_array_equal(loader.foreground(grey), expected)
+    np.testing.assert_array_equal(loader.image(grey), pixels / np.float32(255))  # the photo itself, not masked
+    assert loader.alpha(grey) is None and not loader.alpha(loader.world.frames[0]).any()  # a.png: alpha 0.2 < 0.5
+    # a.png is red (its alpha is not used against a colour backdrop): all foreground
+    pixel_set = loader.pixel_set(loader.world.frames[:2])
+    alpha = pixel_set.alpha
+    assert alpha.dtype == torch.float32 and alpha.tolist() == [1.0] * 96 + expected.reshape(-1).astype(float).tolist()
+    # no masks without a constant backdrop, or from a scene.json that did not record its tolerance
+    assert loader_of(image_folders).pixel_set(loader.world.frames).alpha is None
+    assert loader_of(image_folders, background="color").pixel_set(loader.world.frames).alpha is None
 
 
 def test_an_image_of_another_size_than_its_camera_is_an_error(image_folders) -> None:

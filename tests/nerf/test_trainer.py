@@ -118,3 +118,42 @@ def test_a_restart_restores_the_initial_weights_and_grid_at_half_the_learning_ra
     trainer.restart()
     assert all(torch.equal(initial[k], v) for k, v in model.coarse.state_dict().items())
     assert bool(model.occupancy.occupied.all()) and trainer.lr_scale == 0.5 and not trainer.optimizer.state
+
+
+def masked(pixels: PixelSet, alpha: float) -> PixelSet:
+    """``pixels`` with every pixel's backdrop mask ``alpha`` (1 object, 0 backdrop)."""
+    return PixelSet(**{**pixels.__dict__, "alpha": torch.full((len(pixels.rgb),), alpha)})
+
+
+def test_backdrop_pixels_teach_empty_space_against_a_random_colour_per_ray(tmp_path) -> None:
+    config = TrainConfig(steps=10, batch_rays=1024, batch_samples=0, lr=1e-3, lr_final=1e-4)
+    empty = marching_model()
+    empty.occupancy.occupied.zero_()  # nothing to hit: every ray shows the colour it is composited onto
+
+    def loss_of(pixels: PixelSet, step: int = 1) -> float:
+        return Trainer(empty, pixels, config, tmp_path, torch.device("cpu")).train_step(step)[0]
+
+    # backdrop pixels (alpha 0): the render is the ray's random colour, the target too: loss 0
+    assert loss_of(masked(pixels_of_one_view(), 0.0)) == 0.0
+    # object pixels (alpha 1, grey 0.5): E[(U - 0.5)^2] = 1/12 for U ~ U[0, 1]; 1024 rays x 3 channels put the
+    # mean within 0.005 of it
+    loss = loss_of(masked(pixels_of_one_view(), 1.0))
+    assert loss == pytest.approx(1 / 12, abs=0.005)
+    # the colours are a function of (seed, step), as the batches are: resuming redraws them
+    assert loss_of(masked(pixels_of_one_view(), 1.0)) == loss and loss_of(masked(pixels_of_one_view(), 1.0), 2) != loss
+    # without masks the render is composited onto the model's background (white): (1 - 0.5)^2 = 0.25 exactly
+    assert loss_of(pixels_of_one_view()) == pytest.approx(0.25)
+
+
+def test_the_random_backdrop_reaches_both_passes_of_section_5_2_sampling(tmp_path) -> None:
+    torch.manual_seed(0)
+    field = NerfField(FieldConfig(depth=2, width=16, skips=(), view_width=8, pos_freqs=2, dir_freqs=0,
+                                  density_activation="softplus"))
+    with torch.no_grad():  # softplus(-100) ~ 4e-44: an empty field
+        field.density.weight.zero_()
+        field.density.bias.fill_(-100.0)
+    model = RadianceModel(field, None, SamplingConfig(8, 8), RaySpace(box=BOX), (1.0, 1.0, 1.0), {})
+    config = TrainConfig(steps=10, batch_rays=256, lr=1e-3, lr_final=1e-4)
+    trainer = Trainer(model, masked(pixels_of_one_view(8), 0.0), config, tmp_path, torch.device("cpu"))
+    loss, _ = trainer.train_step(1)
+    assert loss == pytest.approx(0.0, abs=1e-12)  # coarse + fine, each rendering the ray's own colour

@@ -54,8 +54,15 @@ def test_world_is_the_pinhole_set_moved_by_to_world(tmp_path):
     assert bounds["scale"] == pytest.approx(to_world.scale)
     # world z is the SfM up direction
     np.testing.assert_allclose(to_world.rotation @ np.array(bounds["up"]), [0, 0, 1], atol=1e-9)
+    # the points' robust box fills [-1, 1]^3 along its longest axis; the scene box is it grown by 10 % of its
+    # extent on every side, and no margin gives the robust box itself
     lo, hi = np.array(bounds["scene_box"])
-    assert np.all(lo >= -1 - 1e-9) and np.all(hi <= 1 + 1e-9) and max(hi.max(), -lo.min()) == pytest.approx(1.0)
+    _, tight = run_bounds(sfm, tmp_path, box_margin=0.0)
+    tight_lo, tight_hi = np.array(tight["scene_box"])
+    assert np.all(tight_lo >= -1 - 1e-9) and np.all(tight_hi <= 1 + 1e-9)
+    assert max(tight_hi.max(), -tight_lo.min()) == pytest.approx(1.0)
+    np.testing.assert_allclose(lo, tight_lo - 0.1 * (tight_hi - tight_lo), atol=1e-9)
+    np.testing.assert_allclose(hi, tight_hi + 0.1 * (tight_hi - tight_lo), atol=1e-9)
 
 
 def test_point_bounds_hold_every_point_each_image_sees(tmp_path):

@@ -168,8 +168,8 @@ def box_in_sfm_frame(bounds) -> np.ndarray:
 @pytest.mark.slow
 def test_temple_par_file_gets_triangulated_points_and_its_tight_box(tmp_path):
     """The Middlebury temple comes with poses and no points: triangulated with the poses fixed, the points give
-    the bounds stage a scene box within 1.5 cm (10 % of the temple's 16 cm height) of the published tight box,
-    where the rig guess made a 57 cm cube."""
+    the bounds stage a scene box that holds the published tight box with at most 2.5 cm to spare (16 % of the
+    temple's 16 cm height), where the rig guess made a 57 cm cube."""
     from nerfpipe.artifacts import Bounds
 
     outcomes = to_bounds(TEMPLE, tmp_path / "run")
@@ -192,7 +192,10 @@ def test_temple_par_file_gets_triangulated_points_and_its_tight_box(tmp_path):
     assert bounds.method == "points" and all(f.method == "points" for f in bounds.frames)
     box = box_in_sfm_frame(bounds)
     print(f"temple: triangulated scene box {box.round(4).tolist()} vs the tight box {TEMPLE_BOX.tolist()}")
-    assert np.abs(box - TEMPLE_BOX).max() < 0.015
+    # the points' box grown by 10 % of its extent a side (bounds.box_margin) holds the whole temple, with at most
+    # 2.5 cm to spare on any side; the points' own box is within 1.5 cm of the tight box, but cuts 1 cm off its top
+    assert np.all(box[0] <= TEMPLE_BOX[0]) and np.all(box[1] >= TEMPLE_BOX[1])
+    assert np.abs(box - TEMPLE_BOX).max() < 0.025
 
     # the same parameters again: nothing reruns; sfm.triangulate=false is a new key and today's rig guess
     assert [o.action for o in to_bounds(TEMPLE, tmp_path / "run")] == ["cached"] * 4
