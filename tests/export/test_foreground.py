@@ -81,10 +81,12 @@ def test_training_views_take_the_backdrop_mask_else_the_alpha_channel(tmp_path) 
 
 
 # -- the bundled temple: a white temple on black cloth -------------------------------------------------
-# a short training (the draft preset's one 64^3 grid, 300 steps of 8192 samples) on 160x120 images
+# a short training (the draft preset's one 64^3 grid, 800 steps of 8192 samples) on 320x240 images. At 160x120
+# the silhouette pixels, whose depth mixes the temple and what lies behind it, are twice as large a share of the
+# points, and 89-97 % of the points land on the temple depending on the steps; at 320x240 99.9 %, as at full size
 TEMPLE_SHORT = {
-    "ingest": {"max_size": 160},
-    "train": {"steps": 300, "batch_samples": 8192, "batch_rays": 1024, "checkpoint_every": 1000},
+    "ingest": {"max_size": 320},
+    "train": {"steps": 800, "batch_samples": 8192, "batch_rays": 1024, "checkpoint_every": 1000},
     "export_mesh": {"resolution": 128},
 }
 
