@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nerfpipe.export.screenshot import ViewCamera
 from nerfpipe.imaging.masks import dilate
 from nerfpipe.nerf.images import ImageLoader
 
@@ -40,14 +41,10 @@ class ForegroundShare:
 
 
 def project(points: np.ndarray, K: np.ndarray, c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(M, 2) pixel coordinates (u, v) = (fx x / z + cx, fy y / z + cy) of points (M, 3) in a camera's frame,
-    and (M,) bool: in front of the camera (z > 0)."""
-    w2c = np.linalg.inv(np.asarray(c2w, dtype=np.float64))
-    cam = points @ w2c[:3, :3].T + w2c[:3, 3]
-    front = cam[:, 2] > 1e-9
-    z = np.where(front, cam[:, 2], 1.0)
-    uv = np.stack([K[0, 0] * cam[:, 0] / z + K[0, 2], K[1, 1] * cam[:, 1] / z + K[1, 2]], axis=-1)
-    return uv, front
+    """(M, 2) pixel coordinates (u, v) = (fx x / z + cx, fy y / z + cy) of points (M, 3) in a camera's frame
+    (``ViewCamera.project``), and (M,) bool: in front of the camera (z > 0)."""
+    uv, depth = ViewCamera((K[0, 0], K[1, 1], K[0, 2], K[1, 2]), c2w, 1, 1).project(points)
+    return uv, depth > 1e-9
 
 
 def foreground_share(points: np.ndarray, views: Sequence[MaskedView], dilation: int = 3,

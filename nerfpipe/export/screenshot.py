@@ -252,6 +252,14 @@ def auto_view(
     elevation = float(np.clip(elevation, -math.radians(70), math.radians(70)))
     direction = math.cos(elevation) * horizontal / np.linalg.norm(horizontal) + math.sin(elevation) * up
 
+    return _framing(target, radius, direction, up, width, height)
+
+
+def _framing(target: np.ndarray, radius: float, direction: np.ndarray, up: np.ndarray, width: int,
+             height: int) -> ViewCamera:
+    """A ``FOV_Y_DEG`` camera on ``target + distance * direction`` (direction: a unit (3,)) looking at ``target``
+    with image-up along ``up``, where the sphere of ``radius`` around ``target`` fits both fields of view with
+    a 5% margin."""
     fy = (height / 2) / math.tan(math.radians(FOV_Y_DEG) / 2)
     half_fov = min(math.radians(FOV_Y_DEG) / 2, math.atan((width / 2) / fy))
     distance = 1.05 * radius / math.sin(half_fov)  # the cone of half-angle half_fov touches the sphere
@@ -275,12 +283,7 @@ def photo_view(bounds_min: np.ndarray, bounds_max: np.ndarray, camera: ViewCamer
     direction = camera.center - target
     if np.linalg.norm(direction) <= 1e-9 * radius:  # the camera sits at the centre: look along its own axis
         direction = -camera.c2w[:3, 2]
-    direction = direction / np.linalg.norm(direction)
-    fy = (height / 2) / math.tan(math.radians(FOV_Y_DEG) / 2)
-    half_fov = min(math.radians(FOV_Y_DEG) / 2, math.atan((width / 2) / fy))
-    distance = 1.05 * radius / math.sin(half_fov)
-    c2w = _look_at(target + distance * direction, target, -camera.c2w[:3, 1])
-    return ViewCamera((fy, fy, width / 2, height / 2), c2w, width, height)
+    return _framing(target, radius, direction / np.linalg.norm(direction), -camera.c2w[:3, 1], width, height)
 
 
 # -- rendering ----------------------------------------------------------------------------------------
