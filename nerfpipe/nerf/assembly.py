@@ -18,10 +18,12 @@ import torch
 
 from nerfpipe.artifacts import Bounds, SceneDecisions
 from nerfpipe.geometry.cameras import CameraSet, mean_camera
+from nerfpipe.nerf.appearance import ExposureGains
 from nerfpipe.nerf.field import FieldConfig, NerfField
 from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
 from nerfpipe.nerf.model import Field, RadianceModel, RaySpace
 from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
+from nerfpipe.nerf.refinement import PoseRefinement
 from nerfpipe.nerf.renderer import SamplingConfig
 from nerfpipe.nerf.trainer import TrainConfig
 
@@ -77,6 +79,12 @@ class TrainSettings(Protocol):
     seed: int
     autocast: str
     tf32: bool
+    # per training image
+    appearance: str
+    refine_poses: str
+    appearance_lr: float
+    pose_lr: float
+    pose_penalty: float
 
 
 def contracts(params: TrainSettings, scene: SceneDecisions) -> bool:
@@ -116,6 +124,7 @@ def training_config(params: TrainSettings, layout: str) -> TrainConfig:
         adam_eps=params.adam_eps, adam_beta2=params.adam_beta2, batch_samples=params.batch_samples,
         density_noise=density_noise(params, layout), seed=params.seed, checkpoint_every=params.checkpoint_every,
         keep_checkpoints=params.keep_checkpoints, autocast=params.autocast, tf32=params.tf32,
+        appearance_lr=params.appearance_lr, pose_lr=params.pose_lr, pose_penalty=params.pose_penalty,
     )
 
 
@@ -215,9 +224,37 @@ def build_background(scene: SceneDecisions) -> tuple[tuple[float, ...] | None, s
     return None, "no background model: the background is part of the scene (composited onto black)"
 
 
+def models_appearance(params: TrainSettings, scene: SceneDecisions) -> tuple[bool, str]:
+    """Whether each photo's exposure and white balance is learned (``nerfpipe.nerf.appearance``): by default
+    when the scene analysis found the exposure varying (EXIF, else the brightness of the same points)."""
+    varies = bool(scene.exposure_varies.value)
+    if params.appearance != "auto":
+        on = params.appearance == "on"
+        return on, f"per-image exposure and white balance {'learned' if on else 'not modelled'} (train.appearance={params.appearance})"
+    if varies:
+        return True, "exposure varies across the photos: each photo's exposure and white balance is learned " \
+                     "(3 gains on linear light); renders show the photos' mean exposure"
+    return False, "exposure constant across the photos: no per-image appearance"
+
+
+def refines_poses(params: TrainSettings, scene: SceneDecisions) -> tuple[bool, str]:
+    """Whether the training cameras' poses are refined with the field (``nerfpipe.nerf.refinement``): by
+    default for photos, whose poses (SfM, a phone, a calibration) are a little wrong; not for rendered
+    captures (photos with alpha), whose poses are exact by construction."""
+    if params.refine_poses != "auto":
+        on = params.refine_poses == "on"
+        return on, f"camera poses {'refined' if on else 'kept as given'} (train.refine_poses={params.refine_poses})"
+    if scene.background.value == "alpha":
+        return False, "rendered capture (photos with alpha): its camera poses are exact and kept as given"
+    return True, "photos: each training camera's pose is refined with the field (rotation and translation, centred)"
+
+
 def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, bounds: Bounds,
-                device: torch.device) -> tuple[RadianceModel, list[str]]:
-    """The fields, sampling, ray space and background this scene calls for, and a sentence per choice."""
+                device: torch.device, train_names: list[str] | None = None) -> tuple[RadianceModel, list[str]]:
+    """The fields, sampling, ray space and background this scene calls for, and a sentence per choice.
+    With ``train_names``, the training images in order, also their exposure gains (starting from the
+    exposures the scene measured) and pose corrections where the scene calls for them
+    (``models_appearance``, ``refines_poses``)."""
     torch.manual_seed(params.seed)
     layout = scene.layout.value
     ray_space, ray_said = build_ray_space(params, scene, world, bounds)
@@ -232,7 +269,17 @@ def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, 
         "linear RAW: trained on linear values; previews are sRGB-encoded" if scene.photometric.value == "linear_raw" else None,
         f"noise of std {noise:g} on raw density while training" if noise else None,
     ]
+    appearance = refinement = None
+    if train_names:
+        (with_appearance, appearance_said), (with_refinement, refinement_said) = \
+            models_appearance(params, scene), refines_poses(params, scene)
+        decisions += [appearance_said, refinement_said]
+        linear = scene.photometric.value == "linear_raw"
+        known = scene.exposure_varies.measured.get("stops") or {}
+        stops = [known.get(name, 0.0) for name in train_names] if known else None
+        appearance = ExposureGains(len(train_names), linear, stops).to(device) if with_appearance else None
+        refinement = PoseRefinement(len(train_names)).to(device) if with_refinement else None
     sampling = SamplingConfig(params.n_coarse, params.n_fine if params.hierarchical else 0, lindisp(params, layout))
     info = {"layout": layout, "photometric": scene.photometric.value, "to_sfm": bounds.to_sfm}
-    model = RadianceModel(coarse, fine, sampling, ray_space, background, info, occupancy, marching)
+    model = RadianceModel(coarse, fine, sampling, ray_space, background, info, occupancy, marching, appearance, refinement)
     return model, [d for d in decisions if d is not None]

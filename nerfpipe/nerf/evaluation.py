@@ -13,21 +13,46 @@ import torch
 from nerfpipe.artifacts import view_file_stem
 from nerfpipe.geometry.cameras import Frame
 from nerfpipe.imaging.png import srgb_encode, write_png
+from nerfpipe.nerf.appearance import apply_gains, fit_gains
 from nerfpipe.nerf.images import ImageLoader
 from nerfpipe.nerf.model import RadianceModel
 
 
-def protocol(loader: ImageLoader) -> str:
+APPEARANCE_PROTOCOL = ("each held-out photo's exposure and white balance (3 gains) fitted on its left half, PSNR and "
+                       "SSIM on its right half, as NeRF-W does (psnr_mean_appearance: the whole view at the training "
+                       "photos' mean exposure)")
+
+
+def protocol(loader: ImageLoader, appearance: bool = False) -> str:
     """What held-out renders are compared with, in a sentence (metrics.json's ``protocol``); the renders are
-    composited onto the scene's background colour (``nerfpipe.nerf.assembly.build_background``)."""
+    composited onto the scene's background colour (``nerfpipe.nerf.assembly.build_background``). With
+    ``appearance`` (a model that learned each photo's exposure), how a held-out photo's exposure is found."""
     color = loader.scene.background_color.value
     shown = ", ".join(f"{c:.2f}" for c in color) if color is not None else ""
     if loader.use_alpha and shown:
-        return f"renders composited onto ({shown}) against the photos composited onto it by their alpha"
-    if loader.backdrop is not None:
-        return (f"renders composited onto the backdrop colour ({shown}) against the photos composited onto it by "
+        said = f"renders composited onto ({shown}) against the photos composited onto it by their alpha"
+    elif loader.backdrop is not None:
+        said = (f"renders composited onto the backdrop colour ({shown}) against the photos composited onto it by "
                 "their backdrop masks, as alpha captures are (psnr_photo: against the photos as taken)")
-    return "renders against the original photos"
+    else:
+        said = "renders against the original photos"
+    return f"{said}; {APPEARANCE_PROTOCOL}" if appearance else said
+
+
+def fit_left_score_right(render: torch.Tensor, acc: torch.Tensor, background: torch.Tensor | None, gt: np.ndarray,
+                         linear: bool) -> tuple[torch.Tensor, slice]:
+    """A held-out view's render (H, W, 3), composited with opacity ``acc`` (H, W) onto ``background`` (3,)
+    or None, under the exposure and white balance fitted on the left half of its photo ``gt``
+    (``nerfpipe.nerf.appearance.fit_gains``; the background, a stand-in colour, is not exposed, as in
+    training), and the columns to score it on: the right half."""
+    over = torch.zeros(3) if background is None else background.cpu().float()
+    behind = (1.0 - acc).clamp_min(0.0).unsqueeze(-1) * over  # (H, W, 3)
+    light = render - behind
+    half = render.shape[1] // 2
+    target = torch.from_numpy(np.ascontiguousarray(gt[:, :half], dtype=np.float32)) - behind[:, :half]
+    gains = fit_gains(light[:, :half].reshape(-1, 3), target.reshape(-1, 3), linear)
+    exposed = apply_gains(light.reshape(-1, 3), gains, linear).reshape(render.shape) + behind
+    return exposed.clamp(0.0, 1.0), slice(half, None)
 
 
 def _metrics(render: torch.Tensor, target: np.ndarray) -> tuple[float, float]:
@@ -39,11 +64,13 @@ def _metrics(render: torch.Tensor, target: np.ndarray) -> tuple[float, float]:
 
 
 def evaluate(model: RadianceModel, loader: ImageLoader, frames: list[Frame], folder: Path | None, chunk: int,
-             advance: Callable[..., None] | None = None) -> dict[str, Any]:
+             advance: Callable[..., None] | None = None, fit_appearance: bool | None = None) -> dict[str, Any]:
     """Render each view of ``frames``; PSNR and SSIM (kornia.metrics, 11x11 Gaussian window) against its image,
     averaged over views as the paper does. Against a constant backdrop the image is the photo composited onto
     the backdrop colour by its mask (``ImageLoader.foreground``), what the model is trained to render; each
-    view's ``psnr_photo`` and the mean ``psnr_photo`` compare with the photo as taken.
+    view's ``psnr_photo`` and the mean ``psnr_photo`` compare with the photo as taken. A model that learned each
+    training photo's exposure (``model.appearance``) is scored as NeRF-W is (``fit_left_score_right``), with
+    ``psnr_mean_appearance`` beside; ``fit_appearance`` scores any model so (True) or none (False).
 
     With a ``folder``, writes ``<view>.render.png`` beside ``<view>.gt.png`` (sRGB-encoded when the model
     trained on linear RAW values). ``advance(1, info=...)`` is called after each view (a progress bar's).
@@ -55,6 +82,7 @@ def evaluate(model: RadianceModel, loader: ImageLoader, frames: list[Frame], fol
     started = time.perf_counter()
     linear = model.info.get("photometric") == "linear_raw"
     views = []
+    fitted = model.appearance is not None if fit_appearance is None else fit_appearance
     for frame in frames:
         photo = loader.image(frame)
         mask = loader.foreground(frame, photo)
@@ -63,10 +91,15 @@ def evaluate(model: RadianceModel, loader: ImageLoader, frames: list[Frame], fol
         near, far = loader.near_far[frame.name]
         out = model.render_image(loader.intrinsics(frame), frame.c2w, camera.width, camera.height, near, far, chunk)
         render = out["rgb"].clamp(0.0, 1.0)
-        psnr, ssim = _metrics(render, gt)
-        view = {"name": frame.name, "psnr": round(psnr, 4), "ssim": round(ssim, 5)}
+        view = {"name": frame.name}
+        scored = slice(None)
+        if fitted:
+            view["psnr_mean_appearance"] = round(_metrics(render, gt)[0], 4)
+            render, scored = fit_left_score_right(render, out["acc"], model.background_tensor(), gt, linear)
+        psnr, ssim = _metrics(render[:, scored], gt[:, scored])
+        view.update(psnr=round(psnr, 4), ssim=round(ssim, 5))
         if mask is not None:
-            view["psnr_photo"] = round(_metrics(render, photo)[0], 4)
+            view["psnr_photo"] = round(_metrics(render[:, scored], photo[:, scored])[0], 4)
         if folder is not None:
             stem = view_file_stem(frame.name)
             for suffix, pixels in (("render", render.numpy()), ("gt", gt)):
@@ -76,14 +109,15 @@ def evaluate(model: RadianceModel, loader: ImageLoader, frames: list[Frame], fol
         if advance is not None:
             advance(1, info=f"{frame.name}: {psnr:.2f} dB")
     if not views:
-        return {"psnr": None, "ssim": None, "views": [], "seconds": 0.0, "protocol": protocol(loader)}
+        return {"psnr": None, "ssim": None, "views": [], "seconds": 0.0, "protocol": protocol(loader, fitted)}
     result = {
         "psnr": round(float(np.mean([v["psnr"] for v in views])), 4),
         "ssim": round(float(np.mean([v["ssim"] for v in views])), 5),
         "views": views,
         "seconds": round(time.perf_counter() - started, 2),
-        "protocol": protocol(loader),
+        "protocol": protocol(loader, fitted),
     }
-    if "psnr_photo" in views[0]:
-        result["psnr_photo"] = round(float(np.mean([v["psnr_photo"] for v in views])), 4)
+    for key in ("psnr_photo", "psnr_mean_appearance"):
+        if key in views[0]:
+            result[key] = round(float(np.mean([v[key] for v in views])), 4)
     return result

@@ -17,6 +17,7 @@ from nerfpipe.artifacts import Bounds, SceneDecisions, frame_image_path
 from nerfpipe.geometry.cameras import CameraSet, Frame
 from nerfpipe.imaging.masks import object_mask
 from nerfpipe.imaging.png import read_png
+from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.rays import pixel_centers
 from nerfpipe.nerf.trainer import PixelSet
 from nerfpipe.pipeline.errors import StageError
@@ -155,3 +156,41 @@ def describe_masks(pixels: PixelSet) -> str | None:
         return None
     backdrop = 100.0 * (1.0 - float(pixels.alpha.float().mean()))
     return f"backdrop masks: {backdrop:.1f}% of the training pixels are backdrop, trained as empty space"
+
+
+def trained_cameras(model: RadianceModel, world: CameraSet, train: list[Frame]) -> tuple[CameraSet, dict]:
+    """``world`` with the training frames' refined poses (``model.refinement``; held-out frames as given),
+    each training frame's correction and exposure in ``extra["per_image"]``; and a summary for metrics.json:
+    ``pose_refinement`` (how far the cameras moved) and ``appearance`` (the spread of the photos' exposures),
+    each present when the model learned it."""
+    per_image: dict[str, dict] = {f.name: {} for f in train}
+    summary: dict[str, dict] = {}
+    frames = list(world.frames)
+    if model.refinement is not None:
+        base = torch.tensor(np.array([f.c2w for f in train]), dtype=torch.float32, device=model.device)
+        with torch.no_grad():
+            refined = model.refinement(base).double().cpu().numpy()
+        rotation, translation = (t.cpu().numpy() for t in model.refinement.moved())
+        distance = float(np.median(np.linalg.norm(world.centers(), axis=1))) or 1.0
+        by_name = {f.name: pose for f, pose in zip(train, refined)}
+        frames = [Frame(f.name, f.camera_id, by_name[f.name], f.split) if f.name in by_name else f for f in frames]
+        for f, r, t in zip(train, rotation, translation):
+            per_image[f.name].update(rotation_deg=round(float(r), 4), translation=round(float(t), 5))
+        largest = int(np.argmax(rotation))
+        summary["pose_refinement"] = {
+            "cameras": len(train), "median_rotation_deg": round(float(np.median(rotation)), 4),
+            "max_rotation_deg": round(float(rotation.max()), 4), "largest": train[largest].name,
+            "median_translation": round(float(np.median(translation)), 5),
+            "max_translation": round(float(translation.max()), 5),
+            "median_translation_share": round(float(np.median(translation)) / distance, 5),
+        }
+    if model.appearance is not None:
+        stops = model.appearance.stops().cpu().numpy()
+        for f, s in zip(train, stops):
+            per_image[f.name]["exposure_stops"] = [round(float(v), 4) for v in s]
+        mean = stops.mean(axis=1)
+        summary["appearance"] = {"images": len(train), "spread_stops": round(float(mean.max() - mean.min()), 4),
+                                 "darkest": train[int(np.argmin(mean))].name, "brightest": train[int(np.argmax(mean))].name}
+    extra = {**world.extra, "per_image": {k: v for k, v in per_image.items() if v}}
+    cameras = CameraSet(world.cameras, frames, None, world.source, world.unregistered, extra)
+    return cameras, summary

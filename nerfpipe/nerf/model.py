@@ -14,11 +14,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from nerfpipe.nerf.appearance import ExposureGains
 from nerfpipe.nerf.contraction import BOUND, Contraction
 from nerfpipe.nerf.field import FieldConfig, NerfField
 from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
 from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid, render_marched_segments
 from nerfpipe.nerf.rays import camera_rays, intersect_box, ndc_points, ndc_points_inverse, ndc_rays, pixel_centers
+from nerfpipe.nerf.refinement import PoseRefinement
 from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
 
 
@@ -136,6 +138,10 @@ class RadianceModel:
     With an ``occupancy`` grid (and its ``marching`` settings), rays march through the grid's occupied
     cells (``nerfpipe.nerf.occupancy``) and ``coarse`` is the only field; otherwise they are sampled as in
     Section 5.2 (``sampling``: N_c stratified, N_f hierarchical).
+
+    Learned per training image when the scene calls for them (``nerfpipe.nerf.assembly``): ``appearance``,
+    each photo's exposure and white balance (renders show the training photos' mean appearance), and
+    ``refinement``, each camera's pose correction.
     """
 
     coarse: Field
@@ -146,6 +152,8 @@ class RadianceModel:
     info: dict[str, Any] = field(default_factory=dict)
     occupancy: OccupancyGrid | None = None
     marching: MarchingConfig | None = None
+    appearance: ExposureGains | None = None
+    refinement: PoseRefinement | None = None
 
     @property
     def field_kind(self) -> str:
@@ -237,6 +245,9 @@ class RadianceModel:
             weights["fine"] = self.fine.state_dict()
         if self.occupancy is not None:
             weights["occupancy"] = self.occupancy.state_dict()
+        for name in ("appearance", "refinement"):
+            if getattr(self, name) is not None:
+                weights[name] = getattr(self, name).state_dict()
         return weights
 
     def load_state(self, weights: dict[str, Any]) -> None:
@@ -245,6 +256,9 @@ class RadianceModel:
             self.fine.load_state_dict(weights["fine"])
         if self.occupancy is not None:
             self.occupancy.load_state_dict(weights["occupancy"])
+        for name in ("appearance", "refinement"):
+            if getattr(self, name) is not None:
+                getattr(self, name).load_state_dict(weights[name])
 
     def save(self, folder: Path) -> None:
         torch.save(self.state(), folder / "model.pt")
@@ -260,6 +274,9 @@ class RadianceModel:
             "sampling": asdict(self.sampling),
             "ray_space": asdict(self.ray_space),
             "background": None if self.background is None else list(self.background),
+            "appearance": None if self.appearance is None else {
+                "images": len(self.appearance.log2_gains), "linear": self.appearance.linear},
+            "refinement": None if self.refinement is None else {"images": len(self.refinement.tangent)},
             "info": self.info,
         }
         (folder / "model.json").write_text(json.dumps(doc, indent=1))
@@ -291,8 +308,11 @@ class RadianceModel:
             contraction=None if rs.get("contraction") is None else (tuple(rs["contraction"][0]), tuple(rs["contraction"][1])),
         )
         background = None if doc["background"] is None else tuple(doc["background"])
+        appearance = None if not doc.get("appearance") else \
+            ExposureGains(doc["appearance"]["images"], doc["appearance"]["linear"]).to(device)
+        refinement = None if not doc.get("refinement") else PoseRefinement(doc["refinement"]["images"]).to(device)
         model = RadianceModel(coarse, fine, SamplingConfig(**doc["sampling"]), ray_space, background, doc.get("info", {}),
-                              occupancy, marching)
+                              occupancy, marching, appearance, refinement)
         model.load_state(weights)
         return model
 

@@ -40,6 +40,10 @@ class TrainConfig:
     log_every: int = 25
     autocast: str = "none"  # "none", "bf16", "fp16"
     tf32: bool = False  # CUDA: TF32 matmuls (see ``set_precision``)
+    appearance_lr: float = 1e-2  # the per-image exposure gains' learning rate (decays as ``lr`` does)
+    pose_lr: float = 3e-3  # the camera corrections' learning rate (decays as ``lr`` does)
+    pose_penalty: float = 1e-3  # weight of the corrections' mean squared size in the loss
+    pose_warmup: float = 0.1  # the cameras stay put for this share of the steps, then their rate ramps up over as many
 
 
 @dataclass
@@ -74,6 +78,21 @@ def mse_to_psnr(mse: float) -> float:
 def learning_rate(config: TrainConfig, step: int) -> float:
     """lr * (lr_final / lr)^(step / steps): exponential decay from lr to lr_final (Section 5.3)."""
     return config.lr * (config.lr_final / config.lr) ** (min(step, config.steps) / max(config.steps, 1))
+
+
+def parameter_groups(model: RadianceModel, config: TrainConfig) -> list[dict]:
+    """Adam's parameter groups: the fields at ``lr``; the per-image exposure gains at ``appearance_lr`` and
+    camera corrections at ``pose_lr``, when the model has them. Each group's ``base_lr`` decays as ``lr`` does;
+    a group with a ``warmup`` of w steps learns nothing before step w and ramps up linearly until step 2 w."""
+    groups = [{"params": [p for f in model.fields() for p in f.parameters()], "base_lr": config.lr, "warmup": 0}]
+    if model.appearance is not None:
+        groups.append({"params": list(model.appearance.parameters()), "base_lr": config.appearance_lr, "warmup": 0})
+    if model.refinement is not None:  # a field that shows nothing yet would move the cameras anywhere
+        groups.append({"params": list(model.refinement.parameters()), "base_lr": config.pose_lr,
+                       "warmup": int(config.pose_warmup * config.steps)})
+    for group in groups:
+        group["lr"] = group["base_lr"]
+    return groups
 
 
 def checkpoints(folder: Path) -> list[Path]:
@@ -169,10 +188,10 @@ class Trainer:
     def __init__(self, model: RadianceModel, pixels: PixelSet, config: TrainConfig, out: Path, device: torch.device) -> None:
         set_precision(config, device)
         self.model, self.pixels, self.config, self.out, self.device = model, pixels.to(device), config, out, device
-        params = [p for f in model.fields() for p in f.parameters()]
+        groups = parameter_groups(model, config)
         # fused Adam: one pass over each tensor, which matters for grids of millions of values on a CPU
-        fused = device.type in ("cpu", "cuda") and all(p.dtype == torch.float32 for p in params)
-        self.optimizer = torch.optim.Adam(params, lr=config.lr, betas=(0.9, config.adam_beta2), eps=config.adam_eps,
+        fused = device.type in ("cpu", "cuda") and all(p.dtype == torch.float32 for g in groups for p in g["params"])
+        self.optimizer = torch.optim.Adam(groups, lr=config.lr, betas=(0.9, config.adam_beta2), eps=config.adam_eps,
                                           fused=fused)
         self.scaler = torch.amp.GradScaler(device.type, enabled=config.autocast == "fp16")
         self.step = 0
@@ -244,9 +263,13 @@ class Trainer:
         px = self.pixels
         index, generator = self.batch(step)
         image = px.image[index]
-        rays = self.model.ray_space.rays(px.uv[index], px.intrinsics[image], px.c2w[image], px.near[image], px.far[image])
+        model = self.model
+        c2w = px.c2w if model.refinement is None else model.refinement(px.c2w)  # (I, 4, 4)
+        rays = model.ray_space.rays(px.uv[index], px.intrinsics[image], c2w[image], px.near[image], px.far[image])
         target, backdrop = self.backdrop_targets(index, px.rgb[index], generator)
-        background = self.background if backdrop is None else None  # per ray colours: composited below
+        if backdrop is None:
+            backdrop = self.background
+        background = None  # the renders are composited onto it below, after the photos' exposure
         noise = self.config.density_noise
 
         def field(fn: Field) -> Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]:
@@ -255,9 +278,11 @@ class Trainer:
 
         if noise > 0:  # the noise, too, is a function of (seed, step): resuming does not change it
             torch.manual_seed(self.config.seed * 1_000_003 + step)
+        decay = learning_rate(self.config, step) / self.config.lr * self.lr_scale
         for group in self.optimizer.param_groups:
-            group["lr"] = learning_rate(self.config, step) * self.lr_scale
-        model = self.model
+            warmup = group.get("warmup", 0)
+            ramp = 1.0 if not warmup else min(max((step - warmup) / warmup, 0.0), 1.0)
+            group["lr"] = group["base_lr"] * decay * ramp
         with _autocast(self.device, self.config.autocast):
             if model.occupancy is not None:
                 self.update_occupancy(step, generator)
@@ -280,12 +305,19 @@ class Trainer:
                                   rays, model.sampling, background, randomized=True, generator=generator)
                 self.samples = self.samples_per_step(len(index))
                 self.rays = len(index)
-        if backdrop is not None:  # "over" onto each ray's colour, as composite() does onto one (Eq. 3 + background)
-            for c in out.values():
-                c.rgb = c.rgb + (1.0 - c.acc).clamp_min(0.0).unsqueeze(-1) * backdrop[:self.rays]
+        if backdrop is not None and backdrop.dim() == 2:
+            backdrop = backdrop[:self.rays]
+        for c in out.values():
+            if model.appearance is not None:  # as the photo's camera recorded the light (nerfpipe.nerf.appearance)
+                c.rgb = model.appearance(c.rgb, image[:self.rays])
+            if backdrop is not None:  # "over" onto the background, as composite() does (Eq. 3 + background): a
+                # backdrop whose colour is a stand-in (alpha, a masked cloth) is not exposed by the camera
+                c.rgb = c.rgb + (1.0 - c.acc).clamp_min(0.0).unsqueeze(-1) * backdrop
         # Eq. 6: squared error of the coarse and the fine rendering (a mean rather than a sum over the batch)
         losses = {name: torch.mean((c.rgb - target) ** 2) for name, c in out.items()}
         loss = sum(losses.values())
+        if model.refinement is not None:
+            loss = loss + self.config.pose_penalty * model.refinement.penalty()
         self.optimizer.zero_grad(set_to_none=True)
         self.scaler.scale(loss).backward()
         self.scaler.step(self.optimizer)

@@ -87,3 +87,34 @@ def plot_training(path: Path, records: list[dict[str, Any]]) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+def plot_per_image(path: Path, per_image: dict[str, dict[str, Any]]) -> None:
+    """Per training photo, in order: how far its camera moved (degrees, and the centre's move in world units)
+    and its learned exposure (stops per channel), from ``extra["per_image"]`` of the train stage's cameras;
+    a panel for each of the two that the photos have."""
+    plt = _pyplot()
+    names = list(per_image)
+    moved = [n for n in names if "rotation_deg" in per_image[n]]
+    exposed = [n for n in names if "exposure_stops" in per_image[n]]
+    panels = [p for p in (("moved", moved), ("exposure", exposed)) if p[1]]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(10, 2.6 * len(panels)), dpi=100, squeeze=False)
+    for ax, (kind, keys) in zip(axes[:, 0], panels):
+        x = np.arange(len(keys))
+        if kind == "moved":
+            ax.bar(x, [per_image[n]["rotation_deg"] for n in keys], color="tab:red")
+            ax.set_ylabel("camera turned (deg)")
+            twin = ax.twinx()
+            twin.plot(x, [per_image[n]["translation"] for n in keys], "k.", markersize=3)
+            twin.set_ylabel("centre moved (world units)")
+        else:
+            stops = np.array([per_image[n]["exposure_stops"] for n in keys])
+            for channel, color in enumerate(("tab:red", "tab:green", "tab:blue")):
+                ax.plot(x, stops[:, channel], ".", color=color, markersize=4)
+            ax.axhline(0.0, color="grey", linewidth=0.5)
+            ax.set_ylabel("exposure (stops, R G B)")
+        ax.set_xlabel("training photo (in order)")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

@@ -16,7 +16,7 @@ import numpy as np
 from nerfpipe.artifacts import ImageIndex, SceneDecisions, view_file_stem
 from nerfpipe.imaging.png import write_png
 from nerfpipe.report.data import RunData
-from nerfpipe.report.images import plot_cameras, plot_training, thumbnail
+from nerfpipe.report.images import plot_cameras, plot_per_image, plot_training, thumbnail
 from nerfpipe.report.markup import figure, grid, paragraphs, section, table
 
 MAX_THUMBS = 48
@@ -78,6 +78,12 @@ def training(run: RunData) -> str | None:
     if records:
         plot_training(run.img / "training.png", records)
         body += figure("img/training.png", "training loss and PSNR against wall time")
+    cameras = run.results["train"].path / "cameras" / "cameras.json"
+    per_image = json.loads(cameras.read_text(encoding="utf-8")).get("extra", {}).get("per_image") if cameras.exists() else None
+    if per_image:
+        plot_per_image(run.img / "per_image.png", per_image)
+        body += figure("img/per_image.png", "per training photo: how far refinement moved its camera, and the "
+                       "exposure learned for it")
     pairs = heldout_pairs(run)
     if pairs:
         body += "<h3>Held-out views: render beside ground truth</h3>" + "".join(pairs)

@@ -53,7 +53,7 @@ class ExportDepthStage(Stage):
         # full resolution: what other tools want, at 16x the rendering time of the default
         "full": {"scale": 1.0},
     }
-    requires = ("model", "model_json", "views", "world", "bounds")
+    requires = ("model", "model_json", "views", "cameras", "bounds")
     provides = {"depth": "depth", "depth_index": "depth.json"}
     libraries = ("torch", "numpy", "opencv-contrib-python-headless", "matplotlib")
     accelerated = True
@@ -78,7 +78,7 @@ class ExportDepthStage(Stage):
         from nerfpipe.nerf.model import RadianceModel
 
         model = RadianceModel.load(inputs["model"].parent, device)
-        world = CameraSet.load(inputs["world"])
+        world = CameraSet.load(inputs["cameras"])  # the training cameras as refined
         bounds = Bounds.load(inputs["bounds"])
         split = ViewSplit.load(inputs["views"])
         near_far = bounds.near_far()

@@ -107,7 +107,7 @@ class RenderStage(Stage):
         "full": FULL,
         "paper": FULL,
     }
-    requires = ("model", "model_json", "world", "bounds", "scene")
+    requires = ("model", "model_json", "cameras", "bounds", "scene")
     provides = {"video": "render.mp4", "depth_video": "depth.mp4", "frames": "frames", "camera_path": "camera_path.json"}
     libraries = ("torch", "numpy", "opencv-contrib-python-headless", "matplotlib")
     accelerated = True
@@ -135,7 +135,7 @@ class RenderStage(Stage):
         from nerfpipe.nerf.model import RadianceModel
 
         model = RadianceModel.load(inputs["model"].parent, device)
-        world = CameraSet.load(inputs["world"])
+        world = CameraSet.load(inputs["cameras"])  # the training cameras as refined
         bounds = Bounds.load(inputs["bounds"])
         layout = SceneDecisions.load(inputs["scene"]).layout.value
         if not world.frames:

@@ -16,7 +16,10 @@ user set (``--set scene.layout=forward``) keeps the measured evidence and says s
 - ``background_color``: the colour composited behind alpha, or the measured border colour.
 - ``lens``: ``undistorted`` when the undistort stage found significant distortion and resampled, else ``pinhole``.
 - ``photometric``: ``linear_raw`` (RAW developed linearly) or ``srgb``.
-- ``exposure_varies``: whether EXIF exposure (t * ISO / N^2) spans more than a third of a stop.
+- ``exposure_varies``: whether the photos' exposure spans more than a third of a stop: from EXIF (t * ISO /
+  N^2) where at least two photos have it, else from the brightness of the same sparse points in each photo
+  (``measure_exposure``). ``measured["stops"]`` gives each photo's exposure relative to their mean, which
+  training starts its per-image exposure from (``nerfpipe.nerf.appearance``).
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Callable, Literal
 
 import numpy as np
 
@@ -302,27 +305,112 @@ def exposure_value(exif: dict[str, Any]) -> float | None:
     return math.log2(t * iso / (n * n))
 
 
-def decide_exposure(records: list[dict[str, Any]]) -> tuple[bool, str, dict[str, Any]]:
-    values = [v for v in (exposure_value(r.get("exif") or {}) for r in records) if v is not None]
+def measure_exposure(world: CameraSet, paths: dict[str, Path], linear: bool, min_points: int = 20,
+                     max_side: int = 400) -> dict[str, float]:
+    """Each photo's exposure in stops relative to the others, from the brightness of the sparse points it sees.
+
+    A point's linear luminance (3x3 mean around its projection, in a copy at most ``max_side`` px) is its
+    radiance times the photo's gain, so log2 luminance = point term + photo term; both are found by
+    alternating medians (robust to specular points and mismatches), skipping pixels near black or white.
+    Returns {frame name: stops, centred on their median} for the frames with at least ``min_points``
+    measured points that other frames see too; {} without points.
+    """
+    import cv2
+
+    from nerfpipe.imaging.png import read_png
+
+    points = world.points
+    if points is None or not points.visible or len(points.xyz) == 0:
+        return {}
+    rows, cols, logs = [], [], []
+    for i, frame in enumerate(world.frames):
+        path = paths.get(frame.name)
+        if path is None or not path.exists() or i >= len(points.visible) or len(points.visible[i]) < min_points:
+            continue
+        pixels = read_png(path)
+        pixels = pixels.astype(np.float32) / (65535.0 if pixels.dtype == np.uint16 else 255.0)
+        grey = pixels if pixels.ndim == 2 else pixels[..., :3].mean(axis=-1)
+        scale = min(1.0, max_side / max(grey.shape))
+        if scale < 1.0:
+            grey = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        grey = cv2.blur(grey, (3, 3))
+        index = points.visible[i]
+        camera = world.camera_of(frame)
+        local = (points.xyz[index] - frame.c2w[:3, 3]) @ frame.c2w[:3, :3]
+        ahead = local[:, 2] > 1e-9
+        z = np.where(ahead, local[:, 2], 1.0)
+        u = (camera.fx * local[:, 0] / z + camera.cx) * scale
+        v = (camera.fy * local[:, 1] / z + camera.cy) * scale
+        h, w = grey.shape
+        inside = ahead & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        value = grey[v[inside].astype(int), u[inside].astype(int)]
+        usable = (value > 0.03) & (value < 0.95)  # clipped or lost in noise: no exposure in it
+        light = value[usable] if linear else np.where(value[usable] > 0.04045, ((value[usable] + 0.055) / 1.055) ** 2.4,
+                                                        value[usable] / 12.92)
+        rows.append(np.full(len(light), i))
+        cols.append(index[inside][usable])
+        logs.append(np.log2(light))
+    if not rows:
+        return {}
+    row, col, log = np.concatenate(rows), np.concatenate(cols), np.concatenate(logs)
+    seen = np.bincount(col, minlength=len(points.xyz))
+    shared = seen[col] >= 2
+    row, col, log = row[shared], col[shared], log[shared]
+    photo = np.zeros(len(world.frames))
+    for _ in range(4):  # log = point + photo: alternate medians
+        point = _group_median(col, log - photo[row], len(points.xyz))
+        photo = _group_median(row, log - point[col], len(world.frames))
+    counts = np.bincount(row, minlength=len(world.frames))
+    measured = {f.name: float(photo[i]) for i, f in enumerate(world.frames) if counts[i] >= min_points}
+    centre = float(np.median(list(measured.values()))) if measured else 0.0
+    return {name: value - centre for name, value in measured.items()}
+
+
+def _group_median(group: np.ndarray, values: np.ndarray, groups: int) -> np.ndarray:
+    """The median of ``values`` per ``group`` index (0 for groups without values)."""
+    order = np.lexsort((values, group))
+    group, values = group[order], values[order]
+    starts = np.searchsorted(group, np.arange(groups), side="left")
+    ends = np.searchsorted(group, np.arange(groups), side="right")
+    out = np.zeros(groups)
+    for g in np.nonzero(ends > starts)[0]:
+        out[g] = np.median(values[starts[g]:ends[g]])
+    return out
+
+
+def decide_exposure(records: list[dict[str, Any]], measure: Callable[[], dict[str, float]] | None = None,
+                    ) -> tuple[bool, str, dict[str, Any]]:
+    """Whether exposure varies: EXIF where two photos or more have it, else ``measure()`` (each photo's stops
+    from the brightness of the same points, ``measure_exposure``), else assumed constant. ``measured["stops"]``:
+    each photo's exposure relative to the mean of those known."""
+    exif = {r["name"]: v for r in records if (v := exposure_value(r.get("exif") or {})) is not None}
     n = len(records)
-    if len(values) < 2:
-        return False, f"EXIF exposure (time, f-number, ISO) known for {len(values)} of {n} photos; assumed constant", {
-            "with_exif": len(values)
-        }
-    spread = max(values) - min(values)
+    if len(exif) >= 2:
+        stops, how = exif, f"EXIF exposure (time x ISO / f-number^2) of {len(exif)} of {n} photos"
+    else:
+        stops = measure() if measure is not None else {}
+        how = f"the brightness of the same sparse points in {len(stops)} of {n} photos (no EXIF exposure)"
+        if len(stops) < 2:
+            return False, (f"EXIF exposure (time, f-number, ISO) known for {len(exif)} of {n} photos and no shared "
+                           "points to measure it by; assumed constant"), {"with_exif": len(exif)}
+    values = np.array(list(stops.values()))
+    if len(exif) >= 2:
+        spread = float(values.max() - values.min())
+    else:  # measured: the 10th-90th percentile range, as a few photos' matches can be off
+        spread = float(np.percentile(values, 90) - np.percentile(values, 10))
     varies = spread > EXPOSURE_STEP_STOPS + 1e-9
-    evidence = (
-        f"EXIF exposure (time x ISO / f-number^2) spans {spread:.2f} stops over {len(values)} of {n} photos "
-        f"({'more' if varies else 'not more'} than a third of a stop)"
-    )
-    return varies, evidence, {"with_exif": len(values), "spread_stops": round(spread, 4)}
+    mean = float(values.mean())
+    evidence = f"{how} spans {spread:.2f} stops ({'more' if varies else 'not more'} than a third of a stop)"
+    return varies, evidence, {"with_exif": len(exif), "spread_stops": round(spread, 4),
+                              "source": "exif" if len(exif) >= 2 else "brightness",
+                              "stops": {name: round(v - mean, 4) for name, v in stops.items()}}
 
 
 class SceneStage(Stage):
     """Decide the scene layout, background, lens and photometry from the data, with the evidence."""
 
     name = "scene"
-    version = 2
+    version = 3  # 3: exposure measured from the points' brightness without EXIF; each photo's stops recorded
     Params = SceneParams
     requires = ("images", "images_json", "pinhole", "world", "bounds", "undistorted_images")
     provides = {"scene": "scene.json"}
@@ -362,7 +450,9 @@ class SceneStage(Stage):
             auto_color, color_text = None, "no background colour: the background is part of the scene"
         lens, lens_text, lens_numbers = decide_lens(pinhole)
         photometric, photometric_text, photometric_numbers = decide_photometric(records)
-        exposure, exposure_text, exposure_numbers = decide_exposure(records)
+        linear = photometric == "linear_raw"
+        exposure, exposure_text, exposure_numbers = decide_exposure(
+            records, lambda: measure_exposure(world, dict(zip((r["name"] for r in records), paths)), linear))
 
         chosen_layout = layout if params.layout == "auto" else params.layout
         if chosen_layout == "inward360" and chosen_background == "none":

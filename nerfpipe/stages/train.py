@@ -68,6 +68,11 @@ class TrainParams:
     lindisp: Literal["auto", "true", "false"] = param(default="auto", metadata={"help": "sample linearly in disparity; auto: for unbounded scenes"})
     clip_to_box: bool = param(default=True, metadata={"help": "inward 360 with a backdrop: clip each ray to the scene box"})
     contract: Literal["auto", "true", "false"] = param(default="auto", metadata={"help": "contract the space beyond the scene box (mip-NeRF 360); auto: unbounded scenes and inward 360 ones without a backdrop"})
+    appearance: Literal["auto", "on", "off"] = param(default="auto", metadata={"help": "learn each photo's exposure and white balance (3 gains on linear light); auto: when the scene finds exposure varying"})
+    appearance_lr: float = param(default=1e-2, metadata={"help": "learning rate of the per-image exposure gains (decays as lr does)"})
+    refine_poses: Literal["auto", "on", "off"] = param(default="auto", metadata={"help": "refine each training camera's pose with the field; auto: for photos, not for rendered captures with alpha"})
+    pose_lr: float = param(default=3e-3, metadata={"help": "learning rate of the camera corrections (decays as lr does)"})
+    pose_penalty: float = param(default=1e-3, metadata={"help": "weight of the camera corrections' mean squared size in the loss"})
     train_images: int = param(default=0, metadata={"help": "train on this many images, evenly spaced (Table 2 rows 5-6); 0: all"})
     holdout_every: int = param(default=8, metadata={"help": "without a val/test split, hold out every n-th image (the paper: 8)"})
     eval_stride: int = param(default=1, metadata={"help": "evaluate every n-th held-out view"})
@@ -86,7 +91,7 @@ class TrainParams:
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         for name in ("n_fine", "pos_freqs", "dir_freqs", "train_images", "keep_checkpoints", "skip_after", "batch_samples",
-                     "occupancy_threshold"):
+                     "occupancy_threshold", "appearance_lr", "pose_lr", "pose_penalty"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.skip_after > self.depth - 1:
@@ -136,12 +141,12 @@ class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
     name = "train"
-    version = 4  # 4: constant backdrops masked (random colour per ray), and evaluated so; metrics.json says its protocol
+    version = 5  # 5: per-image exposure and camera refinement; cameras/ holds the refined poses
     Params = TrainParams
     presets = PRESETS
     requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")
     provides = {"model": "model.pt", "model_json": "model.json", "metrics": "metrics.json", "eval": "eval",
-                "views": "views.json"}
+                "views": "views.json", "cameras": "cameras"}
     libraries = ("torch", "kornia", "numpy")
     accelerated = True
     resumable = True
@@ -157,6 +162,19 @@ class TrainStage(Stage):
                  f"PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f}"
                  + (f" against the masked photos ({s['psnr_photo']:.2f} dB against the photos as taken)"
                     if s.get("psnr_photo") is not None else "")]
+        if s.get("protocol"):
+            lines.append(f"held-out protocol: {s['protocol']}")
+        if s.get("psnr_mean_appearance") is not None:
+            lines.append(f"at the training photos' mean exposure, whole views: PSNR {s['psnr_mean_appearance']:.2f} dB")
+        if s.get("appearance"):
+            a = s["appearance"]
+            lines.append(f"per-image exposure learned for {a['images']} photos: they span {a['spread_stops']:.2f} stops "
+                         f"(darkest {a['darkest']}, brightest {a['brightest']})")
+        if s.get("pose_refinement"):
+            p = s["pose_refinement"]
+            lines.append(f"{p['cameras']} training cameras refined: median {p['median_rotation_deg']:.2f} deg and "
+                         f"{100 * p['median_translation_share']:.2f}% of the camera distance, at most "
+                         f"{p['max_rotation_deg']:.2f} deg ({p['largest']}); exports and renders use the refined poses")
         if s.get("resumed_from"):
             lines.append(f"resumed from the checkpoint at step {s['resumed_from']}")
         guard = s.get("stall_guard") or {}
@@ -185,13 +203,14 @@ class TrainStage(Stage):
     def _run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext, device) -> dict[str, Any]:
         from nerfpipe.nerf.assembly import build_model, training_config
         from nerfpipe.nerf.evaluation import evaluate
-        from nerfpipe.nerf.images import ImageLoader, describe_masks, split_views
+        from nerfpipe.nerf.images import ImageLoader, describe_masks, split_views, trained_cameras
         from nerfpipe.nerf.trainer import Trainer
 
         loader = ImageLoader.from_inputs(inputs)
         layout = loader.scene.layout.value
         views = split_views(loader.world, params.holdout_every, params.train_images, params.eval_stride)
-        model, decisions = build_model(params, loader.scene, loader.world, loader.bounds, device)
+        model, decisions = build_model(params, loader.scene, loader.world, loader.bounds, device,
+                                       [f.name for f in views.train])
         for line in decisions:
             ctx.log.info("train: %s", line)
         ctx.log.info("train: %d training images, %d held out (%s)", len(views.train), len(views.heldout), views.rule)
@@ -208,6 +227,9 @@ class TrainStage(Stage):
         with ctx.progress(params.steps - trainer.step, "train") as advance:
             trainer.run(advance)
         model.save(out)
+        cameras, per_image = trained_cameras(model, loader.world, views.train)
+        (out / "cameras").mkdir(exist_ok=True)
+        cameras.save(out / "cameras")
         with ctx.progress(len(views.heldout), "evaluate") as advance:
             evaluation = evaluate(model, loader, views.heldout, out / "eval", params.chunk, advance)
         summary = {
@@ -223,7 +245,8 @@ class TrainStage(Stage):
             "heldout_rule": views.rule,
             "psnr": evaluation["psnr"],
             "ssim": evaluation["ssim"],
-            **({"psnr_photo": evaluation["psnr_photo"]} if "psnr_photo" in evaluation else {}),
+            **{key: evaluation[key] for key in ("psnr_photo", "psnr_mean_appearance") if key in evaluation},
+            **per_image,
             "resumed_from": resumed,
             "stall_guard": trainer.guard.report(),
             "decisions": decisions,

@@ -18,6 +18,7 @@ class HalfBright:
 
     def __init__(self, photometric: str = "srgb") -> None:
         self.info = {"photometric": photometric}
+        self.appearance = None  # learned no per-image exposure
         self.calls = []
 
     def render_image(self, intrinsics, c2w, width, height, near, far, chunk):
@@ -82,3 +83,22 @@ def test_against_a_backdrop_the_masked_photo_is_scored_and_the_photo_as_taken_be
     assert view["psnr_photo"] == pytest.approx(-10 * math.log10(mse), abs=1e-3)
     assert result["psnr_photo"] == view["psnr_photo"] and result["protocol"] == protocol(loader)
     assert read_png(tmp_path / "grey.gt.png")[0, 0].tolist() == [0, 0, 255]  # the target written is the masked one
+
+
+def test_a_held_out_photos_exposure_is_fitted_on_its_left_half_and_scored_on_its_right() -> None:
+    """A render that is the photo at another exposure (over a white stand-in background, which exposure does
+    not touch) scores as the photo itself once the left half has fitted its gains; the right half is scored."""
+    from nerfpipe.nerf.appearance import apply_gains
+    from nerfpipe.nerf.evaluation import fit_left_score_right
+
+    rng = np.random.default_rng(0)
+    h, w = 24, 32
+    light = torch.from_numpy(rng.uniform(0.05, 0.6, size=(h, w, 3)).astype(np.float32))
+    acc = torch.from_numpy((rng.uniform(size=(h, w)) > 0.3).astype(np.float32))
+    white = torch.ones(3)
+    behind = (1 - acc).unsqueeze(-1) * white
+    render = light * acc.unsqueeze(-1) + behind  # at the training photos' mean exposure
+    photo = apply_gains((light * acc.unsqueeze(-1)).reshape(-1, 3), torch.tensor([1.5, 1.2, 0.8]), False).reshape(h, w, 3) + behind
+    exposed, scored = fit_left_score_right(render, acc, white, photo.numpy(), linear=False)
+    assert scored == slice(w // 2, None)
+    torch.testing.assert_close(exposed, photo, atol=2e-4, rtol=0)

@@ -579,3 +579,58 @@ def test_contraction_of_extreme_coordinates_is_finite_with_finite_gradients() ->
     assert bool(torch.isfinite(y).all()) and float(y.detach().abs().max()) <= 2.0 and bool(torch.isfinite(x.grad).all())
     steps = Contraction.step_scale(y.detach())
     assert bool(torch.isfinite(steps).all()) and float(steps.min()) == 1.0
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("linear", [False, True])
+def test_exposure_gains_stay_finite_at_black_white_and_extreme_gains(mode: str, linear: bool) -> None:
+    """Per-image appearance (``nerfpipe.nerf.appearance``): identity at initialisation; colours in [0, 1] and
+    finite gradients for black, white and tiny colours under gains from 2^-40 to 2^40."""
+    from nerfpipe.nerf.appearance import ExposureGains
+
+    rgb = torch.tensor([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [1e-12, 1e-8, 1e-30], [0.5, 0.0031308, 0.04045]] * 3,
+                       requires_grad=True)
+    gains = ExposureGains(3, linear)
+    image = torch.arange(12) // 4
+    with precision(mode):
+        assert torch.allclose(gains(rgb, image).float(), rgb.detach(), atol=1e-6)  # identity at initialisation
+    with torch.no_grad():
+        gains.log2_gains.copy_(torch.tensor([[-40.0] * 3, [0.0] * 3, [40.0] * 3]))
+    with precision(mode):
+        out = gains(rgb, image)
+    assert bool(((out >= 0) & (out <= 1)).all())
+    assert torch.equal(out[:4].detach(), torch.zeros(4, 3)) or float(out[:4].max()) < 1e-6  # 2^-80 relative: black
+    out.sum().backward()
+    assert bool(torch.isfinite(rgb.grad).all()) and bool(torch.isfinite(gains.log2_gains.grad).all())
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_camera_refinement_is_the_identity_at_first_with_finite_gradients_through_a_grid_field(mode: str) -> None:
+    """Camera refinement (``nerfpipe.nerf.refinement``): no change at initialisation (So3.exp at a zero
+    vector), and finite, non-zero gradients from a grid field's colours back to the corrections, there and
+    after large corrections (a half turn)."""
+    from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
+    from nerfpipe.nerf.rays import camera_rays
+    from nerfpipe.nerf.refinement import PoseRefinement
+
+    torch.manual_seed(0)
+    field = GridField((-1.0,) * 3, (1.0,) * 3, GridFieldConfig(levels=2, min_resolution=8, max_resolution=16, init_scale=0.3))
+    c2w = torch.eye(4).repeat(3, 1, 1)
+    c2w[:, 2, 3] = -3.0  # looking down +z at the box from z = -3
+    refinement = PoseRefinement(3)
+    assert torch.equal(refinement(c2w), c2w)
+    uv = torch.rand(64, 2) * 32
+    k = torch.tensor([32.0, 32.0, 16.0, 16.0]).expand(64, 4)
+    image = torch.arange(64) % 3
+    for tangent in (torch.zeros(3, 6), torch.tensor([[math.pi, 0, 0, 0.5, 0, 0], [0, 0, 0, 0, 0, 0], [0, 1e-20, 0, 0, 0, 0]])):
+        with torch.no_grad():
+            refinement.tangent.copy_(tangent)
+        refinement.zero_grad()
+        with precision(mode):
+            origins, directions = camera_rays(uv, k, refinement(c2w)[image])
+            points = origins + 3.0 * directions
+            rgb, sigma = field(points, torch.nn.functional.normalize(directions, dim=-1))
+            loss = rgb.float().sum() + sigma.float().sum() + refinement.penalty()
+        loss.backward()
+        grad = refinement.tangent.grad
+        assert bool(torch.isfinite(grad).all()) and float(grad.abs().sum()) > 0

@@ -102,7 +102,7 @@ def write_scene(folder: Path, layout: str, photometric: str = "srgb") -> StageIn
     (folder / "train").mkdir()
     model.save(folder / "train")
     artifacts = {"model": folder / "train" / "model.pt", "model_json": folder / "train" / "model.json",
-                 "world": folder / "world", "bounds": folder / "bounds.json", "scene": folder / "scene.json"}
+                 "cameras": folder / "world", "bounds": folder / "bounds.json", "scene": folder / "scene.json"}
     return StageInputs(artifacts, source=folder)
 
 

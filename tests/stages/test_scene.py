@@ -16,7 +16,8 @@ from nerfpipe.geometry.normalize import in_view
 from nerfpipe.pipeline import ParamError, parse_assignments
 from nerfpipe.stages import IngestStage
 from nerfpipe.stages.bounds import BoundsStage
-from nerfpipe.stages.scene import SceneParams, SceneStage, decide_exposure, decide_layout, decide_photometric
+from nerfpipe.stages.scene import (SceneParams, SceneStage, decide_exposure, decide_layout, decide_photometric,
+                                   measure_exposure)
 from tests.helpers import TEMPLE, SavedCameras, look_at, shared
 
 # README.txt of templeSparseRing: "The (tight) bounding box for the templeSparseRing model"
@@ -289,8 +290,10 @@ def test_layout_unbounded_when_cameras_share_no_centre():
 
 
 # -- photometry from the ingest records ------------------------------------------------------------------
-def record(t: float | None, f: float | None, iso: int | None, raw: bool = False, linear: bool = False) -> dict:
-    return {"raw": raw, "linear": linear, "exif": {"exposure_time_s": t, "f_number": f, "iso": iso}}
+def record(t: float | None, f: float | None, iso: int | None, raw: bool = False, linear: bool = False,
+           name: str | None = None) -> dict:
+    name = name or f"{t}_{f}_{iso}_{np.random.default_rng().integers(1 << 30)}.png"
+    return {"name": name, "raw": raw, "linear": linear, "exif": {"exposure_time_s": t, "f_number": f, "iso": iso}}
 
 
 def test_exposure_varies_beyond_a_third_of_a_stop():
@@ -301,8 +304,42 @@ def test_exposure_varies_beyond_a_third_of_a_stop():
     assert decide_exposure([record(1 / 100, 4.0, 100), record(1 / 100, 5.6, 200)])[0] is False
     varies, evidence, measured = decide_exposure([record(1 / 100, 4.0, 100), record(1 / 50, 4.0, 100), record(None, 4.0, 100)])
     assert varies is True and measured["spread_stops"] == pytest.approx(1.0)
-    assert "spans 1.00 stops over 2 of 3 photos" in evidence
+    assert "EXIF exposure (time x ISO / f-number^2) of 2 of 3 photos spans 1.00 stops" in evidence
+    assert sorted(measured["stops"].values()) == pytest.approx([-0.5, 0.5])  # each photo's, about their mean
     assert decide_exposure([record(None, None, None)] * 3)[0] is False
+
+
+def test_exposure_measured_from_the_same_points_in_each_photo(tmp_path: Path) -> None:
+    """Without EXIF: four cameras over a textured plane, the photos taken 0, +0.5, -0.7 and +1 stop apart
+    (sRGB-encoded, bright parts clipped); the points' brightness gives each photo's stops back."""
+    import cv2
+
+    stops = [0.0, 0.5, -0.7, 1.0]
+    size, f = 64, 64.0
+    camera = Camera.pinhole(f, f, size / 2, size / 2, size, size)
+    rng = np.random.default_rng(0)
+    centres = [np.array([0.1 * i, -0.05 * i, -2.0]) for i in range(4)]
+    frames, paths = [], {}
+    u, v = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
+    for i, (centre, s) in enumerate(zip(centres, stops)):
+        x = centre[0] + 2.0 * (u - size / 2) / f  # the plane z = 0, two units ahead of every camera
+        y = centre[1] + 2.0 * (v - size / 2) / f
+        light = (0.25 + 0.2 * np.sin(4 * x) * np.cos(3 * y)) * 2.0**s
+        encoded = np.where(light > 0.0031308, 1.055 * np.clip(light, 0, 1) ** (1 / 2.4) - 0.055, 12.92 * light)
+        grey = np.round(np.clip(encoded, 0, 1) * 255).astype(np.uint8)
+        paths[f"p{i}.png"] = tmp_path / f"p{i}.png"
+        cv2.imwrite(str(paths[f"p{i}.png"]), np.repeat(grey[..., None], 3, axis=-1))
+        pose = np.eye(4)
+        pose[:3, 3] = centre
+        frames.append(Frame(f"p{i}.png", 1, pose))
+    xyz = np.concatenate([rng.uniform(-0.6, 0.6, size=(300, 2)), np.zeros((300, 1))], axis=1)
+    points = Points(xyz, np.zeros((300, 3), np.uint8), np.zeros(300), [np.arange(300)] * 4)
+    measured = measure_exposure(CameraSet({1: camera}, frames, points), paths, linear=False)
+    relative = np.array([measured[f"p{i}.png"] for i in range(4)])
+    assert relative == pytest.approx(np.array(stops) - np.median(stops), abs=0.05)
+    varies, evidence, numbers = decide_exposure([record(None, None, None, name=n) for n in paths], lambda: measured)
+    assert varies and numbers["source"] == "brightness" and "brightness of the same sparse points in 4 of 4" in evidence
+    assert measure_exposure(CameraSet({1: camera}, frames, None), paths, linear=False) == {}
 
 
 def test_photometric_from_the_records():
