@@ -13,14 +13,16 @@ from nerfpipe.nerf.images import ImageLoader
 
 
 def scene_of(layout: str, background: str = "none", color=None, photometric: str = "srgb",
-             tolerance: float | None = None) -> SceneDecisions:
+             tolerance: float | None = None, stops: dict[str, float] | None = None) -> SceneDecisions:
     """Scene decisions with the values the assembly reads; the rest as a plain capture's. ``tolerance``: the
-    backdrop tolerance the scene analysis measured with (none recorded when None)."""
+    backdrop tolerance the scene analysis measured with (none recorded when None); ``stops``: each photo's
+    exposure, which then varies."""
     box = ([-1.0] * 3, [1.0] * 3)
     measured = {} if tolerance is None else {"tolerance": tolerance}
+    exposure = Decision(stops is not None, "", False, {} if stops is None else {"stops": stops})
     return SceneDecisions(Decision(layout, ""), Decision(background, "", False, measured), Decision(color, ""),
                           Decision("pinhole", ""),
-                          Decision(photometric, ""), Decision(False, ""), 2.0, 9.0, box)
+                          Decision(photometric, ""), exposure, 2.0, 9.0, box)
 
 
 def bounds_of(*near_far: tuple[float, float], names: tuple[str, ...] = ()) -> Bounds:

@@ -134,3 +134,24 @@ def test_training_config_carries_the_schedule_noise_and_precision() -> None:
     assert not training_config(TrainParams(), "forward").tf32
     assert density_noise(TrainParams(), "forward") == 0.0  # the grid field has no raw-density regularizer
     assert density_noise(TrainParams(field="mlp", density_noise="0.5"), "inward360") == 0.5
+
+
+def test_per_image_exposure_and_camera_refinement_follow_the_data_unless_set() -> None:
+    world, bounds, cpu = world_of_one_camera(), bounds_of((2.0, 6.0)), torch.device("cpu")
+    names = ["a.png", "b.png", "c.png"]
+    varying = scene_of("inward360", "color", [0, 0, 0], stops={"a.png": 0.5, "b.png": -0.5})
+    model, said = build_model(TrainParams(), varying, world, bounds, cpu, names)
+    # exposure varies: gains start from the measured stops (c.png unmeasured: 0), centred; photos: poses refined
+    assert model.appearance is not None and model.refinement is not None
+    assert torch.allclose(model.appearance.stops()[:, 0], torch.tensor([0.5, -0.5, 0.0]))
+    assert any("exposure varies" in s for s in said) and any("refined with the field" in s for s in said)
+    rendered, said = build_model(TrainParams(), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, cpu, names)
+    assert rendered.appearance is None and rendered.refinement is None  # constant exposure; exact rendered poses
+    assert any("exact" in s for s in said) and any("exposure constant" in s for s in said)
+    forced, said = build_model(TrainParams(appearance="on", refine_poses="off"), scene_of("inward360"), world, bounds,
+                               cpu, names)
+    assert forced.appearance is not None and forced.refinement is None
+    assert "train.appearance=on" in " ".join(said) and "train.refine_poses=off" in " ".join(said)
+    without_names, _ = build_model(TrainParams(), varying, world, bounds, cpu)  # nothing per image to learn
+    assert without_names.appearance is None and without_names.refinement is None
+    assert training_config(TrainParams(pose_lr=0.002), "inward360").pose_lr == 0.002

@@ -55,3 +55,21 @@ def test_field_box_ends_at_the_far_depth():
     lo, hi = space.field_box(far=12.0)
     assert lo == (-1.0, -1.0, -1.0) and hi[:2] == (1.0, 1.0)
     assert np.isclose(hi[2], 1 - 2 * 1.2 / 12.0)
+
+
+def test_per_image_exposure_and_camera_corrections_are_saved_and_loaded(tmp_path) -> None:
+    from nerfpipe.nerf.assembly import build_model
+    from nerfpipe.nerf.model import RadianceModel
+    from nerfpipe.stages.train import TrainParams
+    from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
+
+    scene = scene_of("inward360", "color", [0, 0, 0], photometric="linear_raw", stops={"a.png": 1.0, "b.png": 0.0})
+    model, _ = build_model(TrainParams(), scene, world_of_one_camera(), bounds_of((2.0, 6.0)), torch.device("cpu"),
+                           ["a.png", "b.png"])
+    with torch.no_grad():
+        model.refinement.tangent.copy_(torch.arange(12.0).reshape(2, 6) / 100)
+    model.save(tmp_path)
+    loaded = RadianceModel.load(tmp_path)
+    assert loaded.appearance.linear is True  # linear RAW: no sRGB curve around the gains
+    assert torch.equal(loaded.appearance.log2_gains, model.appearance.log2_gains)
+    assert torch.equal(loaded.refinement.tangent, model.refinement.tangent)
