@@ -83,13 +83,17 @@ def learning_rate(config: TrainConfig, step: int) -> float:
 def parameter_groups(model: RadianceModel, config: TrainConfig) -> list[dict]:
     """Adam's parameter groups: the fields at ``lr``; the per-image exposure gains at ``appearance_lr`` and
     camera corrections at ``pose_lr``, when the model has them. Each group's ``base_lr`` decays as ``lr`` does;
-    a group with a ``warmup`` of w steps learns nothing before step w and ramps up linearly until step 2 w."""
+    a group with a ``warmup`` of w steps learns nothing before step w and ramps up linearly until step 2 w; one with
+    a ``decay_power`` p decays as the p-th power of that."""
     groups = [{"params": [p for f in model.fields() for p in f.parameters()], "base_lr": config.lr, "warmup": 0}]
     if model.appearance is not None:
         groups.append({"params": list(model.appearance.parameters()), "base_lr": config.appearance_lr, "warmup": 0})
     if model.refinement is not None:  # a field that shows nothing yet would move the cameras anywhere
+        # and decays twice as fast (to (lr_final / lr)^2 of pose_lr): cameras that settle early let the field fit
+        # them for the rest of the steps (lego, cameras off by 1 degree and 1 %, 500 steps: 0.6 dB from the clean
+        # poses' held-out PSNR, against 1.3 dB when they decay as the field does)
         groups.append({"params": list(model.refinement.parameters()), "base_lr": config.pose_lr,
-                       "warmup": int(config.pose_warmup * config.steps)})
+                       "warmup": int(config.pose_warmup * config.steps), "decay_power": 2.0})
     for group in groups:
         group["lr"] = group["base_lr"]
     return groups
@@ -278,11 +282,11 @@ class Trainer:
 
         if noise > 0:  # the noise, too, is a function of (seed, step): resuming does not change it
             torch.manual_seed(self.config.seed * 1_000_003 + step)
-        decay = learning_rate(self.config, step) / self.config.lr * self.lr_scale
+        decay = learning_rate(self.config, step) / self.config.lr
         for group in self.optimizer.param_groups:
             warmup = group.get("warmup", 0)
             ramp = 1.0 if not warmup else min(max((step - warmup) / warmup, 0.0), 1.0)
-            group["lr"] = group["base_lr"] * decay * ramp
+            group["lr"] = group["base_lr"] * decay ** group.get("decay_power", 1.0) * self.lr_scale * ramp
         with _autocast(self.device, self.config.autocast):
             if model.occupancy is not None:
                 self.update_occupancy(step, generator)
