@@ -53,20 +53,20 @@ class _Trilinear(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, table: Tensor, index: Tensor, weights: Tensor) -> Tensor:  # (V, F), (L, 8, M) x 2 -> (M, L, F)
-        ctx.save_for_backward(index, weights, table)
         ctx.rows = table.shape[0]
         rows = table.index_select(0, index.reshape(-1)).view(*index.shape, table.shape[1])
+        # the points train too (camera refinement): keep the gathered rows, d out / d w_c = table[index_c]
+        ctx.save_for_backward(index, weights, rows if ctx.needs_input_grad[2] else None)
         return torch.einsum("lcmf,lcm->mlf", rows, weights.to(rows.dtype))
 
     @staticmethod
     def backward(ctx, grad: Tensor):  # (M, L, F)
-        index, weights, table = ctx.saved_tensors
+        index, weights, rows = ctx.saved_tensors
         table_grad = torch.zeros((ctx.rows, grad.shape[-1]), dtype=grad.dtype, device=grad.device)
         contributions = torch.einsum("mlf,lcm->lcmf", grad, weights.to(grad.dtype)).reshape(-1, grad.shape[-1])
         table_grad.index_add_(0, index.reshape(-1), contributions)
         weights_grad = None
-        if ctx.needs_input_grad[2]:  # the points' positions train too (camera refinement): d out / d w_c = table[index_c]
-            rows = table.index_select(0, index.reshape(-1)).view(*index.shape, table.shape[1])
+        if ctx.needs_input_grad[2]:
             weights_grad = torch.einsum("mlf,lcmf->lcm", grad, rows.to(grad.dtype)).to(weights.dtype)
         return table_grad, None, weights_grad
 

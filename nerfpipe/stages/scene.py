@@ -392,7 +392,7 @@ def decide_exposure(records: list[dict[str, Any]], measure: Callable[[], dict[st
         how = f"the brightness of the same sparse points in {len(stops)} of {n} photos (no EXIF exposure)"
         if len(stops) < 2:
             return False, (f"EXIF exposure (time, f-number, ISO) known for {len(exif)} of {n} photos and no shared "
-                           "points to measure it by; assumed constant"), {"with_exif": len(exif)}
+                           "points to measure it by; assumed constant"), {"with_exif": len(exif), "source": "none"}
     values = np.array(list(stops.values()))
     if len(exif) >= 2:
         spread = float(values.max() - values.min())

@@ -144,7 +144,7 @@ def test_per_image_exposure_and_camera_refinement_follow_the_data_unless_set() -
     # exposure varies: gains start from the measured stops (c.png unmeasured: 0), centred; photos: poses refined
     assert model.appearance is not None and model.refinement is not None
     assert torch.allclose(model.appearance.stops()[:, 0], torch.tensor([0.5, -0.5, 0.0]))
-    assert any("exposure varies" in s for s in said) and any("refined with the field" in s for s in said)
+    assert any("exposure varies" in s for s in said) and any("no sparse points to check" in s for s in said)
     rendered, said = build_model(TrainParams(), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, cpu, names)
     assert rendered.appearance is None and rendered.refinement is None  # constant exposure; exact rendered poses
     assert any("exact" in s for s in said) and any("exposure constant" in s for s in said)
@@ -152,6 +152,14 @@ def test_per_image_exposure_and_camera_refinement_follow_the_data_unless_set() -
                                cpu, names)
     assert forced.appearance is not None and forced.refinement is None
     assert "train.appearance=on" in " ".join(said) and "train.refine_poses=off" in " ".join(said)
+    # poses whose points reproject within a pixel are kept; beyond, refined
+    from nerfpipe.geometry.cameras import CameraSet, Points
+
+    for error, refined in ((0.4, False), (1.6, True)):
+        points = Points(np.zeros((3, 3)), np.zeros((3, 3), np.uint8), np.full(3, error), [np.arange(3)])
+        checked = CameraSet(world.cameras, world.frames, points)
+        model, said = build_model(TrainParams(), varying, checked, bounds, cpu, names)
+        assert (model.refinement is not None) == refined and f"{error:.2f} px" in " ".join(said)
     without_names, _ = build_model(TrainParams(), varying, world, bounds, cpu)  # nothing per image to learn
     assert without_names.appearance is None and without_names.refinement is None
     assert training_config(TrainParams(pose_lr=0.002), "inward360").pose_lr == 0.002

@@ -154,6 +154,14 @@ def test_nerfpipe_run_on_the_bundled_capture_trains_evaluates_and_exports(tmp_pa
         "templeSR0001.png", "templeSR0009.png"]
     assert metrics["train_images"] == 14 and all(np.isfinite(v["psnr"]) for v in metrics["views"])
     assert any("composited onto (0.00, 0.00, 0.00)" in d for d in metrics["decisions"])  # the black backdrop
+    # no EXIF, and at 80 px too few triangulated points (18) to measure the exposure by: constant, no per-image
+    # exposure (the full-size run measures 0.11 stops over 1417 points: README); nor points to vouch for the
+    # calibrated poses, so they are refined
+    exposure = json.loads(next((run_dir / "stages" / "scene").glob("*/scene.json")).read_text())["exposure_varies"]
+    assert exposure["value"] is False and exposure["measured"]["source"] == "none", exposure["evidence"]
+    assert "appearance" not in metrics and metrics["pose_refinement"]["cameras"] == 14
+    assert any("no sparse points to check the camera poses by" in d for d in metrics["decisions"])
+    assert (next((run_dir / "stages" / "train").glob("*/cameras")) / "cameras.json").is_file()
     status = run_cli("status", run_dir)
     assert "train: 300 steps in" in status.stdout and "held-out views (every 8th image): PSNR" in status.stdout
     check_exports_report_and_view(run_dir, result.stdout)
