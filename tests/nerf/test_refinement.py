@@ -46,4 +46,4 @@ def test_a_correction_shared_by_every_camera_is_the_gauge_and_changes_nothing() 
     with torch.no_grad():
         refinement.tangent[:] = torch.tensor([0.1, -0.2, 0.05, 0.3, 0.0, -0.1])
     assert torch.allclose(refinement(c2w), c2w, atol=1e-6)
-    assert float(refinement.penalty()) < 1e-12
+    assert float(refinement.penalty().detach()) < 1e-12
