@@ -9,5 +9,7 @@ fine rendering of a batch of rays, Section 5.2). Section and equation numbers re
 Around them: ``grid_field`` and ``occupancy`` (dense grids and empty-space skipping, after Instant-NGP),
 ``model`` (the trained model and its files), ``trainer`` (the optimization of Section 5.3), ``assembly``
 (the model and training configuration a scene's decisions call for), ``images`` (held-out splits and
-training pixels), ``evaluation`` (held-out PSNR / SSIM), ``device`` and ``cpu`` (where and how torch runs).
+training pixels), ``evaluation`` (held-out PSNR / SSIM), ``appearance`` (each photo's exposure and white
+balance) and ``refinement`` (each camera's pose correction), learned with the field where the scene calls for
+them, ``contraction`` (unbounded space), ``device`` and ``cpu`` (where and how torch runs).
 """
