@@ -317,7 +317,8 @@ def measure_exposure(world: CameraSet, paths: dict[str, Path], linear: bool, min
     """
     import cv2
 
-    from nerfpipe.imaging.png import read_png
+    from nerfpipe.export.foreground import project
+    from nerfpipe.imaging.png import read_png, srgb_decode
 
     points = world.points
     if points is None or not points.visible or len(points.xyz) == 0:
@@ -336,17 +337,13 @@ def measure_exposure(world: CameraSet, paths: dict[str, Path], linear: bool, min
         grey = cv2.blur(grey, (3, 3))
         index = points.visible[i]
         camera = world.camera_of(frame)
-        local = (points.xyz[index] - frame.c2w[:3, 3]) @ frame.c2w[:3, :3]
-        ahead = local[:, 2] > 1e-9
-        z = np.where(ahead, local[:, 2], 1.0)
-        u = (camera.fx * local[:, 0] / z + camera.cx) * scale
-        v = (camera.fy * local[:, 1] / z + camera.cy) * scale
+        uv, ahead = project(points.xyz[index], camera.K(), frame.c2w)
+        u, v = uv[:, 0] * scale, uv[:, 1] * scale
         h, w = grey.shape
         inside = ahead & (u >= 0) & (u < w) & (v >= 0) & (v < h)
         value = grey[v[inside].astype(int), u[inside].astype(int)]
         usable = (value > 0.03) & (value < 0.95)  # clipped or lost in noise: no exposure in it
-        light = value[usable] if linear else np.where(value[usable] > 0.04045, ((value[usable] + 0.055) / 1.055) ** 2.4,
-                                                        value[usable] / 12.92)
+        light = value[usable] if linear else srgb_decode(value[usable])
         rows.append(np.full(len(light), i))
         cols.append(index[inside][usable])
         logs.append(np.log2(light))
