@@ -42,6 +42,12 @@ def run_cli(*args: str, cwd: Path | None = None, timeout: float = 120) -> subpro
     )
 
 
+def contents(outputs: dict) -> dict[str, tuple[int, str]]:
+    """A manifest's outputs as (size, sha256) per file: what two computations of one result share
+    (their modification times differ)."""
+    return {rel: (meta["size"], meta["sha256"]) for rel, meta in outputs.items()}
+
+
 @dataclass(frozen=True)
 class CountParams:
     label: str = "count"

@@ -13,6 +13,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from nerfpipe.pipeline import NerfpipeError, Pipeline, param_specs, parse_assignments
+from nerfpipe.pipeline.errors import os_error_to_user_error
 from nerfpipe.pipeline.lock import RunLock
 from nerfpipe.stages import default_stages
 
@@ -26,7 +27,7 @@ app = typer.Typer(
 out_console = Console()
 err_console = Console(stderr=True)
 
-STATE_STYLE = {"fresh": "green", "stale": "yellow", "missing": "red"}
+STATE_STYLE = {"fresh": "green", "stale": "yellow", "broken": "red", "missing": "red"}
 
 DebugOption = typer.Option(False, "--debug", help="Show tracebacks and debug logs.")
 PresetOption = typer.Option(None, "--preset", "-p", help="Named preset applied to every stage that has it.")
@@ -55,14 +56,20 @@ def _setup_logging(debug: bool) -> None:
 
 @contextlib.contextmanager
 def _user_errors(debug: bool) -> Iterator[None]:
-    """User errors become one line and a non-zero exit; ``--debug`` shows the traceback as well."""
+    """User errors become one line and a non-zero exit; ``--debug`` shows the traceback as well.
+
+    So does a full disk or a read-only filesystem met outside a stage (writing the report, say).
+    """
     try:
         yield
-    except NerfpipeError as err:
+    except (NerfpipeError, OSError) as err:
+        user_error = err if isinstance(err, NerfpipeError) else os_error_to_user_error(err, err.filename or ".")
+        if user_error is None:
+            raise
         if debug:
             err_console.print_exception()
-        err_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False, soft_wrap=True)
-        raise typer.Exit(err.exit_code) from None
+        err_console.print(f"[bold red]error:[/] {escape(str(user_error))}", highlight=False, soft_wrap=True)
+        raise typer.Exit(user_error.exit_code) from None
     except KeyboardInterrupt:
         err_console.print("[bold red]interrupted[/]: the stage that was running was not committed", highlight=False)
         raise typer.Exit(130) from None
@@ -138,12 +145,15 @@ def status(
     run_dir: Path = typer.Argument(..., help="Run directory of an earlier `nerfpipe run`."),
     preset: Optional[str] = PresetOption,
     set_: List[str] = SetOption,
+    verify: bool = typer.Option(False, "--verify", help="Hash every output (sha256) instead of checking sizes and "
+                                "times; move damaged results aside, for the next run to compute again."),
     debug: bool = DebugOption,
 ) -> None:
-    """Each stage fresh / stale / missing, with the reason. --preset/--set ask "what if"."""
+    """Each stage fresh / stale / broken / missing, with the reason. --preset/--set ask "what if"."""
     _setup_logging(debug)
     with _user_errors(debug):
         pipe = Pipeline.from_run_dir(default_stages(), run_dir, preset, parse_assignments(set_))
+        moved = pipe.verify() if verify else []
         statuses = pipe.status()
     table = Table(title=f"{run_dir} (photos: {pipe.source})", title_justify="left")
     for column in ("stage", "state", "reason", "key"):
@@ -155,6 +165,15 @@ def status(
         if s.result is not None:
             for line in pipe.dag.stages[s.name].describe(s.result.path, s.result.manifest):
                 out_console.print(f"{s.name}: {escape(line)}", highlight=False, soft_wrap=True)
+    if verify:
+        checked = sum(len(s.result.manifest["outputs"]) for s in statuses if s.state == "fresh")
+        out_console.print(f"verified: {checked} files of the fresh results match their sha256; "
+                          f"{len(moved)} damaged result{'s' * (len(moved) != 1)}"
+                          + "".join(f"\n  {s.name}: {escape(str(s.damage))}; moved aside to {escape(str(aside))}"
+                                    for s, aside in moved)
+                          + (f"\nthe next `nerfpipe run {pipe.source} --out {run_dir}` computes "
+                             f"{'them' if len(moved) > 1 else 'it'} again" if moved else ""),
+                          highlight=False, soft_wrap=True)
 
 
 VIEW_KINDS = ("mesh", "points", "cameras")

@@ -85,6 +85,9 @@ _TIFF_SUB_IFDS_TAG = 0x014A
 _TIFF_EXIF_IFD_TAG = 0x8769
 _TIFF_ORIENTATION_TAG = 0x0112
 _TIFF_SHORT = 3
+# PNG colour type -> samples per pixel (PNG spec 11.2.2); and deflate's best compression ratio (RFC 1951)
+_PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
+_DEFLATE_MAX_RATIO = 1032
 # DNGs and NEFs hold a handful of IFDs; more means a loop we have not caught or garbage.
 _MAX_TIFF_IFDS = 256
 
@@ -117,6 +120,84 @@ class RawOptions:
             raise ValueError(
                 f"white_balance must be one of {', '.join(_WHITE_BALANCES)}, got {self.white_balance!r}"
             )
+
+
+@dataclass(frozen=True)
+class SizeLimits:
+    """Photos ``read_photo`` refuses from their header, before decoding a pixel.
+
+    ``min_side``: the shorter side must be at least this (a thumbnail or a 1x1 placeholder gives SfM nothing).
+    ``max_pixels``: at most this many pixels, so a small file that claims a huge image (a decompression bomb)
+    cannot take gigabytes of memory; 0 means no limit. Pillow warns above 89.5 MP and refuses above 179 MP;
+    photos from today's cameras and phones reach 200 MP, so the limit is the caller's to choose.
+    """
+
+    min_side: int = 0
+    max_pixels: int = 0
+
+
+class PhotoSizeError(BadPhotoError):
+    """A photo outside ``SizeLimits``: ``too`` is ``"small"`` or ``"large"``, ``size`` its (width, height)."""
+
+    def __init__(self, path: Path, size: tuple[int, int], too: Literal["small", "large"], advice: str = "") -> None:
+        self.size, self.too = size, too
+        width, height = size
+        if too == "small":
+            problem = f"is only {width}x{height} pixels"
+        else:
+            problem = f"is {width}x{height} pixels ({width * height / 1e6:.0f} megapixels)"
+        super().__init__(path, problem, advice)
+
+
+@dataclass(frozen=True)
+class PhotoHeader:
+    """What a photo's header says, read without decoding: its stored size, channels and bytes per sample."""
+
+    width: int
+    height: int
+    channels: int
+    bytes_per_sample: int
+
+    @property
+    def pixels(self) -> int:
+        return self.width * self.height
+
+
+def read_header(source: Path | bytes) -> PhotoHeader | None:
+    """The header of a JPEG, PNG or TIFF (a path or the file's bytes), parsed by Pillow without decoding.
+
+    ``None`` for camera RAW, for containers Pillow does not parse and for headers it cannot read: the decoder
+    says what is wrong with those. The plugin classes are used directly because ``PIL.Image.open`` applies
+    Pillow's own decompression-bomb limit, which would hide the size.
+    """
+    from PIL import JpegImagePlugin, PngImagePlugin, TiffImagePlugin
+
+    data = source if isinstance(source, bytes) else None
+    try:
+        if data is None:
+            with open(source, "rb") as f:
+                head = f.read(8)
+        container = sniff_container(data if data is not None else head)
+        plugin = {"jpeg": JpegImagePlugin.JpegImageFile, "png": PngImagePlugin.PngImageFile,
+                  "tiff": TiffImagePlugin.TiffImageFile}.get(container or "")
+        if plugin is None:
+            return None
+        with plugin(io.BytesIO(data) if data is not None else str(source)) as image:
+            width, height = image.size
+            mode = image.mode
+            channels = len(image.getbands())
+    except Exception:  # Pillow raises SyntaxError, OSError, ValueError, struct.error... on headers it cannot read
+        return None
+    return PhotoHeader(width, height, channels, 2 if "16" in mode or mode in ("I", "F") else 1)
+
+
+def check_size(path: Path, size: tuple[int, int], limits: SizeLimits) -> None:
+    """Raise ``PhotoSizeError`` when a photo of ``size`` (width, height) is outside ``limits``."""
+    width, height = size
+    if limits.min_side and min(width, height) < limits.min_side:
+        raise PhotoSizeError(path, size, "small")
+    if limits.max_pixels and width * height > limits.max_pixels:
+        raise PhotoSizeError(path, size, "large")
 
 
 @dataclass
@@ -236,12 +317,13 @@ def apply_orientation(image: np.ndarray, orientation: int) -> np.ndarray:
     return np.ascontiguousarray(upright)
 
 
-def read_photo(path: Path, raw: RawOptions = RawOptions()) -> DecodedPhoto:
+def read_photo(path: Path, raw: RawOptions = RawOptions(), limits: SizeLimits = SizeLimits()) -> DecodedPhoto:
     """Read, check and decode one photo into upright RGB(A) pixels (see ``DecodedPhoto``).
 
     JPEG, PNG and TIFF are decoded by OpenCV without its own orientation handling, and the EXIF orientation
     is applied here; camera RAW is developed by LibRaw (rawpy) as 16-bit sRGB following ``raw``.
-    Raises ``BadPhotoError`` for unsupported, unreadable, empty, truncated or undecodable files.
+    Raises ``BadPhotoError`` for unsupported, unreadable, empty, truncated or undecodable files, and
+    ``PhotoSizeError`` for a photo outside ``limits``, from its header, before decoding it.
     """
     path = Path(path)
     kind = photo_kind(path)
@@ -256,7 +338,10 @@ def read_photo(path: Path, raw: RawOptions = RawOptions()) -> DecodedPhoto:
     check_integrity(path, data, kind)
     exif = read_exif(data)
     if kind == "raw":
-        return _develop_raw(path, data, exif, raw)
+        return _develop_raw(path, data, exif, raw, limits)
+    header = read_header(data)
+    if header is not None:
+        check_size(path, (header.width, header.height), limits)
     return _decode_image(path, data, exif)
 
 
@@ -332,13 +417,14 @@ def _to_rgb(path: Path, stored: np.ndarray) -> np.ndarray:
     raise BadPhotoError(path, f"has {channels} channels", "export it as an RGB or RGBA image (3 or 4 channels)")
 
 
-def _develop_raw(path: Path, data: bytes, exif: ExifSummary, options: RawOptions) -> DecodedPhoto:
+def _develop_raw(path: Path, data: bytes, exif: ExifSummary, options: RawOptions, limits: SizeLimits) -> DecodedPhoto:
     """Develop a camera RAW with LibRaw into (H, W, 3) uint16 sRGB; LibRaw applies the RAW's own flip."""
     # rawpy loads LibRaw (a large native library); only pay for it when a RAW file shows up.
     import rawpy
 
     try:
         with rawpy.imread(io.BytesIO(data)) as raw_image:
+            check_size(path, (raw_image.sizes.width, raw_image.sizes.height), limits)
             pixels = raw_image.postprocess(**_postprocess_args(rawpy, options))
     except (rawpy.LibRawError, rawpy.NotSupportedError) as err:
         raise BadPhotoError(
@@ -440,8 +526,14 @@ def _check_jpeg(path: Path, data: bytes) -> None:
 
 
 def _check_png(path: Path, data: bytes) -> None:
-    """Walk the PNG chunks by their lengths up to IEND; a chunk running past the end means a cut-off file."""
+    """Walk the PNG chunks by their lengths up to IEND; a chunk running past the end means a cut-off file.
+
+    The image data must also be long enough for the size IHDR states: deflate shrinks data at most 1032
+    times (RFC 1951's longest match, 258 bytes, costs at least 2 bits), so shorter IDAT data cannot hold the
+    image, and libpng would print its own error line before OpenCV gives up.
+    """
     position = len(PNG_SIGNATURE)
+    idat_bytes, raw_bytes = 0, 0
     while True:
         if position + 8 > len(data):
             raise _truncated(path, "PNG ends before its IEND chunk")
@@ -451,11 +543,24 @@ def _check_png(path: Path, data: bytes) -> None:
             raise BadPhotoError(
                 path, f"is not a valid PNG file (corrupt chunk at byte {position})", _RECOPY_ADVICE
             )
+        if chunk_type == b"IHDR" and length >= 10 and position + 18 <= len(data):
+            width, height, bit_depth, colour_type = struct.unpack_from(">IIBB", data, position + 8)
+            channels = _PNG_CHANNELS.get(colour_type, 1)
+            raw_bytes = height * (1 + (width * channels * bit_depth + 7) // 8)  # a filter byte starts each row
+        elif chunk_type == b"IDAT":
+            idat_bytes += length
         position += 12 + length
         if position > len(data):
             raise _truncated(path, f"PNG chunk {chunk_type.decode('latin-1')!r} runs past the end of the file")
         if chunk_type == b"IEND":
-            return
+            break
+    if idat_bytes * _DEFLATE_MAX_RATIO < raw_bytes:
+        raise BadPhotoError(
+            path,
+            f"is not a valid PNG file (its {idat_bytes} bytes of image data cannot hold the "
+            f"{width}x{height} image its header states)",
+            _RECOPY_ADVICE,
+        )
 
 
 def _check_tiff(path: Path, data: bytes) -> None:

@@ -6,6 +6,7 @@ It knows nothing about images or radiance fields; ``nerfpipe.stages`` does.
 from nerfpipe.pipeline.dag import Dag
 from nerfpipe.pipeline.errors import (
     BadPhotoError,
+    DiskFullError,
     InputError,
     NerfpipeError,
     ParamError,
@@ -16,10 +17,10 @@ from nerfpipe.pipeline.errors import (
 from nerfpipe.pipeline.params import ParamSpec, build_params, param_specs, parse_assignments
 from nerfpipe.pipeline.runner import Pipeline, PlannedStage, StageOutcome, StageStatus
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
-from nerfpipe.pipeline.store import ArtifactStore, Committed
+from nerfpipe.pipeline.store import ArtifactStore, Committed, Damage
 
 __all__ = [
-    "ArtifactStore", "BadPhotoError", "Committed", "Dag", "InputError", "NerfpipeError", "ParamError",
+    "ArtifactStore", "BadPhotoError", "Committed", "Damage", "Dag", "DiskFullError", "InputError", "NerfpipeError", "ParamError",
     "ParamSpec", "Pipeline", "PlannedStage", "RunLockedError", "Stage", "StageContext", "StageError",
     "StageInputs", "StageOutcome", "StageStatus", "UpstreamNotReadyError", "build_params", "param_specs",
     "parse_assignments",

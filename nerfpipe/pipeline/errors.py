@@ -7,6 +7,7 @@ Any other exception is a bug in nerfpipe and is shown with its traceback.
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
 
 
@@ -48,3 +49,45 @@ class StageError(NerfpipeError):
 
 class UpstreamNotReadyError(NerfpipeError):
     """``--only STAGE`` was asked for while an upstream stage has no result for the current settings."""
+
+
+class DiskFullError(NerfpipeError):
+    """The disk holding the run directory is full, or too full for what a stage is about to write."""
+
+    def __init__(
+        self, path: Path | str, needed: int | None = None, free: int | None = None, stage: str | None = None
+    ) -> None:
+        self.path = Path(path)
+        self.needed, self.free = needed, free
+        if needed is not None and free is not None:
+            problem = (f"not enough free space{f' for {stage}' if stage else ''} "
+                       f"(needs about {format_bytes(needed)}, {format_bytes(free)} free)")
+        else:
+            problem = "the disk is full" + (f" (it filled up while {stage} was writing)" if stage else "")
+        super().__init__(f"{self.path}: {problem}; free some space, or pass --out a folder on a disk with more room")
+
+
+# errno values that mean "the disk cannot take more": no space, and over a user's quota
+DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+
+def format_bytes(n: int) -> str:
+    """``1536`` -> ``'1.5 KB'``; decimal units, as ``df -H`` and file managers show them."""
+    value = float(n)
+    for unit in ("bytes", "KB", "MB", "GB"):
+        if abs(value) < 1000 or unit == "GB":
+            return f"{value:.0f} {unit}" if unit == "bytes" else f"{value:.1f} {unit}"
+        value /= 1000
+    raise AssertionError("unreachable")
+
+
+def os_error_to_user_error(err: OSError, where: Path | str) -> NerfpipeError | None:
+    """The one-line user error for an ``OSError`` raised while writing under ``where``, or ``None``.
+
+    A full disk or quota and a read-only filesystem are the user's to fix; anything else is left alone.
+    """
+    if err.errno in DISK_FULL_ERRNOS:
+        return DiskFullError(where)
+    if err.errno == errno.EROFS:
+        return InputError(where, "is on a read-only filesystem", "pass --out a folder on a writable disk")
+    return None

@@ -51,12 +51,18 @@ class FingerprintCache:
         return Fingerprint(file.relative_to(root).as_posix(), st.st_size, st.st_mtime_ns, digest)
 
     def save(self) -> None:
+        """Keep the hashes for the next run; a cache only, so a disk that takes no writes (full, read-only)
+        costs the next run the hashing and nothing else."""
         if not self._dirty:
             return
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.path.with_name(f"{self.path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp")  # unique across nodes too
-        tmp.write_text(json.dumps(self._entries))
-        os.replace(tmp, self.path)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            tmp.write_text(json.dumps(self._entries))
+            os.replace(tmp, self.path)
+        except OSError:
+            tmp.unlink(missing_ok=True)
+            return
         self._dirty = False
 
 

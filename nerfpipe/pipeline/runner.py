@@ -14,23 +14,33 @@ import json
 import logging
 import os
 import platform
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Literal, Mapping, Sequence
 
 from nerfpipe.pipeline.dag import Dag
-from nerfpipe.pipeline.errors import InputError, NerfpipeError, ParamError, UpstreamNotReadyError
+from nerfpipe.pipeline.errors import (
+    DISK_FULL_ERRNOS,
+    DiskFullError,
+    InputError,
+    NerfpipeError,
+    ParamError,
+    UpstreamNotReadyError,
+    os_error_to_user_error,
+)
 from nerfpipe.pipeline.fingerprint import Fingerprint, FingerprintCache, diff_inputs
 from nerfpipe.pipeline.hashing import cache_key
 from nerfpipe.pipeline.lock import RunLock, StageLock
 from nerfpipe.pipeline.params import build_params, describe_changes, params_to_dict
 from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress
-from nerfpipe.pipeline.store import ArtifactStore, Committed, write_json_atomic
+from nerfpipe.pipeline.store import ArtifactStore, Committed, Damage, write_json_atomic
 
 log = logging.getLogger("nerfpipe")
 
 RUN_CONFIG = "run.json"
+DISK_NEARLY_FULL = 1 << 20  # bytes: a stage failing with less than this left is taken to have filled the disk
 
 
 @dataclass(frozen=True)
@@ -50,11 +60,16 @@ class PlannedStage:
 
 @dataclass(frozen=True)
 class StageStatus:
+    """``fresh``: its result for the current settings is intact and built on its upstream's current results.
+    ``stale``: settings, inputs or an upstream result changed. ``broken``: its result is damaged (``damage``
+    says which file and how) and will be computed again. ``missing``: never run with these settings."""
+
     name: str
-    state: Literal["fresh", "stale", "missing"]
+    state: Literal["fresh", "stale", "broken", "missing"]
     reasons: tuple[str, ...]
     key: str
     result: Committed | None  # the result for ``key`` when fresh, else the latest one, if any
+    damage: Damage | None = None
 
 
 @dataclass(frozen=True)
@@ -96,6 +111,16 @@ def library_versions(names: Sequence[str]) -> dict[str, str]:
         except importlib.metadata.PackageNotFoundError:
             versions[name] = "not installed"
     return versions
+
+
+class _LogFileHandler(logging.FileHandler):
+    """The run's log file. When it cannot be written (the disk filled up), it stops writing instead of
+    printing logging's "--- Logging error ---" traceback: the terminal still gets the messages, and the
+    error that follows says what happened."""
+
+    def handleError(self, record: logging.LogRecord) -> None:
+        self.close()
+        self.setLevel(logging.CRITICAL + 1)
 
 
 class Pipeline:
@@ -178,20 +203,58 @@ class Pipeline:
         self._plan = planned
         return planned
 
-    def status(self) -> list[StageStatus]:
-        statuses = []
+    def status(self, verify: bool = False) -> list[StageStatus]:
+        """Each stage's state, checking every result it would reuse: sizes and times, or ``verify`` sha256."""
+        statuses: dict[str, StageStatus] = {}
         for name, planned in self.plan().items():
-            hit = self.store.get(name, planned.key)
+            found = self.store.inspect(name, planned.key, full=verify)
             latest = self.store.latest(name)
-            if hit is not None:
-                reasons = () if latest is not None and latest.key == planned.key else ("cached by an earlier run",)
-                statuses.append(StageStatus(name, "fresh", reasons, planned.key, hit))
+            if isinstance(found, Committed):
+                upstream = {up: statuses[up].result if statuses[up].state == "fresh" else None
+                            for up in self.dag.upstream[name]}
+                problem = self._upstream_problem(found, upstream, {up: statuses[up].state for up in upstream})
+                if problem is not None:
+                    statuses[name] = StageStatus(name, "stale", (problem,), planned.key, found)
+                else:
+                    reasons = () if latest is not None and latest.key == planned.key else ("cached by an earlier run",)
+                    statuses[name] = StageStatus(name, "fresh", reasons, planned.key, found)
+            elif isinstance(found, Damage):
+                statuses[name] = StageStatus(name, "broken", (f"damaged result: {found}",), planned.key, None, found)
             elif latest is not None:
                 why = stale_reasons(planned, latest.manifest, planned.stage.inputs_label)
-                statuses.append(StageStatus(name, "stale", tuple(why), planned.key, latest))
+                statuses[name] = StageStatus(name, "stale", tuple(why), planned.key, latest)
             else:
-                statuses.append(StageStatus(name, "missing", ("not run yet",), planned.key, None))
-        return statuses
+                aside = self.store.set_aside_as(name, planned.key)
+                why = f"its damaged result was moved aside to {aside}" if aside is not None else "not run yet"
+                statuses[name] = StageStatus(name, "missing", (why,), planned.key, None)
+        return list(statuses.values())
+
+    @staticmethod
+    def _upstream_problem(
+        result: Committed, upstream: Mapping[str, Committed | None], states: Mapping[str, str] | None = None
+    ) -> str | None:
+        """Why ``result`` may not be reused although its key matches: an upstream result it was built on
+        is missing or damaged, or was computed again since (its commit id differs from the one recorded)."""
+        built_on = result.manifest.get("upstream_commits")
+        for up, current in upstream.items():
+            if current is None:
+                return f"upstream {up} is {(states or {}).get(up, 'missing')}"
+            if built_on is not None and built_on.get(up) != current.commit_id:
+                return f"upstream {up} was computed again after this result"
+        return None
+
+    def verify(self) -> list[tuple[StageStatus, Path]]:
+        """Hash every output of every result the current settings use; move the damaged ones aside.
+
+        Returns each damaged stage's status and where its folder went; the next ``run`` computes it again.
+        """
+        moved = []
+        self.store.prepare()
+        with RunLock(self.run_dir):
+            for status in self.status(verify=True):
+                if status.damage is not None:
+                    moved.append((status, self.store.set_aside(status.name, status.key, status.damage)))
+        return moved
 
     def result(self, stage: str) -> Committed | None:
         """The committed result of ``stage`` for the current settings, if there is one."""
@@ -200,11 +263,13 @@ class Pipeline:
     def stage_inputs(self, name: str) -> StageInputs:
         """What stage ``name`` reads, from its upstream results for the current settings.
 
-        Raises ``UpstreamNotReadyError`` when an upstream stage has no result for them.
+        Raises ``UpstreamNotReadyError`` when an upstream stage has no intact result for them.
         """
-        planned = self.plan()[self.dag.check_name(name)]
-        artifacts: dict[str, Path] = {}
-        for up in self.dag.upstream[name]:
+        return self._inputs(name, self._upstream_results(name))
+
+    def _upstream_results(self, name: str) -> dict[str, Committed]:
+        results = {}
+        for up in self.dag.upstream[self.dag.check_name(name)]:
             up_result = self.store.get(up, self.plan()[up].key)
             if up_result is None:  # only reachable with --only: otherwise upstream ran just before
                 status = next(s for s in self.status() if s.name == up)
@@ -212,6 +277,13 @@ class Pipeline:
                     f"--only {name}: upstream stage {up} is {status.state} ({'; '.join(status.reasons)}); "
                     f"run it first, e.g. with --until {up}"
                 )
+            results[up] = up_result
+        return results
+
+    def _inputs(self, name: str, upstream: Mapping[str, Committed]) -> StageInputs:
+        planned = self.plan()[name]
+        artifacts: dict[str, Path] = {}
+        for up, up_result in upstream.items():
             for artifact in planned.stage.requires:
                 if self.dag.provider[artifact] == up:
                     artifacts[artifact] = up_result.path / self.dag.stages[up].provides[artifact]
@@ -229,8 +301,8 @@ class Pipeline:
         forced: set[str] = set()
         for name in force:
             forced |= {self.dag.check_name(name)} | self.dag.descendants(name)
-        self.run_dir.mkdir(parents=True, exist_ok=True)
-        with RunLock(self.run_dir), self._log_to_file():
+        self.store.prepare()
+        with self._user_os_errors(), RunLock(self.run_dir), self._log_to_file():
             planned = self.plan()
             self.save_config()
             outcomes = []
@@ -246,9 +318,20 @@ class Pipeline:
         Raises ``UpstreamNotReadyError`` when an upstream stage has no result.
         """
         planned = self.plan()[self.dag.check_name(name)]
-        self.run_dir.mkdir(parents=True, exist_ok=True)
-        with self._log_to_file(name):
+        self.store.prepare()
+        with self._user_os_errors(), self._log_to_file(name):
             return self._run_one(planned, forced=force)
+
+    @contextlib.contextmanager
+    def _user_os_errors(self) -> Iterator[None]:
+        """A full disk or a read-only filesystem while writing the run directory is a one-line user error."""
+        try:
+            yield
+        except OSError as err:
+            user_error = os_error_to_user_error(err, self.run_dir)
+            if user_error is None:
+                raise
+            raise user_error from err
 
     def _run_one(self, planned: PlannedStage, forced: bool) -> StageOutcome:
         # Two writers of one (stage, key), in two processes or on two nodes of a cluster: the second
@@ -263,7 +346,7 @@ class Pipeline:
     def _restore(self, planned: PlannedStage) -> StageOutcome | None:
         name = planned.name
         hit = self.store.get(name, planned.key)
-        if hit is None:
+        if hit is None or self._upstream_problem(hit, self._current_upstream(name)) is not None:
             return None
         latest = self.store.latest(name)
         if latest is not None and latest.key == planned.key:
@@ -273,25 +356,47 @@ class Pipeline:
         log.info("%s: restored the result of an earlier run with these settings", name)
         return StageOutcome(name, "restored", planned.key, hit.path, 0.0)
 
+    def _current_upstream(self, name: str) -> dict[str, Committed | None]:
+        return {up: self.store.get(up, self.plan()[up].key) for up in self.dag.upstream[name]}
+
+    def _why_run(self, planned: PlannedStage, forced: bool) -> tuple[list[str], bool]:
+        """Why ``planned`` runs, and whether its new result replaces one of the same key.
+
+        A damaged result is moved aside first (and said so); an intact one built on upstream results that
+        have since been computed again is replaced.
+        """
+        name = planned.name
+        if forced:
+            return ["forced"], True
+        found = self.store.inspect(name, planned.key)
+        if isinstance(found, Damage):
+            aside = self.store.set_aside(name, planned.key, found)
+            log.warning("%s: its cached result is damaged (%s); moved it aside to %s", name, found, aside)
+            return [f"its cached result was damaged: {found}"], False
+        if isinstance(found, Committed):
+            problem = self._upstream_problem(found, self._current_upstream(name))
+            return [problem or "cache key changed"], True
+        latest = self.store.latest(name)
+        if latest is None:
+            aside = self.store.set_aside_as(name, planned.key)
+            return [f"its damaged result was moved aside to {aside}" if aside is not None else "not run yet"], False
+        return stale_reasons(planned, latest.manifest, planned.stage.inputs_label), False
+
     def _run_locked(self, planned: PlannedStage, forced: bool) -> StageOutcome:
         name, key = planned.name, planned.key
         restored = None if forced else self._restore(planned)
         if restored is not None:
             return restored
 
-        inputs = self.stage_inputs(name)
-        for up in self.dag.upstream[name]:
+        upstream = self._upstream_results(name)
+        inputs = self._inputs(name, upstream)
+        for up in upstream:
             self.store.set_latest(up, self.plan()[up].key)
 
-        latest = self.store.latest(name)
-        if forced:
-            reasons = ["forced"]
-        elif latest is None:
-            reasons = ["not run yet"]
-        else:
-            reasons = stale_reasons(planned, latest.manifest, planned.stage.inputs_label)
+        reasons, replace = self._why_run(planned, forced)
         log.info("%s: running (%s)", name, "; ".join(reasons))
 
+        self._check_space(planned, inputs)
         work = self.store.begin(name, key, resume=planned.stage.resumable and not forced)
         started = time.time()
         ctx = StageContext(log=logging.getLogger(f"nerfpipe.stages.{name}"), progress=self.progress, debug=self.debug)
@@ -304,22 +409,47 @@ class Pipeline:
             # Kept for the user to inspect (logs the error message may point at); it is not a result,
             # and the next attempt at this key wipes it.
             raise
-        except BaseException:
+        except BaseException as err:
+            full = self._disk_full(err, work, name)
             if not planned.stage.resumable:
                 self.store.abandon(work)
+            if full is not None:
+                raise full from err
             raise
         finished = time.time()
         manifest = {
             **planned.material,
             "key": key,
+            "upstream_commits": {up: result.commit_id for up, result in upstream.items()},
             "inputs": {fp.relpath: {"size": fp.size, "sha256": fp.sha256} for fp in planned.files},
             "timings": {"started": started, "finished": finished, "seconds": round(finished - started, 4)},
             "libraries": library_versions(planned.stage.libraries),
             "summary": summary,
         }
-        committed = self.store.commit(name, key, work, manifest, replace=forced)
+        committed = self.store.commit(name, key, work, manifest, replace=replace)
         log.info("%s: done in %.1f s -> %s", name, finished - started, committed.path)
         return StageOutcome(name, "ran", key, committed.path, finished - started, tuple(reasons), summary)
+
+    def _check_space(self, planned: PlannedStage, inputs: StageInputs) -> None:
+        """Refuse to start a stage whose outputs, as it predicts them, do not fit on the disk."""
+        needed = planned.stage.expected_bytes(inputs, planned.params)
+        if needed:
+            free = shutil.disk_usage(self.run_dir).free
+            if needed > free:
+                raise DiskFullError(self.run_dir, needed, free, planned.name)
+
+    def _disk_full(self, err: BaseException, work: Path, stage: str) -> DiskFullError | None:
+        """``DiskFullError`` if ``err`` came from a full disk: ENOSPC, or any failure (libraries that write
+        natively, like torch.save, raise their own errors) while the disk has less than a MiB left."""
+        if isinstance(err, OSError) and err.errno in DISK_FULL_ERRNOS:
+            return DiskFullError(self.run_dir, stage=stage)
+        if not isinstance(err, Exception):
+            return None
+        try:
+            free = shutil.disk_usage(work if work.exists() else self.run_dir).free
+        except OSError:
+            return None
+        return DiskFullError(self.run_dir, stage=stage) if free < DISK_NEARLY_FULL else None
 
     def save_config(self) -> None:
         """Record the capture folder and settings in run.json, for ``status``, ``report`` and ``view``."""
@@ -338,7 +468,7 @@ class Pipeline:
         logs.mkdir(parents=True, exist_ok=True)
         path = logs / f"{label}-{time.strftime('%Y%m%d-%H%M%S')}-{int(time.time() * 1000) % 1000:03d}-{os.getpid()}.log"
         self.log_path = path
-        handler = logging.FileHandler(path, encoding="utf-8")
+        handler = _LogFileHandler(path, encoding="utf-8")
         handler.setLevel(logging.DEBUG)
         handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)-7s %(name)s: %(message)s"))
         root = logging.getLogger("nerfpipe")

@@ -79,6 +79,13 @@ class Stage:
         """Files of the capture folder this stage reads; their fingerprints enter the cache key."""
         return []
 
+    def expected_bytes(self, inputs: StageInputs, params: Any) -> int:
+        """About how many bytes ``run`` will write, where the stage can tell beforehand; 0 when it cannot.
+
+        The runner refuses to start the stage, with a clear message, when the disk has less free space.
+        """
+        return 0
+
     def describe(self, result: Path, manifest: Mapping[str, Any]) -> list[str]:
         """Lines ``nerfpipe status`` prints about a committed result (its folder and manifest)."""
         return []

@@ -5,6 +5,7 @@ Layout of a run directory::
     run.json                      the capture folder and settings of the last `nerfpipe run`
     stages/<stage>/<key>/         a committed result; manifest.json is always written last
     stages/<stage>/latest.json    which key the last run used
+    broken/<stage>-<key12>-<time>/ a committed result found damaged, moved aside (REASON.txt says why)
     .work/<stage>-<key16>/        a stage being written; never read as a result
     .cache/fingerprints.json      (size, mtime) -> sha256 of input files
     logs/run-<time>.log           the full log of each run
@@ -13,6 +14,11 @@ A result exists only once ``os.rename`` has moved its finished folder, manifest 
 ``stages/<stage>/``. A process killed before that leaves at most a ``.work`` folder, which the next run
 of that stage wipes (a resumable stage, such as training, resumes from its checkpoints there instead)
 and ``nerfpipe clean`` removes.
+
+A committed result is reused only while its files are what the manifest recorded (DVC's promise): every
+read checks each output's size and modification time against the manifest, hashing a file again only
+when its time differs, and ``verify`` hashes every output. A result that fails is damaged: it is never
+returned as a result, and the runner moves it aside before computing it again.
 """
 
 from __future__ import annotations
@@ -27,9 +33,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from nerfpipe.pipeline.errors import InputError
 from nerfpipe.pipeline.hashing import sha256_file
 
 MANIFEST = "manifest.json"
+BROKEN = "broken"
 
 
 def write_json_atomic(path: Path, value: Any) -> None:
@@ -52,13 +60,47 @@ def _fsync_dir(path: Path) -> None:
 
 
 def describe_outputs(folder: Path) -> dict[str, dict[str, Any]]:
-    """Every file under ``folder`` (but the manifest) with its size and sha256."""
+    """Every file under ``folder`` (but the manifest) with its size, modification time (ns) and sha256."""
     outputs = {}
     for path in sorted(p for p in folder.rglob("*") if p.is_file()):
         rel = path.relative_to(folder).as_posix()
         if rel != MANIFEST:
-            outputs[rel] = {"size": path.stat().st_size, "sha256": sha256_file(path)}
+            stat = path.stat()
+            outputs[rel] = {"size": stat.st_size, "mtime_ns": stat.st_mtime_ns, "sha256": sha256_file(path)}
     return outputs
+
+
+@dataclass(frozen=True)
+class Damage:
+    """Why a committed result may not be reused: its folder, the file at fault and what is wrong with it."""
+
+    path: Path
+    file: str
+    problem: str
+
+    def __str__(self) -> str:
+        return f"{self.file} {self.problem}"
+
+
+def verify_outputs(folder: Path, outputs: dict[str, dict[str, Any]], full: bool = False) -> Damage | None:
+    """The first output of ``folder`` that is not what ``outputs`` (a manifest's) recorded, or ``None``.
+
+    The cheap check compares sizes and modification times; a file whose time differs but whose size does
+    not (a copied run directory, a ``touch``) is hashed and passes if its sha256 is unchanged. ``full``
+    hashes every file. Manifests written before times were recorded are checked by size alone.
+    """
+    for rel, meta in outputs.items():
+        path = folder / rel
+        try:
+            stat = path.stat()
+        except OSError:
+            return Damage(folder, rel, "is missing")
+        if stat.st_size != meta["size"]:
+            return Damage(folder, rel, f"changed size ({meta['size']} -> {stat.st_size} bytes)")
+        if full or meta.get("mtime_ns", stat.st_mtime_ns) != stat.st_mtime_ns:
+            if sha256_file(path) != meta["sha256"]:
+                return Damage(folder, rel, "changed content (its sha256 is not the manifest's)")
+    return None
 
 
 @dataclass(frozen=True)
@@ -72,6 +114,11 @@ class Committed:
     def key(self) -> str:
         return self.manifest["key"]
 
+    @property
+    def commit_id(self) -> str:
+        """Unique to this commit: a result computed again under the same key gets a new one."""
+        return self.manifest.get("commit") or f"{self.key}@{self.manifest.get('timings', {}).get('finished')}"
+
 
 class ArtifactStore:
     def __init__(self, run_dir: Path) -> None:
@@ -83,14 +130,28 @@ class ArtifactStore:
     def result_dir(self, stage: str, key: str) -> Path:
         return self.stages_dir / stage / key
 
-    def get(self, stage: str, key: str) -> Committed | None:
-        manifest_path = self.result_dir(stage, key) / MANIFEST
-        try:
-            return Committed(manifest_path.parent, json.loads(manifest_path.read_text(encoding="utf-8")))
-        except (FileNotFoundError, ValueError):
+    def inspect(self, stage: str, key: str, full: bool = False) -> Committed | Damage | None:
+        """The result of (stage, key) if it is intact, what is wrong with it if not, ``None`` if there is none."""
+        folder = self.result_dir(stage, key)
+        if not folder.is_dir():
             return None
+        try:
+            manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            return Damage(folder, MANIFEST, "is missing")
+        except (OSError, ValueError):
+            return Damage(folder, MANIFEST, "is not readable JSON")
+        if not isinstance(manifest, dict) or not isinstance(manifest.get("outputs"), dict) or "key" not in manifest:
+            return Damage(folder, MANIFEST, "has no key or outputs")
+        return verify_outputs(folder, manifest["outputs"], full) or Committed(folder, manifest)
+
+    def get(self, stage: str, key: str) -> Committed | None:
+        """The intact result of (stage, key), by the cheap check, or ``None``."""
+        found = self.inspect(stage, key)
+        return found if isinstance(found, Committed) else None
 
     def latest(self, stage: str) -> Committed | None:
+        """The intact result the last run of ``stage`` used, if any."""
         try:
             key = json.loads((self.stages_dir / stage / "latest.json").read_text())["key"]
         except (FileNotFoundError, ValueError, KeyError):
@@ -104,6 +165,25 @@ class ArtifactStore:
         return sorted(p.name for p in folder.iterdir() if p.is_dir() and (p / MANIFEST).is_file())
 
     # -- writing -------------------------------------------------------------------------------
+    def prepare(self) -> None:
+        """Make the run directory, or raise ``InputError`` saying why it cannot be one."""
+        where = self.run_dir
+        existing = next(p for p in (where, *where.parents) if p.exists() or p == p.parent)
+        if existing.exists() and not existing.is_dir():
+            advice = ("pass --out a new folder or the folder of an earlier run" if existing == where
+                      else f"pass --out a path that does not run through a file (not {where})")
+            raise InputError(existing, "is a file, not a folder", advice)
+        try:
+            where.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            why = "it is on a read-only filesystem" if err.errno == errno.EROFS else err.strerror or str(err)
+            raise InputError(where, f"cannot be made in {existing} ({why})",
+                             "pass --out a folder on a writable disk") from None
+        if os.statvfs(where).f_flag & os.ST_RDONLY:
+            raise InputError(where, "is on a read-only filesystem", "pass --out a folder on a writable disk")
+        if not os.access(where, os.W_OK | os.X_OK):
+            raise InputError(where, "cannot be written to (permission denied)", "pass --out a folder you may write to")
+
     def begin(self, stage: str, key: str, resume: bool = False) -> Path:
         """The work folder for (stage, key), inside the run directory (same filesystem).
 
@@ -121,14 +201,17 @@ class ArtifactStore:
 
         If a result of this key already exists, ``replace`` (a forced rerun) swaps it for the new one;
         otherwise the existing result stands and the new work is discarded: two writers racing on one
-        key leave one complete result.
+        key leave one complete result. A damaged result of this key is moved aside (``set_aside``) first.
         """
-        manifest = {**manifest, "outputs": describe_outputs(work)}
+        manifest = {**manifest, "commit": uuid.uuid4().hex, "outputs": describe_outputs(work)}
         write_json_atomic(work / MANIFEST, manifest)
         _fsync_dir(work)
         target = self.result_dir(stage, key)
         target.parent.mkdir(parents=True, exist_ok=True)
-        if replace and target.exists():
+        found = self.inspect(stage, key)
+        if isinstance(found, Damage):
+            self.set_aside(stage, key, found)
+        elif replace and found is not None:
             trash = self.work_dir / f"trash-{stage}-{uuid.uuid4().hex[:8]}"
             os.rename(target, trash)
             shutil.rmtree(trash)
@@ -142,6 +225,24 @@ class ArtifactStore:
         self.set_latest(stage, key)
         return Committed(target, json.loads((target / MANIFEST).read_text(encoding="utf-8")))
 
+    def set_aside(self, stage: str, key: str, damage: Damage) -> Path:
+        """Move the damaged result of (stage, key) out of the store, into ``broken/``, and say why there.
+
+        Nothing is deleted: the folder keeps whatever is left of the result, for the user to look at;
+        ``nerfpipe clean`` removes it.
+        """
+        aside = self.run_dir / BROKEN / f"{stage}-{key[:12]}-{time.strftime('%Y%m%d-%H%M%S')}-{uuid.uuid4().hex[:4]}"
+        aside.parent.mkdir(parents=True, exist_ok=True)
+        os.rename(self.result_dir(stage, key), aside)
+        (aside / "REASON.txt").write_text(f"{stage} result {key}: {damage}\n", encoding="utf-8")
+        return aside
+
+    def set_aside_as(self, stage: str, key: str) -> Path | None:
+        """The latest folder ``set_aside`` moved the result of (stage, key) to, if any is still there."""
+        folder = self.run_dir / BROKEN
+        found = sorted(folder.glob(f"{stage}-{key[:12]}-*")) if folder.is_dir() else []
+        return found[-1] if found else None
+
     def set_latest(self, stage: str, key: str) -> None:
         write_json_atomic(self.stages_dir / stage / "latest.json", {"key": key, "at": time.time()})
 
@@ -150,11 +251,15 @@ class ArtifactStore:
 
     # -- pruning -------------------------------------------------------------------------------
     def clean(self, keep_all_keys: bool = False) -> tuple[int, int]:
-        """Remove results other than each stage's latest, and any work folders. Returns (folders, bytes)."""
+        """Remove results other than each stage's latest, work folders and results set aside as broken.
+
+        Returns (folders, bytes).
+        """
         removed, freed = 0, 0
         victims: list[Path] = []
-        if self.work_dir.exists():
-            victims.extend(self.work_dir.iterdir())
+        for scratch in (self.work_dir, self.run_dir / BROKEN):
+            if scratch.exists():
+                victims.extend(scratch.iterdir())
         if not keep_all_keys and self.stages_dir.is_dir():
             for stage_dir in self.stages_dir.iterdir():
                 latest = self.latest(stage_dir.name)

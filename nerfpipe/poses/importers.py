@@ -353,12 +353,22 @@ def transforms_camera(values: dict[str, Any], record: dict[str, Any], pose_file:
 # LLFF poses_bounds.npy
 
 
+NPY_MAGIC = b"\x93NUMPY"  # the first bytes of every .npy file (NEP 1)
+
+
 def import_llff(layout: CaptureLayout, photos: _Photos) -> CameraSet:
     pose_file = layout.pose_files[0]
+    with open(pose_file, "rb") as f:
+        magic = f.read(len(NPY_MAGIC))
+    if magic != NPY_MAGIC:
+        # np.load would try to read it as a pickle and say so, hinting at allow_pickle: never for a pose file
+        raise InputError(pose_file, "is not a NumPy .npy file (it does not start with the .npy signature)",
+                         "regenerate it with LLFF's imgs2poses, or remove it to let SfM compute the poses")
     try:
         array = np.load(pose_file, allow_pickle=False)
     except (OSError, ValueError, EOFError) as err:
-        raise InputError(pose_file, f"is not a readable .npy array ({err})", "regenerate it with LLFF's imgs2poses") from None
+        problem = "holds Python objects, not numbers" if "pickle" in str(err) else f"is not a readable .npy array ({err})"
+        raise InputError(pose_file, problem, "regenerate it with LLFF's imgs2poses") from None
     if array.ndim != 2 or array.shape[1] != 17 or not np.issubdtype(array.dtype, np.number):
         raise InputError(pose_file, f"has shape {array.shape} ({array.dtype}); poses_bounds.npy must be (N, 17): "
                          "a 3x5 [R | t | hwf] pose and near, far per image", "regenerate it with LLFF's imgs2poses")

@@ -65,10 +65,11 @@ def resolve_inside(capture: Path, name: str, pose_file: Path, suffixes: tuple[st
 
 POSE_FILE_NAMES = {
     "transforms": "transforms.json or transforms_{train,val,test}.json",
-    "colmap": "a COLMAP model (sparse/0/cameras.bin, images.bin, ...)",
+    "colmap": "COLMAP model (cameras.bin and images.bin, or .txt, in sparse/0, sparse or the folder itself)",
     "llff": "poses_bounds.npy",
-    "middlebury": "a *_par.txt calibration file",
+    "middlebury": "*_par.txt calibration file",
 }
+COLMAP_MODEL_FILES = ("cameras", "images", "points3D")
 
 
 def detect_layout(capture: Path, kind: str | None = None) -> CaptureLayout:
@@ -76,6 +77,8 @@ def detect_layout(capture: Path, kind: str | None = None) -> CaptureLayout:
     detectors = {"transforms": _transforms, "colmap": _colmap, "llff": _llff, "middlebury": _middlebury}
     if kind is not None and kind != "folder":
         layout = detectors[kind](capture)
+        if layout is None and kind == "colmap":
+            check_colmap_model(capture, "or use --set sfm.poses=sfm to compute the poses")
         if layout is None:
             raise InputError(capture, f"has no {POSE_FILE_NAMES[kind]} to import poses from",
                              "drop the --set sfm.poses override to detect the poses, or use sfm.poses=sfm")
@@ -145,6 +148,20 @@ def colmap_model_dir(capture: Path) -> Path | None:
             if all((folder / f"{n}{ext}").is_file() for n in ("cameras", "images")):
                 return folder
     return None
+
+
+def check_colmap_model(capture: Path, alternative: str) -> None:
+    """Raise ``InputError`` naming the missing file when the capture holds part of a COLMAP model: some of
+    cameras, images and points3D (.bin or .txt) in a model folder, but not both cameras and images."""
+    for sub in COLMAP_MODEL_DIRS:
+        folder = capture / sub
+        for ext in (".bin", ".txt"):
+            present = [f"{n}{ext}" for n in COLMAP_MODEL_FILES if (folder / f"{n}{ext}").is_file()]
+            missing = [f"{n}{ext}" for n in COLMAP_MODEL_FILES[:2] if not (folder / f"{n}{ext}").is_file()]
+            if present and missing:
+                raise InputError(folder / missing[0], f"is missing: the COLMAP model in {folder} has "
+                                 f"{' and '.join(present)} but no {' or '.join(missing)}",
+                                 f"copy it in from COLMAP's sparse output, {alternative}")
 
 
 def _colmap(capture: Path) -> CaptureLayout | None:

@@ -32,7 +32,7 @@ from nerfpipe.artifacts import ImageIndex
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, Points, invert_pose
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
-from nerfpipe.poses.layout import detect_layout
+from nerfpipe.poses.layout import check_colmap_model, detect_layout
 
 PoseSource = Literal["auto", "sfm", "colmap", "transforms", "llff", "middlebury"]
 
@@ -118,7 +118,10 @@ class SfmStage(Stage):
     def input_files(self, source: Path, params: SfmParams) -> list[Path]:
         if params.poses == "sfm":
             return []
-        return detect_layout(source, None if params.poses == "auto" else params.poses).pose_files
+        layout = detect_layout(source, None if params.poses == "auto" else params.poses)
+        if layout.kind == "folder":  # auto found no poses: say so if it found half a COLMAP model
+            check_colmap_model(source, "or pass --set sfm.poses=sfm to compute the poses and ignore the model")
+        return layout.pose_files
 
     def run(self, inputs: StageInputs, out: Path, params: SfmParams, ctx: StageContext) -> dict[str, Any]:
         records = ImageIndex.load(inputs["images_json"]).records

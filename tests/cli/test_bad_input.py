@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import shutil
+import struct
+import time
+import zlib
 from pathlib import Path
 
 import pytest
@@ -148,3 +151,99 @@ def test_debug_shows_the_traceback(tmp_path):
     (tmp_path / "empty").mkdir()
     result = run_cli("run", tmp_path / "empty", "--out", tmp_path / "run", "--debug")
     assert result.returncode != 0 and "Traceback" in result.stderr and "InputError" in result.stderr
+
+
+# -- issue 19, cases 8-14 ---------------------------------------------------------------------------
+
+
+def png_bytes(width: int, height: int, idat: bytes | None, colour_type: int = 2) -> bytes:
+    """A PNG with the given header and image data (IDAT) exactly: no encoder would write a bad one."""
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    header = chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, colour_type, 0, 0, 0))
+    return b"\x89PNG\r\n\x1a\n" + header + (chunk(b"IDAT", idat) if idat is not None else b"") + chunk(b"IEND", b"")
+
+
+def test_8_a_tiny_photo_is_refused_from_its_header(photos, tmp_path):
+    (photos / "tiny.png").write_bytes(png_bytes(1, 1, zlib.compress(b"\x00\x00\x00\x00")))
+    assert_one_clear_error(ingest(photos, tmp_path), "tiny.png: is only 1x1 pixels, below ingest.min_size=32",
+                           "remove it from the photo folder or pass --skip-bad")
+    result = ingest(photos, tmp_path, "--skip-bad")
+    assert result.returncode == 0 and "warning: skipped" in result.stderr and "tiny.png: is only 1x1" in result.stderr
+    result = ingest(photos, tmp_path, "--set", "ingest.min_size=1")  # a real 1x1 photo, if the user says so
+    assert result.returncode == 0, result.stderr
+
+
+def test_9_a_decompression_bomb_is_refused_before_decoding(photos, tmp_path):
+    """A 0.4 MB PNG of a 20000x20000 grey image (400 MP, 400 MB decoded): refused from its header."""
+    rows = zlib.compressobj(9)
+    row = bytes(20001)  # filter byte + 20000 grey samples
+    idat = b"".join(rows.compress(row) for _ in range(20000)) + rows.flush()
+    (photos / "bomb.png").write_bytes(png_bytes(20000, 20000, idat, colour_type=0))
+    assert (photos / "bomb.png").stat().st_size < 1_000_000
+    started = time.perf_counter()
+    result = ingest(photos, tmp_path)
+    assert time.perf_counter() - started < 20
+    assert_one_clear_error(result, "bomb.png: is 20000x20000 pixels (400 megapixels), above ingest.max_megapixels=250",
+                           "--set ingest.max_megapixels=400")
+
+
+def test_10_a_png_header_without_its_data_gets_one_line_and_no_libpng_noise(photos, tmp_path):
+    (photos / "empty.png").write_bytes(png_bytes(4000, 3000, zlib.compress(bytes(100))))
+    result = ingest(photos, tmp_path)
+    assert_one_clear_error(result, "empty.png: is not a valid PNG file",
+                           "cannot hold the 4000x3000 image its header states")
+    assert "libpng" not in result.stderr
+
+
+def test_11_skipping_a_duplicate_does_not_advise_the_flag_that_was_passed(photos, tmp_path):
+    shutil.copy(photos / "templeSR0001.png", photos / "z_copy.png")
+    result = ingest(photos, tmp_path, "--skip-bad")
+    assert result.returncode == 0, result.stderr
+    warnings = [line for line in result.stderr.splitlines() if line.startswith("warning:")]
+    assert warnings == [f"warning: skipped {photos / 'z_copy.png'}: is the same photo as templeSR0001.png (identical content)"]
+
+
+@pytest.fixture
+def in_images(tmp_path) -> Path:
+    """A capture with its photos in images/, as LLFF and COLMAP layouts have them."""
+    folder = tmp_path / "capture"
+    (folder / "images").mkdir(parents=True)
+    for name in ("templeSR0001.png", "templeSR0002.png", "templeSR0003.png"):
+        shutil.copy(TEMPLE / name, folder / "images")
+    return folder
+
+
+def test_12_a_text_file_named_poses_bounds_npy(in_images, tmp_path):
+    (in_images / "poses_bounds.npy").write_text("1 2 3\n")
+    result = run_cli("run", in_images, "--out", tmp_path / "run", "--until", "sfm")
+    line = assert_one_clear_error(result, "poses_bounds.npy: is not a NumPy .npy file", "regenerate it with LLFF's imgs2poses")
+    assert "pickle" not in line
+
+
+@pytest.mark.parametrize("present", [("cameras.bin",), ("cameras.bin", "points3D.bin"), ("images.txt",)])
+def test_13_a_colmap_model_folder_missing_a_file_is_named_not_ignored(in_images, tmp_path, present):
+    model = in_images / "sparse" / "0"
+    model.mkdir(parents=True)
+    for name in present:
+        shutil.copy(shared("colmap_beer_yhuoyuh", "sparse", "0", "cameras.bin"), model / name)
+    missing = "images.bin" if present[0].endswith(".bin") else "cameras.txt"
+    result = run_cli("run", in_images, "--out", tmp_path / "run", "--until", "sfm")
+    assert_one_clear_error(result, f"{model / missing}: is missing: the COLMAP model in {model} has {' and '.join(present)}",
+                           "--set sfm.poses=sfm")
+    assert not (tmp_path / "run" / "stages").exists()  # refused while planning, before any SfM
+    result = run_cli("run", in_images, "--out", tmp_path / "run", "--until", "ingest", "--set", "sfm.poses=sfm")
+    assert result.returncode == 0, result.stderr  # the way out the message gives works
+
+
+def test_14_asking_for_colmap_poses_names_the_missing_images_bin(in_images, tmp_path):
+    model = in_images / "sparse" / "0"
+    model.mkdir(parents=True)
+    shutil.copy(shared("colmap_beer_yhuoyuh", "sparse", "0", "cameras.bin"), model)
+    result = run_cli("run", in_images, "--out", tmp_path / "run", "--until", "sfm", "--set", "sfm.poses=colmap")
+    line = assert_one_clear_error(result, f"{model / 'images.bin'}: is missing", "use --set sfm.poses=sfm")
+    assert "has no a" not in line
+    (model / "cameras.bin").unlink()
+    result = run_cli("run", in_images, "--out", tmp_path / "run", "--until", "sfm", "--set", "sfm.poses=colmap")
+    assert_one_clear_error(result, "has no COLMAP model (cameras.bin and images.bin")

@@ -17,7 +17,7 @@ import pytest
 from nerfpipe.pipeline import InputError, ParamError, Pipeline
 from nerfpipe.pipeline.batch import SUMMARY, Batch, BatchSettings, StageJob, find_captures, run_stage_task
 from nerfpipe.pipeline.executors import LocalExecutor
-from tests.helpers import TEMPLE, run_cli, slow_stages, two_stages
+from tests.helpers import TEMPLE, contents, run_cli, slow_stages, two_stages
 
 STAGES = "tests.helpers:two_stages"
 
@@ -78,8 +78,8 @@ def test_two_local_workers_give_the_same_outputs_as_one(tmp_path):
     for a, b in zip(one, two):
         assert b.state == "done"
         for stage in ("ingest", "count"):
-            out_a = Pipeline.from_run_dir(two_stages(), a.run_dir).result(stage).manifest["outputs"]
-            out_b = Pipeline.from_run_dir(two_stages(), b.run_dir).result(stage).manifest["outputs"]
+            out_a = contents(Pipeline.from_run_dir(two_stages(), a.run_dir).result(stage).manifest["outputs"])
+            out_b = contents(Pipeline.from_run_dir(two_stages(), b.run_dir).result(stage).manifest["outputs"])
             assert out_a == out_b
     assert {two[0].finished["ingest"]["pid"], two[1].finished["ingest"]["pid"]} - {one[0].finished["ingest"]["pid"]}
 

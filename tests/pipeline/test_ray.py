@@ -20,7 +20,7 @@ import pytest
 
 from nerfpipe.pipeline.batch import Batch, BatchSettings, find_captures
 from nerfpipe.pipeline.executors import LocalExecutor
-from tests.helpers import TEMPLE, shared
+from tests.helpers import TEMPLE, contents, shared
 
 ray = pytest.importorskip("ray", reason="the Ray executor's tests need `pip install nerfpipe[ray]`")
 pytestmark = pytest.mark.slow
@@ -74,7 +74,7 @@ def captures(tmp_path_factory) -> Path:
 
 def outputs(run_dir: Path, stage: str) -> dict:
     key = json.loads((run_dir / "stages" / stage / "latest.json").read_text())["key"]
-    return json.loads((run_dir / "stages" / stage / key / "manifest.json").read_text())["outputs"]
+    return contents(json.loads((run_dir / "stages" / stage / key / "manifest.json").read_text())["outputs"])
 
 
 class Killer(threading.Thread):

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import hashlib
 import json
 
 from nerfpipe.pipeline.store import ArtifactStore, describe_outputs
@@ -19,7 +20,11 @@ def test_a_result_exists_only_once_committed(tmp_path):
     committed = store.commit("s", "k" * 64, work, {"key": "k" * 64, "stage": "s"})
     assert not work.exists()
     assert committed.path == tmp_path / "stages" / "s" / ("k" * 64)
-    assert committed.manifest["outputs"] == {"sub/a.txt": {"size": 5, "sha256": describe_outputs(committed.path)["sub/a.txt"]["sha256"]}}
+    a_txt = committed.path / "sub" / "a.txt"
+    assert committed.manifest["outputs"] == {
+        "sub/a.txt": {"size": 5, "mtime_ns": a_txt.stat().st_mtime_ns, "sha256": hashlib.sha256(b"hello").hexdigest()}
+    }
+    assert describe_outputs(committed.path) == committed.manifest["outputs"]
     assert store.get("s", "k" * 64).manifest == committed.manifest
     assert store.latest("s").key == "k" * 64
     assert store.keys("s") == ["k" * 64]

@@ -1,0 +1,153 @@
+"""A cached result is reused only while its files are what its manifest recorded (cases 5-7 and 15 of
+issue 19, and `status --verify`). Each rerun computes exactly the damaged stage and what depends on it."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from tests.cli.test_bad_input import error_lines
+from tests.helpers import TEMPLE, run_cli
+
+STAGES = ("ingest", "sfm", "undistort")
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory) -> Path:
+    """The bundled temple capture run to undistort once; each test damages its own copy of it."""
+    run_dir = tmp_path_factory.mktemp("cache") / "run"
+    result = run_cli("run", TEMPLE, "--out", run_dir, "--until", "undistort")
+    assert result.returncode == 0, result.stderr
+    return run_dir
+
+
+@pytest.fixture
+def run_dir(finished, tmp_path) -> Path:
+    copy = tmp_path / "run"
+    shutil.copytree(finished, copy)  # copy2 keeps each file's modification time, as the manifests recorded it
+    assert states(copy) == dict.fromkeys(STAGES, "fresh")
+    return copy
+
+
+def states(run_dir: Path) -> dict[str, str]:
+    result = run_cli("status", run_dir)
+    assert result.returncode == 0, result.stderr
+    return {name: row[1] for name, row in table(result.stdout).items() if name in STAGES}
+
+
+def table(stdout: str) -> dict[str, tuple[str, ...]]:
+    """The rows of a rich table printed by `run` or `status`: first cell -> all cells."""
+    rows = {}
+    for line in stdout.splitlines():
+        cells = [c.strip() for c in line.strip("│┃ ").split("│")]
+        if len(cells) >= 3 and re.fullmatch(r"[a-z_]+", cells[0]):
+            rows[cells[0]] = tuple(cells)
+    return rows
+
+
+def result_dir(run_dir: Path, stage: str) -> Path:
+    key = json.loads((run_dir / "stages" / stage / "latest.json").read_text())["key"]
+    return run_dir / "stages" / stage / key
+
+
+def rerun(run_dir: Path) -> tuple[dict[str, str], str]:
+    """Run again to undistort: each stage's action (ran / cached), and the log on stderr."""
+    result = run_cli("run", TEMPLE, "--out", run_dir, "--until", "undistort")
+    assert result.returncode == 0, result.stderr
+    assert "Traceback" not in result.stderr and not error_lines(result.stderr)
+    return {name: row[1] for name, row in table(result.stdout).items() if name in STAGES}, result.stderr
+
+
+def assert_moved_aside(run_dir: Path, stage: str, file: str, stderr: str) -> Path:
+    (aside,) = (run_dir / "broken").glob(f"{stage}-*")
+    assert f"{stage}: its cached result is damaged ({file}" in stderr and f"moved it aside to {aside}" in stderr
+    assert file in (aside / "REASON.txt").read_text()
+    return aside
+
+
+def test_5_a_corrupt_manifest_is_recomputed_not_a_crash(run_dir):
+    manifest = result_dir(run_dir, "undistort") / "manifest.json"
+    manifest.write_text('{"broken": ')
+    status = table(run_cli("status", run_dir).stdout)
+    assert status["undistort"][1] == "broken" and "manifest.json is not readable JSON" in status["undistort"][2]
+    actions, stderr = rerun(run_dir)
+    assert actions == {"ingest": "cached", "sfm": "cached", "undistort": "ran"}
+    aside = assert_moved_aside(run_dir, "undistort", "manifest.json", stderr)
+    assert (aside / "manifest.json").read_text() == '{"broken": '  # nothing lost
+    assert json.loads(manifest.read_text())["key"] == manifest.parent.name
+    assert rerun(run_dir)[0] == dict.fromkeys(STAGES, "cached")  # and stays fixed
+
+
+def test_6_a_deleted_output_is_reported_and_recomputed_with_what_depends_on_it(run_dir):
+    points = result_dir(run_dir, "sfm") / "model" / "points3d.npz"
+    points.unlink()
+    result = run_cli("status", run_dir)
+    status = table(result.stdout)
+    assert status["ingest"][1] == "fresh"
+    assert status["sfm"][1] == "broken" and "model/points3d.npz is missing" in status["sfm"][2]
+    assert status["undistort"][1] == "stale" and "upstream sfm is broken" in status["undistort"][2]
+    actions, stderr = rerun(run_dir)
+    assert actions == {"ingest": "cached", "sfm": "ran", "undistort": "ran"}
+    assert_moved_aside(run_dir, "sfm", "model/points3d.npz is missing", stderr)
+    assert "undistort: running (upstream sfm was computed again after this result)" in stderr
+    assert points.is_file()
+
+
+def test_7_an_overwritten_output_is_caught_by_its_time_and_hash(run_dir):
+    photo = result_dir(run_dir, "ingest") / "images" / "templeSR0005.png"
+    other = (result_dir(run_dir, "ingest") / "images" / "templeSR0006.png").read_bytes()
+    original, size = photo.read_bytes(), photo.stat().st_size
+    photo.write_bytes(other[:size].ljust(size, b"\0"))  # same size, new content, new time
+    status = table(run_cli("status", run_dir).stdout)
+    assert status["ingest"][1] == "broken" and "images/templeSR0005.png changed content" in status["ingest"][2]
+    assert status["sfm"][1] == "stale" and status["undistort"][1] == "stale"
+    actions, stderr = rerun(run_dir)
+    assert actions == dict.fromkeys(STAGES, "ran")
+    assert_moved_aside(run_dir, "ingest", "images/templeSR0005.png changed content", stderr)
+    assert photo.read_bytes() == original
+
+
+def test_a_touched_output_with_its_content_intact_is_still_fresh(run_dir):
+    photo = result_dir(run_dir, "ingest") / "images" / "templeSR0005.png"
+    os.utime(photo, ns=(photo.stat().st_atime_ns, photo.stat().st_mtime_ns + 10**9))  # a copy without -p, a touch
+    assert states(run_dir) == dict.fromkeys(STAGES, "fresh")
+
+
+def test_15_a_stage_built_on_a_broken_upstream_is_never_fresh(run_dir):
+    (result_dir(run_dir, "ingest") / "manifest.json").write_text("not json")
+    status = table(run_cli("status", run_dir).stdout)
+    assert status["ingest"][1] == "broken"
+    assert status["sfm"][1] == "stale" and "upstream ingest is broken" in status["sfm"][2]
+    assert status["undistort"][1] == "stale" and "upstream ingest is broken" in status["undistort"][2]
+    actions, stderr = rerun(run_dir)
+    assert actions == dict.fromkeys(STAGES, "ran")
+    assert_moved_aside(run_dir, "ingest", "manifest.json", stderr)
+    assert states(run_dir) == dict.fromkeys(STAGES, "fresh")
+
+
+def test_verify_finds_what_the_cheap_check_cannot_and_the_next_run_recomputes_it(run_dir):
+    """A flipped byte with the size and time kept (bit rot, a tool that restores times): only sha256 sees it."""
+    cameras = result_dir(run_dir, "sfm") / "model" / "cameras.json"
+    stat = cameras.stat()
+    data = bytearray(cameras.read_bytes())
+    data[20] ^= 0x01
+    cameras.write_bytes(bytes(data))
+    os.utime(cameras, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    assert table(run_cli("status", run_dir).stdout)["sfm"][1] == "fresh"
+
+    result = run_cli("status", run_dir, "--verify")
+    assert result.returncode == 0, result.stderr
+    (aside,) = (run_dir / "broken").glob("sfm-*")
+    assert "1 damaged result" in result.stdout
+    assert f"sfm: model/cameras.json changed content (its sha256 is not the manifest's); moved aside to {aside}" \
+        in result.stdout.replace("\n", "")
+    status = table(result.stdout)
+    assert status["ingest"][1] == "fresh" and status["sfm"][1] == "missing" and status["undistort"][1] == "stale"
+    actions, _ = rerun(run_dir)
+    assert actions == {"ingest": "cached", "sfm": "ran", "undistort": "ran"}
+    assert "0 damaged results" in run_cli("status", run_dir, "--verify").stdout
