@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -19,14 +20,21 @@ from nerfpipe.imaging.decode import (
     RAW_EXTENSIONS,
     SIDECAR_EXTENSIONS,
     DecodedPhoto,
+    PhotoHeader,
+    PhotoSizeError,
     RawOptions,
+    SizeLimits,
     apply_orientation,
     check_integrity,
     photo_kind,
+    read_header,
     read_photo,
     unsupported_advice,
 )
 from nerfpipe.pipeline.errors import BadPhotoError
+from tests.helpers import TEMPLE
+
+TEMPLE_PNG = TEMPLE / "templeSR0001.png"
 
 
 def corner_image() -> np.ndarray:
@@ -492,3 +500,51 @@ def test_tiff_raw_exif_is_recorded(raw_samples: Path) -> None:
     photo = read_photo(raw_samples / "kodak_dc50.kdc")
     assert photo.exif.make == "Eastman Kodak Company"
     assert photo.exif.exposure_time_s == pytest.approx(0.00435)
+
+
+# -- sizes from the header, before decoding ----------------------------------------------------------
+
+
+def test_read_header_gives_the_stored_size_without_decoding(tmp_path: Path) -> None:
+    temple = read_header(TEMPLE_PNG)
+    assert temple == PhotoHeader(640, 480, 3, 1)
+    assert read_header(TEMPLE_PNG.read_bytes()) == temple
+    cv2.imwrite(str(tmp_path / "grey16.png"), np.zeros((30, 50), np.uint16))
+    cv2.imwrite(str(tmp_path / "rgba.tif"), np.zeros((7, 9, 4), np.uint8))
+    cv2.imwrite(str(tmp_path / "photo.jpg"), np.zeros((120, 160, 3), np.uint8))
+    assert read_header(tmp_path / "grey16.png") == PhotoHeader(50, 30, 1, 2)
+    assert read_header(tmp_path / "rgba.tif") == PhotoHeader(9, 7, 4, 1)
+    assert read_header(tmp_path / "photo.jpg").pixels == 160 * 120
+    (tmp_path / "junk.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(10))
+    assert read_header(tmp_path / "junk.png") is None  # the decoder says what is wrong with it
+
+
+def test_size_limits_refuse_before_decoding(tmp_path: Path) -> None:
+    with pytest.raises(PhotoSizeError, match="is only 640x480 pixels") as small:
+        read_photo(TEMPLE_PNG, limits=SizeLimits(min_side=481))
+    assert small.value.too == "small" and small.value.size == (640, 480)
+    with pytest.raises(PhotoSizeError, match=r"is 640x480 pixels \(0 megapixels\)") as large:
+        read_photo(TEMPLE_PNG, limits=SizeLimits(max_pixels=640 * 480 - 1))
+    assert large.value.too == "large"
+    assert read_photo(TEMPLE_PNG, limits=SizeLimits(min_side=480, max_pixels=640 * 480)).source_size == (640, 480)
+
+
+def test_png_data_too_short_for_its_header_is_refused_and_the_densest_real_png_is_not(tmp_path: Path) -> None:
+    black = np.zeros((3000, 4000, 3), np.uint8)  # compresses as far as deflate goes: ~1030 to 1
+    ok, data = cv2.imencode(".png", black, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    (tmp_path / "black.png").write_bytes(data.tobytes())
+    assert read_photo(tmp_path / "black.png").source_size == (4000, 3000)
+    (tmp_path / "short.png").write_bytes(_png_without_idat(data.tobytes()))
+    with pytest.raises(BadPhotoError, match="its 0 bytes of image data cannot hold the 4000x3000 image"):
+        read_photo(tmp_path / "short.png")
+
+
+def _png_without_idat(data: bytes) -> bytes:
+    """``data``'s chunks with its IDAT chunks left out (each chunk: length, type, body, CRC)."""
+    out, position = bytearray(data[:8]), 8
+    while position < len(data):
+        (length,) = struct.unpack_from(">I", data, position)
+        if data[position + 4:position + 8] != b"IDAT":
+            out += data[position:position + 12 + length]
+        position += 12 + length
+    return bytes(out)

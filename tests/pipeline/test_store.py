@@ -2,8 +2,12 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 
-from nerfpipe.pipeline.store import ArtifactStore, describe_outputs
+import pytest
+
+from nerfpipe.pipeline.errors import InputError
+from nerfpipe.pipeline.store import BROKEN, MANIFEST, ArtifactStore, Damage, describe_outputs, verify_outputs
 
 
 def _work(store: ArtifactStore, key: str, payload: str):
@@ -64,3 +68,55 @@ def test_forced_commit_replaces_the_result_of_the_same_key(tmp_path):
     store.commit("s", "k" * 64, _work(store, "k" * 64, "old"), {"key": "k" * 64})
     result = store.commit("s", "k" * 64, _work(store, "k" * 64, "newer"), {"key": "k" * 64}, replace=True)
     assert (result.path / "sub" / "a.txt").read_text() == "newer" and store.keys("s") == ["k" * 64]
+
+
+def test_verify_outputs_cheap_and_full(tmp_path):
+    store = ArtifactStore(tmp_path)
+    committed = store.commit("s", "k" * 64, _work(store, "k" * 64, "hello"), {"key": "k" * 64})
+    a_txt = committed.path / "sub" / "a.txt"
+    outputs = committed.manifest["outputs"]
+    assert verify_outputs(committed.path, outputs) is None and verify_outputs(committed.path, outputs, full=True) is None
+
+    stat = a_txt.stat()
+    a_txt.write_text("jello")  # same size, new content; time put back as it was
+    os.utime(a_txt, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    assert verify_outputs(committed.path, outputs) is None  # the cheap check cannot see it...
+    assert verify_outputs(committed.path, outputs, full=True) == Damage(
+        committed.path, "sub/a.txt", "changed content (its sha256 is not the manifest's)")  # ...sha256 does
+    os.utime(a_txt, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1))
+    assert str(verify_outputs(committed.path, outputs)) == "sub/a.txt changed content (its sha256 is not the manifest's)"
+
+    a_txt.write_text("hello")  # content back, time new: hashed again, and intact
+    assert verify_outputs(committed.path, outputs) is None
+    a_txt.write_text("hello!")
+    assert str(verify_outputs(committed.path, outputs)) == "sub/a.txt changed size (5 -> 6 bytes)"
+    a_txt.unlink()
+    assert str(verify_outputs(committed.path, outputs)) == "sub/a.txt is missing"
+    assert store.get("s", "k" * 64) is None and store.latest("s") is None
+    assert isinstance(store.inspect("s", "k" * 64), Damage)
+
+
+def test_a_damaged_result_is_moved_aside_with_its_reason_and_replaced(tmp_path):
+    store = ArtifactStore(tmp_path)
+    key = "k" * 64
+    first = store.commit("s", key, _work(store, key, "hello"), {"key": key})
+    (first.path / MANIFEST).write_text("{")
+    damage = store.inspect("s", key)
+    assert damage == Damage(first.path, MANIFEST, "is not readable JSON")
+    second = store.commit("s", key, _work(store, key, "again"), {"key": key})  # moves the damaged one aside first
+    assert (second.path / "sub" / "a.txt").read_text() == "again" and second.commit_id != first.commit_id
+    aside = store.set_aside_as("s", key)
+    assert aside.parent == tmp_path / BROKEN and (aside / MANIFEST).read_text() == "{"
+    assert (aside / "REASON.txt").read_text() == f"s result {key}: manifest.json is not readable JSON\n"
+    size = sum(p.stat().st_size for p in aside.rglob("*") if p.is_file())
+    assert store.clean() == (1, size) and not aside.exists()
+
+
+def test_prepare_refuses_a_file_and_a_path_through_one(tmp_path):
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(InputError, match="is a file, not a folder; pass --out a new folder"):
+        ArtifactStore(tmp_path / "f").prepare()
+    with pytest.raises(InputError, match="does not run through a file"):
+        ArtifactStore(tmp_path / "f" / "run").prepare()
+    ArtifactStore(tmp_path / "new" / "run").prepare()
+    assert (tmp_path / "new" / "run").is_dir()
