@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -40,6 +41,18 @@ def run_cli(*args: str, cwd: Path | None = None, timeout: float = 120) -> subpro
         [sys.executable, "-m", "nerfpipe", *map(str, args)],
         capture_output=True, text=True, cwd=cwd, env=env, timeout=timeout,
     )
+
+
+def temple_subset(root: Path, name: str, indices: list[int]) -> Path:
+    """Some of the bundled temple photos with the rows of templeSR_par.txt that calibrate them."""
+    folder = root / name
+    folder.mkdir(parents=True)
+    rows = (TEMPLE / "templeSR_par.txt").read_text().splitlines()[1:]
+    kept = [rows[i - 1] for i in indices]
+    for i in indices:
+        shutil.copy2(TEMPLE / f"templeSR{i:04d}.png", folder)
+    (folder / "templeSR_par.txt").write_text("\n".join([str(len(kept)), *kept]) + "\n")
+    return folder
 
 
 def contents(outputs: dict) -> dict[str, tuple[int, str]]:

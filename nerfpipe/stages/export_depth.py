@@ -42,6 +42,12 @@ def scaled_size(width: int, height: int, scale: float) -> tuple[int, int]:
     return max(1, round(width * scale)), max(1, round(height * scale))
 
 
+def wanted_views(split: ViewSplit, params: ExportDepthParams) -> list[tuple[str, str]]:
+    """(role, view name) of each view to export: the training views, the held-out ones, or both."""
+    wanted = [("train", n) for n in split.train] * (params.views in ("all", "train"))
+    return wanted + [("heldout", n) for n in split.heldout] * (params.views in ("all", "heldout"))
+
+
 class ExportDepthStage(Stage):
     """Depth, opacity and disparity maps (.npy, 16-bit PNG, preview) of every training and held-out view."""
 
@@ -65,6 +71,18 @@ class ExportDepthStage(Stage):
         return [f"{s['views']} views ({s['train_views']} training, {s['heldout_views']} held out) at "
                 f"{s['width']}x{s['height']}, {s['seconds_per_view']:.1f} s each; mean opacity {s['mean_acc']:.2f}"]
 
+    def expected_bytes(self, inputs: StageInputs, params: ExportDepthParams) -> int:
+        """The float32 depth, opacity and disparity arrays of every view (the PNGs beside them add less)."""
+        world = CameraSet.load(inputs["cameras"])
+        by_name = {f.name: f for f in world.frames}
+        total = 0
+        for _, name in wanted_views(ViewSplit.load(inputs["views"]), params):
+            if name in by_name:
+                camera = world.camera_of(by_name[name])
+                width, height = scaled_size(camera.width, camera.height, params.scale)
+                total += width * height * 3 * 4
+        return total
+
     def run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:
         from nerfpipe.nerf.device import rendering_device
 
@@ -83,8 +101,7 @@ class ExportDepthStage(Stage):
         split = ViewSplit.load(inputs["views"])
         near_far = bounds.near_far()
         by_name = {f.name: f for f in world.frames}
-        wanted = [("train", n) for n in split.train] * (params.views in ("all", "train"))
-        wanted += [("heldout", n) for n in split.heldout] * (params.views in ("all", "heldout"))
+        wanted = wanted_views(split, params)
         missing = [n for _, n in wanted if n not in by_name]
         if missing:
             raise StageError(f"export_depth: views {missing[:3]} of the trained model are not in the world cameras; "

@@ -20,7 +20,7 @@ import pytest
 
 from nerfpipe.pipeline.batch import Batch, BatchSettings, find_captures
 from nerfpipe.pipeline.executors import LocalExecutor
-from tests.helpers import TEMPLE, contents, shared
+from tests.helpers import contents, shared, temple_subset
 
 ray = pytest.importorskip("ray", reason="the Ray executor's tests need `pip install nerfpipe[ray]`")
 pytestmark = pytest.mark.slow
@@ -33,17 +33,6 @@ SMALL = {
     "export_points": {"acc_threshold": 0.5},
     "render": {"frames": 3},
 }
-
-
-def temple_subset(root: Path, name: str, indices: list[int]) -> None:
-    """Some of the bundled temple photos with the rows of templeSR_par.txt that calibrate them."""
-    folder = root / name
-    folder.mkdir(parents=True)
-    rows = (TEMPLE / "templeSR_par.txt").read_text().splitlines()[1:]
-    kept = [rows[i - 1] for i in indices]
-    for i in indices:
-        shutil.copy2(TEMPLE / f"templeSR{i:04d}.png", folder)
-    (folder / "templeSR_par.txt").write_text("\n".join([str(len(kept)), *kept]) + "\n")
 
 
 def lego_subset(root: Path, name: str, every: int, broken: bool = False) -> None:

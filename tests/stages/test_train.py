@@ -173,6 +173,7 @@ def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
 
     import cv2
 
+    from nerfpipe import Pipeline, default_stages
     from nerfpipe.export.depth import DepthIndex
     from nerfpipe.export.mesh import read_mesh
     from nerfpipe.export.points import read_ply
@@ -183,6 +184,14 @@ def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
 
     depth = result_of("export_depth")
     index = DepthIndex.load(depth / "depth.json")
+    # the free-space check's estimates: the float arrays are most of export_depth; ingest's PNGs compress less
+    # than a full-size photo's at 80 px, so its estimate is low there, never high
+    pipe = Pipeline.from_run_dir(default_stages(), run_dir)
+    for stage, low in (("export_depth", 0.7), ("ingest", 0.1)):
+        planned = pipe.plan()[stage]
+        needed = planned.stage.expected_bytes(pipe.stage_inputs(stage), planned.params)
+        written = sum(meta["size"] for meta in pipe.result(stage).manifest["outputs"].values())
+        assert low * written < needed <= written, (stage, needed, written)
     assert [v.role for v in index.views].count("heldout") == 2 and len(index.views) == 16
     view = index.views[0]
     assert np.load(depth / "depth" / f"{view.stem}.depth.npy").shape == (view.height, view.width)
