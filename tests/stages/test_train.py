@@ -184,10 +184,11 @@ def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
 
     depth = result_of("export_depth")
     index = DepthIndex.load(depth / "depth.json")
-    # the free-space check's estimates: the float arrays are most of export_depth; ingest's PNGs compress less
-    # than a full-size photo's at 80 px, so its estimate is low there, never high
+    # the free-space check's estimates, low rather than high: export_depth counts its float arrays (0.88 of the
+    # full-size demo's output; at this run's 20x15 views the JSON sidecars weigh as much), ingest a share of
+    # the pixels that PNG keeps of a full-size photo (less than of an 80 px one)
     pipe = Pipeline.from_run_dir(default_stages(), run_dir)
-    for stage, low in (("export_depth", 0.7), ("ingest", 0.1)):
+    for stage, low in (("export_depth", 0.4), ("ingest", 0.1)):
         planned = pipe.plan()[stage]
         needed = planned.stage.expected_bytes(pipe.stage_inputs(stage), planned.params)
         written = sum(meta["size"] for meta in pipe.result(stage).manifest["outputs"].values())
