@@ -245,12 +245,9 @@ class SceneDecisions:
         return {name: decision.value for name, decision in self.decisions().items()}
 
     def describe(self) -> list[str]:
-        """One line per decision, e.g. ``layout: inward360 (cameras look at a common centre ...)``."""
-        lines = []
-        for name, decision in self.decisions().items():
-            mark = ", set by the user" if decision.overridden else ""
-            lines.append(f"{name}: {show(decision.value)}{mark} ({decision.evidence})")
-        return lines
+        """One line per decision, e.g. ``layout is inward360: cameras look at a common centre ...``; an overridden
+        decision's evidence ends with ``set by the user (the data suggested ...)``."""
+        return [f"{name} is {show(decision.value)}: {decision.evidence}" for name, decision in self.decisions().items()]
 
 
 # -- train: views.json -----------------------------------------------------------------------------------

@@ -175,6 +175,28 @@ def slow_stages() -> list[Stage]:
     return [IngestStage(), SlowCountStage()]
 
 
+@dataclass(frozen=True)
+class VideoInfo:
+    codec: str
+    pix_fmt: str
+    frames: int  # decoded, not the container's claim
+    width: int
+    height: int
+    index_first: bool  # the MP4 index (moov) before the data (mdat): a browser starts playing at once
+
+
+def video_info(path: Path) -> VideoInfo:
+    """A video as a browser would meet it, read by FFmpeg's decoders (PyAV)."""
+    import av
+
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        frames = sum(1 for _ in container.decode(stream))
+        info = (stream.codec_context.name, stream.codec_context.pix_fmt, frames, stream.width, stream.height)
+    data = Path(path).read_bytes()
+    return VideoInfo(*info, index_first=0 <= data.find(b"moov") < data.find(b"mdat"))
+
+
 def read_mp4(path: Path) -> list[np.ndarray]:
     """Every frame of a video, RGB (H, W, 3) uint8."""
     import cv2

@@ -113,12 +113,12 @@ def test_scene_decisions_round_trip_ndc_and_describe(tmp_path):
                              "measured": {"ring": 4.0}}
     assert scene.values()["exposure_varies"] is False
     assert scene.describe() == [
-        "layout: forward, set by the user (ring; set by the user (the data suggested inward360))",
-        "background: color (border)",
-        "background_color: (0, 0, 0) (measured)",
-        "lens: pinhole (no distortion)",
-        "photometric: srgb (8-bit photos)",
-        "exposure_varies: false (one exposure)",
+        "layout is forward: ring; set by the user (the data suggested inward360)",
+        "background is color: border",
+        "background_color is (0, 0, 0): measured",
+        "lens is pinhole: no distortion",
+        "photometric is srgb: 8-bit photos",
+        "exposure_varies is false: one exposure",
     ]
 
 

@@ -1,7 +1,9 @@
 """Frames to video, and depth to colour, for looking at a radiance field.
 
-MP4s go through OpenCV's ``VideoWriter`` with the 'mp4v' (MPEG-4 Part 2) codec: the encoder every
-``opencv-*-headless`` wheel carries, with no system ffmpeg or H.264 licence needed; any player opens it.
+MP4s are H.264 (High profile, yuv420p, even sizes) with the index at the front (``+faststart``), what every
+browser plays and starts before the whole file is in: encoded by libx264 through PyAV, whose wheels ship
+FFmpeg and x264, so no system ffmpeg is needed. (OpenCV's wheels only carry the MPEG-4 Part 2 'mp4v'
+encoder, which Chrome and Firefox do not decode.)
 
 Depth colour convention (one for every depth picture nerfpipe writes): the value is mapped linearly from
 [lo, hi] onto matplotlib's 'turbo' colormap reversed, so near is red and far is blue; values outside
@@ -13,20 +15,25 @@ infinity blue.
 
 from __future__ import annotations
 
+from fractions import Fraction
 from pathlib import Path
 from typing import Iterable
 
 import numpy as np
 
-from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.errors import DISK_FULL_ERRNOS, StageError
 
 # Pixels whose accumulated opacity is below this show no surface: the ray mostly reached the background.
 EMPTY_ACC = 0.5
 
 
+# libx264 settings: constant quality 18 (visually lossless for renders), the default speed preset
+X264_OPTIONS = {"crf": "18", "preset": "medium"}
+
+
 def _even_size(frame: np.ndarray) -> np.ndarray:
-    """MPEG-4 encodes whole 2x2 chroma blocks: the encoder silently crops an odd width or height, so an odd
-    side is padded with a copy of its last row / column instead, keeping every rendered pixel."""
+    """yuv420p stores chroma for whole 2x2 blocks, so H.264 needs even sides: an odd side is padded with a
+    copy of its last row / column, keeping every rendered pixel."""
     h, w = frame.shape[:2]
     if h % 2 == 0 and w % 2 == 0:
         return frame
@@ -34,7 +41,7 @@ def _even_size(frame: np.ndarray) -> np.ndarray:
 
 
 def write_mp4(frames: Iterable[np.ndarray], path: Path, fps: float) -> int:
-    """Write RGB frames to an MP4 ('mp4v') at ``fps`` frames per second.
+    """Write RGB frames to an H.264 MP4 (yuv420p, ``+faststart``) at ``fps`` frames per second.
 
     Args:
         frames: a list or an iterator (so a caller can render and write one frame at a time) of (H, W, 3)
@@ -44,37 +51,46 @@ def write_mp4(frames: Iterable[np.ndarray], path: Path, fps: float) -> int:
         the number of frames written.
     Raises:
         ValueError: no frames, or a frame of another shape or dtype.
-        StageError: OpenCV cannot open a writer at ``path``.
+        StageError: the file cannot be written.
     """
-    import cv2
+    import av
 
     if not fps > 0:
         raise ValueError(f"fps must be > 0, got {fps}")
     path = Path(path)
-    writer = None
     size: tuple[int, ...] = ()
     count = 0
     try:
-        for frame in frames:
-            frame = np.asarray(frame)
-            if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
-                raise ValueError(f"frame {count}: expected (H, W, 3) uint8 RGB, got {frame.shape} {frame.dtype}")
-            if writer is None:
-                size = frame.shape
-                padded = _even_size(frame).shape
-                writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (padded[1], padded[0]))
-                if not writer.isOpened():
-                    raise StageError(f"{path}: OpenCV cannot open an MP4 ('mp4v') writer here; check that the folder "
-                                     "exists and is writable, and that this OpenCV build has FFMPEG video I/O")
-            elif frame.shape != size:
-                # VideoWriter drops a frame of another size without a word; refuse it instead
-                raise ValueError(f"frame {count} is {frame.shape}, the first frame was {size}")
-            writer.write(cv2.cvtColor(np.ascontiguousarray(_even_size(frame)), cv2.COLOR_RGB2BGR))
-            count += 1
-    finally:
-        if writer is not None:
-            writer.release()
+        with av.open(str(path), mode="w", format="mp4", container_options={"movflags": "+faststart"}) as container:
+            stream = None
+            for frame in frames:
+                frame = np.asarray(frame)
+                if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
+                    raise ValueError(f"frame {count}: expected (H, W, 3) uint8 RGB, got {frame.shape} {frame.dtype}")
+                if stream is None:
+                    size = frame.shape
+                    stream = container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001),
+                                                  options=X264_OPTIONS)
+                    stream.height, stream.width = _even_size(frame).shape[:2]
+                    stream.pix_fmt = "yuv420p"
+                elif frame.shape != size:
+                    raise ValueError(f"frame {count} is {frame.shape}, the first frame was {size}")
+                picture = av.VideoFrame.from_ndarray(np.ascontiguousarray(_even_size(frame)), format="rgb24")
+                container.mux(stream.encode(picture))
+                count += 1
+            if stream is not None:
+                container.mux(stream.encode(None))  # flush the encoder's delayed frames
+    except OSError as err:  # PyAV's errors for files are OSErrors: no such folder, permission, a full disk
+        path.unlink(missing_ok=True)
+        if err.errno in DISK_FULL_ERRNOS:
+            raise  # the runner's one line for a full disk
+        raise StageError(f"{path}: cannot write the video ({err.strerror or err}); check that the folder exists "
+                         "and is writable") from err
+    except BaseException:
+        path.unlink(missing_ok=True)
+        raise
     if count == 0:
+        path.unlink(missing_ok=True)
         raise ValueError(f"{path}: no frames to write")
     return count
 

@@ -103,6 +103,15 @@ def stale_reasons(planned: PlannedStage, previous: Mapping[str, Any], inputs_lab
     return reasons or ["cache key changed"]
 
 
+def running_because(reasons: Sequence[str]) -> str:
+    """The log line that starts a stage: ``running for the first time``, ``running again: params changed: ...``."""
+    if list(reasons) == ["not run yet"]:
+        return "running for the first time"
+    if list(reasons) == ["forced"]:
+        return "running again, as --force asked"
+    return "running again: " + "; ".join(reasons)
+
+
 def library_versions(names: Sequence[str]) -> dict[str, str]:
     versions = {"python": platform.python_version()}
     for name in ("nerfpipe", *names):
@@ -350,10 +359,10 @@ class Pipeline:
             return None
         latest = self.store.latest(name)
         if latest is not None and latest.key == planned.key:
-            log.info("%s: fresh, nothing to do", name)
+            log.info("%s: up to date, reusing its result", name)
             return StageOutcome(name, "cached", planned.key, hit.path, 0.0)
         self.store.set_latest(name, planned.key)
-        log.info("%s: restored the result of an earlier run with these settings", name)
+        log.info("%s: reusing the result of an earlier run with these settings", name)
         return StageOutcome(name, "restored", planned.key, hit.path, 0.0)
 
     def _current_upstream(self, name: str) -> dict[str, Committed | None]:
@@ -394,7 +403,7 @@ class Pipeline:
             self.store.set_latest(up, self.plan()[up].key)
 
         reasons, replace = self._why_run(planned, forced)
-        log.info("%s: running (%s)", name, "; ".join(reasons))
+        log.info("%s: %s", name, running_because(reasons))
 
         self._check_space(planned, inputs)
         work = self.store.begin(name, key, resume=planned.stage.resumable and not forced)

@@ -1,4 +1,4 @@
-"""Small HTML helpers of the report: a figure, a table, paragraphs, a titled section."""
+"""Small HTML helpers of the report: a figure, a video, a table, paragraphs, a titled section."""
 
 from __future__ import annotations
 
@@ -11,6 +11,15 @@ def figure(src: str, caption: str = "", width: int | None = None) -> str:
     size = f' width="{width}"' if width else ""
     cap = f"<figcaption>{html.escape(caption)}</figcaption>" if caption else ""
     return f'<figure><img src="{html.escape(src)}" alt="{html.escape(caption or src)}"{size}>{cap}</figure>'
+
+
+def video(src: str, caption: str = "", width: int | None = None) -> str:
+    """A looping, muted (so browsers let it autoplay) ``<video>`` in a ``<figure>``, with a link to the file."""
+    size = f' width="{width}"' if width else ""
+    link = f'<a href="{html.escape(src)}">{html.escape(src)}</a>'
+    cap = f"<figcaption>{html.escape(caption)}{': ' if caption else ''}{link}</figcaption>"
+    return (f'<figure><video src="{html.escape(src)}" controls autoplay loop muted playsinline preload="metadata"'
+            f'{size}></video>{cap}</figure>')
 
 
 def table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:

@@ -17,11 +17,12 @@ from nerfpipe.artifacts import ImageIndex, SceneDecisions, view_file_stem
 from nerfpipe.imaging.png import write_png
 from nerfpipe.report.data import RunData
 from nerfpipe.report.images import plot_cameras, plot_per_image, plot_training, thumbnail
-from nerfpipe.report.markup import figure, grid, paragraphs, section, table
+from nerfpipe.report.markup import figure, grid, paragraphs, section, table, video
 
 MAX_THUMBS = 48
 MAX_DEPTH_PREVIEWS = 12
 SHOT_WIDTH, SHOT_HEIGHT = 640, 480  # pixels, the mesh and point cloud screenshots
+VIDEO_WIDTH = 480  # pixels on the page: the renders are small, the browser scales them up
 
 
 def capture(run: RunData) -> str | None:
@@ -162,7 +163,7 @@ def geometry_shot(run: RunData, stage: str, artifact: str, label: str, cameras: 
 
 
 def novel_views(run: RunData) -> str | None:
-    """The render stage's summary, the first RGB and depth frames, and links to the two videos."""
+    """The render stage's summary, the first RGB and depth frames, and the two videos, playing."""
     if "render" not in run.results:
         return None
     body = paragraphs(run.describe("render"))
@@ -172,12 +173,13 @@ def novel_views(run: RunData) -> str | None:
         if first:
             shutil.copy2(first[0], run.img / name)
             body += figure(f"img/{name}", "first frame")
-    for artifact in ("video", "depth_video"):
-        video = run.artifact("render", artifact)
-        if video.exists():
-            shutil.copy2(video, run.folder / video.name)
-            body += f'<p><a href="{video.name}">{video.name}</a></p>'
-    return section("Novel views", body)
+    videos = []
+    for artifact, caption in (("video", "the field along the path"), ("depth_video", "its depth, red near to blue far")):
+        path = run.artifact("render", artifact)
+        if path.exists():
+            shutil.copy2(path, run.folder / path.name)
+            videos.append(video(path.name, caption, width=VIDEO_WIDTH))
+    return section("Novel views", body + grid(videos))
 
 
 def benchmark(run: RunData) -> str | None:

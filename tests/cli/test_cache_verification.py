@@ -100,7 +100,7 @@ def test_6_a_deleted_output_is_reported_and_recomputed_with_what_depends_on_it(r
     actions, stderr = rerun(run_dir)
     assert actions == {"ingest": "cached", "sfm": "ran", "undistort": "ran"}
     assert_moved_aside(run_dir, "sfm", "model/cameras.json is missing", stderr)
-    assert "undistort: running (upstream sfm was computed again after this result)" in stderr
+    assert "undistort: running again: upstream sfm was computed again after this result" in stderr
     assert cameras.is_file()
 
 

@@ -13,10 +13,10 @@ def test_run_status_and_rerun(capture, tmp_path):
     run_dir = tmp_path / "run"
     first = run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320", "--until", "ingest")
     assert first.returncode == 0, first.stderr
-    assert "ingest: running (not run yet)" in first.stderr and "ran" in first.stdout
+    assert "ingest: running for the first time" in first.stderr and "ran" in first.stdout
 
     second = run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320", "--until", "ingest")
-    assert second.returncode == 0 and "ingest: fresh, nothing to do" in second.stderr and "cached" in second.stdout
+    assert second.returncode == 0 and "ingest: up to date, reusing its result" in second.stderr and "cached" in second.stdout
 
     status = run_cli("status", run_dir)
     assert status.returncode == 0 and "fresh" in status.stdout
@@ -31,7 +31,7 @@ def test_run_status_and_rerun(capture, tmp_path):
 
     rerun = run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320", "--until", "ingest")
     assert rerun.returncode == 0
-    assert "ingest: running (photos changed: 2 added, 1 modified)" in rerun.stderr
+    assert "ingest: running again: photos changed: 2 added, 1 modified" in rerun.stderr
 
 
 def test_status_of_a_folder_that_is_no_run(tmp_path):

@@ -11,7 +11,7 @@ import pytest
 
 from nerfpipe.export.video import colorize_depth, turbo_lut, write_mp4
 from nerfpipe.pipeline.errors import StageError
-from tests.helpers import read_mp4
+from tests.helpers import VideoInfo, read_mp4, video_info
 
 
 def test_mp4_has_the_frames_size_and_colour_written(tmp_path: Path) -> None:
@@ -24,9 +24,16 @@ def test_mp4_has_the_frames_size_and_colour_written(tmp_path: Path) -> None:
     back = read_mp4(tmp_path / "a.mp4")
     assert len(back) == 10
     assert all(f.shape == (48, 64, 3) for f in back)
-    # MPEG-4 keeps a flat colour to a few levels (YUV 4:2:0 round trip and quantization)
+    # H.264 keeps a flat colour to a few levels (YUV 4:2:0 round trip and quantization)
     for frame in back:
         assert np.all(np.abs(frame.reshape(-1, 3).mean(axis=0) - colour) < 8)
+
+
+def test_mp4_is_h264_in_yuv420p_with_its_index_first(tmp_path: Path) -> None:
+    """What browsers decode (MPEG-4 Part 2, OpenCV's 'mp4v', they do not), starting before the file is in."""
+    frames = [np.full((24, 32, 3), 10 * i, np.uint8) for i in range(7)]
+    assert write_mp4(frames, tmp_path / "b.mp4", fps=20) == 7
+    assert video_info(tmp_path / "b.mp4") == VideoInfo("h264", "yuv420p", 7, 32, 24, index_first=True)
 
 
 def test_mp4_from_an_iterator_and_an_odd_size(tmp_path: Path) -> None:

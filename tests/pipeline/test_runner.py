@@ -179,4 +179,4 @@ def test_a_run_log_is_written(capture, tmp_path):
     logs = list((run_dir / "logs").glob("run-*.log"))
     assert len(logs) == 1
     text = logs[0].read_text()
-    assert "ingest: running (not run yet)" in text and "count: done in" in text
+    assert "ingest: running for the first time" in text and "count: done in" in text

@@ -70,7 +70,7 @@ def test_status_shows_the_scene_decisions_and_an_override(tmp_path):
     run_dir = tmp_path / "run"
     assert run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320", "--until", "scene").returncode == 0
     status = run_cli("status", run_dir)
-    assert "scene: layout: inward360" in status.stdout and "background:" in status.stdout
+    assert "scene: layout is inward360: " in status.stdout and "background is " in status.stdout
     overridden = run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320", "--set", "scene.layout=forward", "--until", "scene")
     assert overridden.returncode == 0, overridden.stderr
     scene = json.loads((result(run_dir, "scene") / "scene.json").read_text())

@@ -27,7 +27,7 @@ from nerfpipe.pipeline.errors import ParamError, StageError
 from nerfpipe.pipeline.params import build_params
 from nerfpipe.pipeline.stage import StageContext, StageInputs
 from nerfpipe.stages.render import RenderParams, RenderStage, render_size
-from tests.helpers import look_at, read_mp4
+from tests.helpers import VideoInfo, look_at, read_mp4, video_info
 
 COLOUR = np.array([0.8, 0.3, 0.1])
 CAMERA = Camera.pinhole(60.0, 60.0, 32.0, 24.0, 64, 48)
@@ -147,6 +147,8 @@ def check_outputs(out: Path, summary: dict, calls: list, expected_rgb: np.ndarra
     for video in ("render.mp4", "depth.mp4"):
         frames = read_mp4(out / video)
         assert len(frames) == 4 and all(f.shape == (height, width, 3) for f in frames)
+        # what Chrome and Firefox play: H.264 in yuv420p, the index first
+        assert video_info(out / video) == VideoInfo("h264", "yuv420p", 4, width, height, index_first=True)
 
     path = json.loads((out / "camera_path.json").read_text())
     assert path["camera"] == {"model": "PINHOLE", "width": 32, "height": 24, "params": [30.0, 30.0, 16.0, 12.0]}

@@ -153,8 +153,9 @@ def test_override_keeps_the_evidence_and_marks_it(temple_run):
     assert scene["background"] == auto["background"]  # untouched decisions are as measured
     lines = SceneDecisions.load(outcomes[-1].path / "scene.json").describe()
     assert SceneStage().describe(outcomes[-1].path, {}) == lines
-    assert lines[0].startswith("layout: forward, set by the user (cameras look at a common centre")
-    assert any(line.startswith("background: color (median border colour (0.00, 0.00, 0.00)") for line in lines)
+    assert lines[0].startswith("layout is forward: cameras look at a common centre")
+    assert lines[0].endswith("; set by the user (the data suggested inward360)")
+    assert any(line.startswith("background is color: median border colour (0.00, 0.00, 0.00)") for line in lines)
 
 
 def test_bad_overrides_are_refused(tmp_path):
