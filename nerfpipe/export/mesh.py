@@ -3,9 +3,7 @@ reconstruction from its point cloud; cleaning, simplification, and PLY / OBJ / G
 
 from __future__ import annotations
 
-import json
 import math
-import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
@@ -254,81 +252,27 @@ def read_mesh(path: Path) -> Mesh:
     return from_open3d(o3d.io.read_triangle_mesh(str(path)))
 
 
-_FLOAT, _UINT = 5126, 5125  # glTF component types
-_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
-
-
 def write_glb(path: Path, mesh: Mesh) -> None:
-    """A binary glTF 2.0 file with one triangle mesh: POSITION, NORMAL, COLOR_0 (when coloured) and
-    uint32 indices, which Blender, three.js and most viewers open. Written by hand: Open3D 0.20 writes a
-    GLB its own reader cannot read back."""
-    vertices = mesh.vertices.astype(np.float32)
-    normals = vertex_normals(mesh).astype(np.float32)
-    attributes = [("POSITION", vertices), ("NORMAL", normals)]
-    if mesh.colors is not None:
-        attributes.append(("COLOR_0", np.clip(mesh.colors, 0, 1).astype(np.float32)))
-    indices = mesh.triangles.astype(np.uint32).reshape(-1)
+    """A binary glTF 2.0 file with one triangle mesh (positions, normals, 8-bit vertex colours when coloured),
+    which Blender, three.js and most viewers open; written by trimesh (Open3D 0.20 writes a GLB its own
+    reader cannot read back)."""
+    import trimesh
 
-    blob, views, accessors = bytearray(), [], []
-
-    def add(data: np.ndarray, target: int) -> int:
-        while len(blob) % 4:
-            blob.append(0)
-        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": data.nbytes, "target": target})
-        blob.extend(data.tobytes())
-        return len(views) - 1
-
-    primitive: dict[str, Any] = {"attributes": {}, "mode": 4}
-    for name, data in attributes:
-        view = add(data, _ARRAY_BUFFER)
-        accessor = {"bufferView": view, "componentType": _FLOAT, "count": len(data), "type": "VEC3"}
-        if name == "POSITION" and len(data):
-            accessor.update(min=data.min(axis=0).tolist(), max=data.max(axis=0).tolist())
-        accessors.append(accessor)
-        primitive["attributes"][name] = len(accessors) - 1
-    view = add(indices, _ELEMENT_ARRAY_BUFFER)
-    accessors.append({"bufferView": view, "componentType": _UINT, "count": len(indices), "type": "SCALAR"})
-    primitive["indices"] = len(accessors) - 1
-    while len(blob) % 4:
-        blob.append(0)
-    doc = {
-        "asset": {"version": "2.0", "generator": "nerfpipe"},
-        "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
-        "meshes": [{"primitives": [primitive]}],
-        "buffers": [{"byteLength": len(blob)}], "bufferViews": views, "accessors": accessors,
-    }
-    header = json.dumps(doc, separators=(",", ":")).encode()
-    header += b" " * (-len(header) % 4)
-    total = 12 + 8 + len(header) + 8 + len(blob)
-    with open(path, "wb") as f:
-        f.write(struct.pack("<4sII", b"glTF", 2, total))
-        f.write(struct.pack("<I4s", len(header), b"JSON") + header)
-        f.write(struct.pack("<I4s", len(blob), b"BIN\x00") + bytes(blob))
+    colors = None if mesh.colors is None else np.round(np.clip(mesh.colors, 0, 1) * 255).astype(np.uint8)
+    solid = trimesh.Trimesh(mesh.vertices, mesh.triangles, vertex_normals=vertex_normals(mesh),
+                            vertex_colors=colors, process=False)
+    solid.export(path, file_type="glb", include_normals=True)
 
 
 def read_glb(path: Path) -> Mesh:
-    """The first primitive of a GLB written by ``write_glb`` (float VEC3 attributes, uint32 indices)."""
-    data = Path(path).read_bytes()
-    magic, version, total = struct.unpack_from("<4sII", data, 0)
-    if magic != b"glTF" or version != 2 or total != len(data):
-        raise ValueError(f"{path} is not a glTF 2.0 binary file")
-    json_len, _ = struct.unpack_from("<I4s", data, 12)
-    doc = json.loads(data[20:20 + json_len])
-    bin_start = 20 + json_len + 8
-    primitive = doc["meshes"][0]["primitives"][0]
+    """The triangle mesh of a GLB (every primitive, joined), with its vertex colours if it has them."""
+    import trimesh
 
-    def accessor(index: int, dtype: Any, width: int) -> np.ndarray:
-        acc = doc["accessors"][index]
-        view = doc["bufferViews"][acc["bufferView"]]
-        start = bin_start + view["byteOffset"]
-        return np.frombuffer(data, dtype=dtype, count=acc["count"] * width, offset=start).reshape(acc["count"], width)
-
-    vertices = accessor(primitive["attributes"]["POSITION"], np.float32, 3).astype(np.float64)
-    triangles = accessor(primitive["indices"], np.uint32, 1).reshape(-1, 3).astype(np.int64)
+    solid = trimesh.load(path, file_type="glb", force="mesh", process=False)
     colors = None
-    if "COLOR_0" in primitive["attributes"]:
-        colors = accessor(primitive["attributes"]["COLOR_0"], np.float32, 3).astype(np.float64)
-    return Mesh(vertices, triangles, colors)
+    if solid.visual.kind == "vertex":
+        colors = np.asarray(solid.visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0
+    return Mesh(np.asarray(solid.vertices, dtype=np.float64), np.asarray(solid.faces, dtype=np.int64), colors)
 
 
 def surface_colors(model: Any, vertices: np.ndarray, normals: np.ndarray, offset: float, chunk: int = 8192) -> np.ndarray:

@@ -67,7 +67,7 @@ class ExportMeshStage(Stage):
     }
     requires = ("model", "model_json", "bounds", "depth", "depth_index", "points")
     provides = {"mesh": "mesh.ply", "mesh_obj": "mesh.obj", "mesh_glb": "mesh.glb"}
-    libraries = ("torch", "numpy", "open3d")
+    libraries = ("torch", "numpy", "open3d", "trimesh")
     accelerated = True
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:

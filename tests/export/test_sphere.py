@@ -206,6 +206,23 @@ def test_mesh_files_round_trip(tmp_path, suffix):
     assert back.colors is not None and np.allclose(back.colors[order], moved.colors[ref], atol=1 / 255 + 1e-6)
 
 
+def test_our_glb_opens_in_an_independent_reader(tmp_path):
+    """trimesh writes and reads our GLB; Open3D's glTF reader (tinygltf), which shares no code with it, must
+    find the same triangles, positions and colours."""
+    import open3d as o3d
+
+    model = sphere_model()
+    mesh = marching_cubes(model.coarse.query_density, Grid.over(*BOX, resolution=16), DENSITY / 2)
+    mesh.colors = np.clip((mesh.vertices - CENTER) + 0.5, 0, 1)
+    write_mesh(mesh, tmp_path / "m.glb")
+    other = o3d.io.read_triangle_mesh(str(tmp_path / "m.glb"))
+    assert len(other.triangles) == mesh.faces and other.has_vertex_colors() and other.has_vertex_normals()
+    vertices, colors = np.asarray(other.vertices), np.asarray(other.vertex_colors)
+    order, ref = np.lexsort(vertices.T), np.lexsort(mesh.vertices.T)
+    assert np.allclose(vertices[order], mesh.vertices[ref], atol=1e-5)
+    assert np.allclose(colors[order], mesh.colors[ref], atol=1 / 255 + 1e-6)
+
+
 def test_cleaning_drops_small_pieces_and_simplifies():
     model = sphere_model()
     grid = Grid.over(*BOX, resolution=32)
