@@ -175,6 +175,7 @@ def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
 
     from nerfpipe import Pipeline, default_stages
     from nerfpipe.export.depth import DepthIndex
+    from tests.helpers import video_info
     from nerfpipe.export.mesh import read_mesh
     from nerfpipe.export.points import read_ply
     from tests.helpers import run_cli
@@ -214,6 +215,9 @@ def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
     for section in ("Capture", "Scene decisions", "Training", "Depth", "Mesh and point cloud", "Novel views", "Time per stage"):
         assert f"<h2>{section}</h2>" in text
     assert "img/mesh.png" in sources and "img/points.png" in sources and "img/training.png" in sources
+    # the novel views play in the page: H.264 videos beside it (scripts/check_report_videos.py plays them in Chromium)
+    for name in ("render.mp4", "depth.mp4"):
+        assert f'<video src="{name}"' in text and video_info(page.parent / name).codec == "h264"
 
     env_free = run_cli("view", run_dir, "mesh")
     assert env_free.returncode == 0, env_free.stderr
