@@ -107,7 +107,7 @@ def _progress_factory() -> Callable:
 
 @app.command()
 def run(
-    photos_dir: Path = typer.Argument(..., help="Folder of photos (or a capture folder with images/)."),
+    photos_dir: Path = typer.Argument(..., help="Folder of photos (or a capture folder with images/), or a video."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Run directory [default: runs/<photos folder name>]."),
     preset: Optional[str] = PresetOption,
     set_: List[str] = SetOption,
@@ -117,7 +117,7 @@ def run(
     skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip unreadable or duplicate photos with a warning."),
     debug: bool = DebugOption,
 ) -> None:
-    """Run the pipeline on a folder of photos, recomputing only what changed."""
+    """Run the pipeline on a folder of photos or a video, recomputing only what changed."""
     _setup_logging(debug)
     with _user_errors(debug):
         overrides = parse_assignments(set_)

@@ -33,6 +33,7 @@ from nerfpipe.imaging.tiff import (
     open_tiff,
     read_ifd,
 )
+from nerfpipe.imaging.video import VIDEO_EXTENSIONS
 from nerfpipe.pipeline.errors import BadPhotoError
 
 PhotoKind = Literal["jpeg", "png", "tiff", "raw"]
@@ -65,9 +66,7 @@ _KIND_BY_EXTENSION: dict[str, PhotoKind] = {
 }
 _CONTAINER_NAMES = {"jpeg": "JPEG", "png": "PNG", "tiff": "TIFF", "raw": "camera RAW"}
 _HEIC_EXTENSIONS = frozenset({".heic", ".heif", ".hif"})
-_VIDEO_EXTENSIONS = frozenset(
-    {".mp4", ".mov", ".avi", ".mkv", ".m4v", ".mts", ".m2ts", ".3gp", ".webm", ".wmv", ".mpg", ".mpeg", ".insv"}
-)
+_VIDEO_EXTENSIONS = VIDEO_EXTENSIONS | {".insv"}
 _CONVERT_TO_PNG_EXTENSIONS = frozenset({".gif", ".bmp", ".webp"})
 
 _RECOPY_ADVICE = "copy it again from the camera or card, or remove it from the photo folder"
@@ -231,9 +230,7 @@ def unsupported_advice(path: Path | str) -> str:
     if suffix in _HEIC_EXTENSIONS:
         return "HEIC is not supported; export the photos as JPEG"
     if suffix in _VIDEO_EXTENSIONS:
-        return (
-            "videos are not supported; extract frames first (e.g. ffmpeg -i video.mp4 -vf fps=2 frames/%04d.jpg)"
-        )
+        return "a video among photos: pass the video on its own (nerfpipe run VIDEO), or move it out of the photo folder"
     if suffix in _CONVERT_TO_PNG_EXTENSIONS:
         return f"{suffix} images are not supported; convert it to PNG"
     return "it is not a photo nerfpipe reads (JPEG, PNG, TIFF or camera RAW); move it out of the photo folder"

@@ -34,7 +34,7 @@ from nerfpipe.pipeline.fingerprint import Fingerprint, FingerprintCache, diff_in
 from nerfpipe.pipeline.hashing import cache_key
 from nerfpipe.pipeline.lock import RunLock, StageLock
 from nerfpipe.pipeline.params import build_params, describe_changes, params_to_dict
-from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress
+from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress, capture_root
 from nerfpipe.pipeline.store import ArtifactStore, Committed, Damage, write_json_atomic
 
 log = logging.getLogger("nerfpipe")
@@ -190,15 +190,15 @@ class Pipeline:
     def plan(self) -> dict[str, PlannedStage]:
         if self._plan is not None:
             return self._plan
-        if not self.source.is_dir():
-            what = "does not exist" if not self.source.exists() else "is not a folder"
-            raise InputError(self.source, f"capture folder {what}", "pass a folder of photos")
+        if not self.source.exists():
+            raise InputError(self.source, "capture folder does not exist", "pass a folder of photos, or a video")
         fingerprints = FingerprintCache(self.run_dir / ".cache" / "fingerprints.json")
+        root = capture_root(self.source)
         planned: dict[str, PlannedStage] = {}
         for name in self.dag.order:
             stage = self.dag.stages[name]
             params = build_params(name, stage.Params, stage.presets, self.preset, self.overrides.get(name, {}))
-            files = tuple(fingerprints.fingerprint(p, self.source) for p in stage.input_files(self.source, params))
+            files = tuple(fingerprints.fingerprint(p, root) for p in stage.input_files(self.source, params))
             material = {
                 "stage": name,
                 "version": stage.version,

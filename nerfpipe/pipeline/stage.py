@@ -18,9 +18,16 @@ from typing import Any, Callable, ClassVar, Iterator, Mapping
 from nerfpipe.pipeline.fingerprint import Fingerprint
 
 
+def capture_root(source: Path) -> Path:
+    """The folder capture files are named relative to: the capture folder, or the folder of a capture that
+    is one file (a video)."""
+    return source if source.is_dir() else source.parent
+
+
 @dataclass(frozen=True)
 class StageInputs:
-    """What a stage may read: upstream artifacts by name, and the fingerprinted capture files."""
+    """What a stage may read: upstream artifacts by name, and the fingerprinted capture files of ``source``
+    (a capture folder, or one file such as a video)."""
 
     artifacts: Mapping[str, Path]
     source: Path
@@ -30,7 +37,7 @@ class StageInputs:
         return self.artifacts[artifact]
 
     def path(self, fp: Fingerprint) -> Path:
-        return self.source / fp.relpath
+        return capture_root(self.source) / fp.relpath
 
 
 # progress(total, description) -> advance(n=1, info=None); ``info`` is a short status text shown beside the bar

@@ -10,6 +10,7 @@ always agree. Layouts, in the order they are tried:
 - ``llff``: ``poses_bounds.npy`` with the photos in ``images/`` (rows follow the sorted image names).
 - ``middlebury``: a ``*_par.txt`` calibration file naming the photos beside it.
 - ``folder``: just photos, in the folder or in its ``images/`` subfolder.
+- ``video``: one video file (MP4, MOV, ...), passed itself or alone in its folder; ingest takes its frames.
 
 Every image path a pose file names must resolve inside the capture folder; ``../`` escapes, absolute
 paths and links that lead out of it are refused.
@@ -24,7 +25,7 @@ from typing import Literal
 
 from nerfpipe.pipeline.errors import InputError
 
-LayoutKind = Literal["transforms", "colmap", "llff", "middlebury", "folder"]
+LayoutKind = Literal["transforms", "colmap", "llff", "middlebury", "folder", "video"]
 from nerfpipe.artifacts import PHOTO_SUBFOLDER
 
 TRANSFORMS_FILES = ("transforms.json", "transforms_train.json", "transforms_val.json", "transforms_test.json")
@@ -83,11 +84,25 @@ def detect_layout(capture: Path, kind: str | None = None) -> CaptureLayout:
             raise InputError(capture, f"has no {POSE_FILE_NAMES[kind]} to import poses from",
                              "drop the --set sfm.poses override to detect the poses, or use sfm.poses=sfm")
         return layout
+    from nerfpipe.imaging.video import VIDEO_EXTENSIONS
+
+    if capture.is_file():
+        if capture.suffix.lower() in VIDEO_EXTENSIONS:
+            return CaptureLayout("video", capture.parent, [capture])
+        raise InputError(capture, "is a file, not a capture folder or a video",
+                         f"pass the folder of photos, or a video ({', '.join(sorted(VIDEO_EXTENSIONS))})")
     for detect in detectors.values():
         layout = detect(capture)
         if layout is not None:
             return layout
-    return CaptureLayout("folder", capture, discover_photos(capture))
+    photos = discover_photos(capture)
+    videos = [p for p in photos if p.suffix.lower() in VIDEO_EXTENSIONS]
+    if videos and len(videos) == len(photos):
+        if len(videos) > 1:
+            raise InputError(capture, f"holds {len(videos)} videos ({', '.join(v.name for v in videos[:3])})",
+                             "pass one of them: nerfpipe run FOLDER/VIDEO")
+        return CaptureLayout("video", capture, videos)
+    return CaptureLayout("folder", capture, photos)
 
 
 def discover_photos(folder: Path) -> list[Path]:

@@ -46,6 +46,9 @@ class IngestParams:
         metadata={"help": "refuse photos above this size, read from the header before decoding (a guard against "
                   "decompression bombs; 0 = no limit); today's largest camera and phone photos are 200 MP"},
     )
+    video_frames: int = field(
+        default=150, metadata={"help": "a video capture: frames to keep, each the sharpest of its stretch of the video"}
+    )
     skip_bad: bool = field(default=False, metadata={"help": "skip unreadable or duplicate photos with a warning"})
     workers: int = field(default=0, metadata={"help": "decoding threads; 0 = one per CPU core"})
 
@@ -56,6 +59,8 @@ class IngestParams:
             raise ValueError(f"max_size {self.max_size} is too small for SfM; use at least 16 (or 0 for full size)")
         if self.raw_linear and self.bit_depth == "8":
             raise ValueError("raw_linear needs 16-bit output; set ingest.bit_depth=16 or auto")
+        if self.video_frames < 2:
+            raise ValueError(f"video_frames must be at least 2 (SfM needs two views), got {self.video_frames}")
         if self.min_size < 1:
             raise ValueError(f"min_size must be at least 1 pixel, got {self.min_size}")
         if self.max_megapixels < 0:
@@ -105,6 +110,11 @@ class IngestStage(Stage):
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
         s = manifest.get("summary", {})
+        if "video" in s:
+            v = s["video"]
+            line = (f"{s.get('images')} frames of {v['file']} ({v['frames']} frames, {v['seconds']:.0f} s at "
+                    f"{v['fps']:g} fps), each the sharpest of its stretch")
+            return [line]
         line = f"{s.get('images')} photos ({s.get('source_megapixels')} MP)"
         extras = [f"{s[k]} {label}" for k, label in (("skipped", "skipped"), ("raw", "RAW"), ("with_alpha", "with alpha"),
                                                       ("with_focal_prior", "with an EXIF focal prior")) if s.get(k)]
@@ -132,6 +142,9 @@ class IngestStage(Stage):
 
         raw = RawOptions(params.raw_linear, params.raw_highlight_mode, params.raw_white_balance)
         (out / "images").mkdir()
+        layout = detect_layout(inputs.source)
+        if layout.kind == "video":
+            return self._video(inputs, out, params, ctx)
         if params.alpha == "mask":
             (out / "masks").mkdir()
         names = output_names([fp.relpath for fp in inputs.files])
@@ -167,7 +180,6 @@ class IngestStage(Stage):
         if not records:
             raise InputError(inputs.source, "none of the photos could be used", "see the warnings above for each file")
 
-        layout = detect_layout(inputs.source)
         for record in records:
             record["split"] = layout.splits.get(record["source"])
         ImageIndex(layout.kind, records, skipped).save(out / "images.json")
@@ -189,6 +201,46 @@ class IngestStage(Stage):
         }
 
     @staticmethod
+    def _video(inputs: StageInputs, out: Path, params: IngestParams, ctx: StageContext) -> dict[str, Any]:
+        """A video capture: about ``video_frames`` frames, each the sharpest of its window, as PNGs; each
+        record keeps the frame's index and time in the video."""
+        import cv2
+
+        from nerfpipe.imaging import ExifSummary
+        from nerfpipe.imaging.video import sharpest_frames
+
+        (fp,) = inputs.files
+        path = inputs.path(fp)
+        frames, decoded, rate = sharpest_frames(path, params.video_frames)
+        records = []
+        for i, frame in enumerate(frames):
+            src_h, src_w = frame.pixels.shape[:2]
+            width, height = target_size(src_w, src_h, params.max_size)
+            pixels = frame.pixels
+            if (width, height) != (src_w, src_h):
+                pixels = cv2.resize(pixels, (width, height), interpolation=cv2.INTER_AREA)
+            name = f"frame_{i:04d}.png"  # numbered in order, so SfM matches them sequentially
+            write_png(out / "images" / name, pixels)
+            records.append({
+                "name": name, "source": fp.relpath, "source_sha256": fp.sha256, "source_bytes": fp.size,
+                "format": "video", "width": width, "height": height, "source_width": src_w, "source_height": src_h,
+                "scale": width / src_w, "bit_depth": 8, "has_alpha": False, "mask": None, "raw": False,
+                "linear": False, "exif": ExifSummary().to_json(), "focal_prior": None, "split": None,
+                "video_frame": frame.index, "time_s": round(frame.time_s, 4),
+            })
+        ImageIndex("video", records).save(out / "images.json")
+        seconds = decoded / rate
+        ctx.log.info("ingest: %d of the %d frames of %s (%.0f s at %.3g fps), each the sharpest of its %.2f s -> %dx%d",
+                     len(records), decoded, fp.relpath, seconds, rate, seconds / len(records),
+                     records[0]["width"], records[0]["height"])
+        return {
+            "images": len(records), "skipped": 0,
+            "source_megapixels": round(sum(r["source_width"] * r["source_height"] for r in records) / 1e6, 3),
+            "raw": 0, "with_alpha": 0, "with_focal_prior": 0,
+            "video": {"file": fp.relpath, "frames": decoded, "fps": round(rate, 3), "seconds": round(seconds, 3)},
+        }
+
+    @staticmethod
     def _convert(
         inputs: StageInputs,
         fp: Fingerprint,
@@ -200,7 +252,13 @@ class IngestStage(Stage):
     ) -> dict[str, Any]:
         import cv2
 
-        from nerfpipe.imaging import PhotoSizeError, SizeLimits, focal_prior_px, photo_kind, read_photo
+        from nerfpipe.imaging import (
+            PhotoSizeError,
+            SizeLimits,
+            focal_prior_px,
+            photo_kind,
+            read_photo,
+        )
 
         path = inputs.path(fp)
         if duplicate_of is not None and duplicate_of != fp.relpath:

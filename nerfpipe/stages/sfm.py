@@ -127,7 +127,7 @@ class SfmStage(Stage):
         records = ImageIndex.load(inputs["images_json"]).records
         layout = detect_layout(inputs.source, None if params.poses in ("auto", "sfm") else params.poses)
         (out / "model").mkdir()
-        if params.poses == "sfm" or layout.kind == "folder":
+        if params.poses == "sfm" or layout.kind in ("folder", "video"):
             cameras, summary = run_sfm(inputs["images"], records, out, params, ctx)
         else:
             cameras, summary = import_with_points(inputs["images"], layout, records, out, params, ctx)
@@ -444,7 +444,9 @@ def choose_matcher(records: list[dict], params: SfmParams) -> tuple[str, str]:
 
 
 def _looks_like_video(records: list[dict]) -> bool:
-    """Frames extracted from a video: names end in a frame number, and the numbers are mostly consecutive."""
+    """Frames of a video: ingest took them from one, or their names end in mostly consecutive numbers."""
+    if records and all("video_frame" in r for r in records):
+        return True
     numbers = []
     for r in records:
         match = re.search(r"(\d+)\D*$", r["name"])

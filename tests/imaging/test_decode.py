@@ -112,9 +112,9 @@ def test_extension_sets_are_disjoint_and_complete() -> None:
     [
         ("IMG_1.HEIC", "HEIC is not supported; export the photos as JPEG"),
         ("IMG_1.heif", "HEIC is not supported; export the photos as JPEG"),
-        ("walk.MP4", "extract frames first (e.g. ffmpeg -i video.mp4 -vf fps=2 frames/%04d.jpg)"),
-        ("walk.mov", "videos are not supported"),
-        ("clip.avi", "videos are not supported"),
+        ("walk.MP4", "pass the video on its own (nerfpipe run VIDEO)"),
+        ("walk.mov", "a video among photos"),
+        ("clip.avi", "a video among photos"),
         ("anim.gif", "convert it to PNG"),
         ("scan.bmp", "convert it to PNG"),
         ("web.webp", "convert it to PNG"),
