@@ -186,14 +186,15 @@ def view(
         "mesh", metavar="mesh|points|cameras",
         help="The exported mesh, the exported point cloud, or the SfM cameras and sparse points; frusta always.",
     ),
+    web: bool = typer.Option(False, "--web", help="Serve a web viewer (viser): mesh, points, cameras with their "
+                             "photos, and a live render of the field from the browser's viewpoint."),
+    port: int = typer.Option(8080, "--port", help="--web: the port to serve on."),
     debug: bool = DebugOption,
 ) -> None:
     """Look at a run's mesh, point cloud or cameras; with no display, write RUN_DIR/view_<kind>.png instead."""
     _setup_logging(debug)
     import difflib
 
-    from nerfpipe.export import screenshot as shot
-    from nerfpipe.geometry.cameras import CameraSet
     from nerfpipe.pipeline import Committed, InputError, ParamError
 
     with _user_errors(debug):
@@ -213,6 +214,12 @@ def view(
                 )
             return result
 
+        if web:
+            _serve_web(pipe, result_of, port)
+            return
+        from nerfpipe.export import screenshot as shot
+        from nerfpipe.geometry.cameras import CameraSet
+
         sfm = CameraSet.load(result_of("sfm", "SfM cameras").path / "model")
         mesh = points = None
         if kind == "mesh":
@@ -227,6 +234,41 @@ def view(
                          title=f"nerfpipe {kind}: {run_dir}")
     if path is not None:
         out_console.print(f"no display: wrote a screenshot to {escape(str(path))}", highlight=False, soft_wrap=True)
+
+
+def _serve_web(pipe: Pipeline, result_of: Callable, port: int) -> None:
+    """`view --web`: gather the run's results, serve them until Ctrl-C."""
+    import time
+
+    from nerfpipe.export.web import serve, web_scene
+
+    train = result_of("train", "trained model")
+    stages = pipe.dag.stages
+    scene = web_scene(
+        model_dir=train.path,
+        cameras_dir=train.path / stages["train"].provides["cameras"],
+        images_dir=result_of("ingest", "photos").path / stages["ingest"].provides["images"],
+        bounds_json=result_of("bounds", "bounds").path / stages["bounds"].provides["bounds"],
+        mesh_ply=_optional(pipe, "export_mesh", "mesh"),
+        points_ply=_optional(pipe, "export_points", "points"),
+    )
+    viewer = serve(scene, port=port)
+    held = [f"{len(scene.frames)} cameras with their photos"]
+    held += [f"a mesh of {scene.mesh.faces:,} triangles"] if scene.mesh is not None else []
+    held += [f"{len(scene.points.xyz):,} points"] if scene.points is not None else []
+    out_console.print(f"web viewer: {viewer.url} ({', '.join(held)}, and a live render of the field); "
+                      "Ctrl-C stops it", highlight=False, soft_wrap=True)
+    try:
+        while True:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        viewer.stop()
+        out_console.print("web viewer stopped", highlight=False)
+
+
+def _optional(pipe: Pipeline, stage: str, artifact: str) -> Path | None:
+    result = pipe.result(stage) if stage in pipe.dag.stages else None
+    return None if result is None else result.path / pipe.dag.stages[stage].provides[artifact]
 
 
 @app.command()

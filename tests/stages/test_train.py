@@ -219,6 +219,8 @@ def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
     for name in ("render.mp4", "depth.mp4"):
         assert f'<video src="{name}"' in text and video_info(page.parent / name).codec == "h264"
 
+    check_web_viewer(run_dir)
+
     env_free = run_cli("view", run_dir, "mesh")
     assert env_free.returncode == 0, env_free.stderr
     shot = run_dir / "view_mesh.png"
@@ -253,3 +255,56 @@ def test_a_phone_capture_with_a_room_behind_trains_in_contracted_space_and_a_cli
     clipped = train_beer(tmp_path / "beer", contract="false", steps="220")["stall_guard"]
     assert clipped["restarted_at"] == 200 and clipped["stalled"]  # checked at step 200, restarted, still there at 220
     assert clipped["batch_psnr_ema"] < clipped["mean_colour_psnr"] + 1.0
+
+
+def check_web_viewer(run_dir: Path) -> None:
+    """`nerfpipe view RUN --web`: the page is served, its scene holds the mesh, the point cloud and one frustum
+    (with its photo) per camera, the field renders from a camera, and Ctrl-C stops it cleanly."""
+    import signal
+    import socket
+    import subprocess
+    import sys
+    import urllib.request
+
+    import viser
+
+    from nerfpipe import Pipeline, default_stages
+    from nerfpipe.export.web import render_view, serve, web_scene
+
+    def free_port() -> int:
+        with socket.socket() as s:
+            s.bind(("localhost", 0))
+            return s.getsockname()[1]
+
+    pipe = Pipeline.from_run_dir(default_stages(), run_dir)
+    path = {stage: pipe.result(stage).path for stage in ("ingest", "bounds", "train", "export_mesh", "export_points")}
+    scene = web_scene(path["train"], path["train"] / "cameras", path["ingest"] / "images", path["bounds"] / "bounds.json",
+                      path["export_mesh"] / "mesh.ply", path["export_points"] / "points.ply")
+    viewer = serve(scene, port=free_port())
+    try:
+        page = urllib.request.urlopen(viewer.url, timeout=10).read().decode()
+        assert "<html" in page.lower()
+        assert isinstance(viewer.mesh, viser.GlbHandle) and isinstance(viewer.points, viser.PointCloudHandle)
+        assert len(viewer.frusta) == len(scene.frames) == 16
+        assert all(isinstance(f, viser.CameraFrustumHandle) for f in viewer.frusta)
+        assert all(frame.photo is not None for frame in scene.frames)
+    finally:
+        viewer.stop()
+    first = scene.frames[0]
+    image = render_view(scene, first.c2w, first.fov, first.aspect, 64)
+    assert image.shape == (48, 64, 3) and image.dtype == np.uint8 and image.max() > 50  # the temple, lit
+
+    port = free_port()
+    process = subprocess.Popen([sys.executable, "-m", "nerfpipe", "view", str(run_dir), "--web", "--port", str(port)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = ""
+        while "web viewer:" not in line:
+            line = process.stdout.readline()
+            assert line or process.poll() is None, process.stderr.read()
+        assert f"web viewer: http://localhost:{port} (16 cameras with their photos, a mesh of" in line
+        assert urllib.request.urlopen(f"http://localhost:{port}", timeout=10).status == 200
+    finally:
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=30)
+    assert process.returncode == 0 and "web viewer stopped" in out and "Traceback" not in err, err

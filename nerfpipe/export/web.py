@@ -1,0 +1,175 @@
+"""A web viewer of a finished run (viser): the mesh, the point cloud, the camera frusta with their photos,
+and a live render of the radiance field from the browser's viewpoint.
+
+Everything is shown in the model's normalized world (z up, the scene box in [-1, 1]^3), so the browser's
+camera can be rendered as is: the mesh and the point cloud, stored in the SfM frame, are brought over by
+the bounds stage's ``to_world`` similarity. The live render is progressive: when the view moves, a small
+frame (``FAST_WIDTH`` pixels wide) is rendered at once and shown behind the geometry; once the view has
+rested for ``REST_SECONDS``, the same view is rendered again at ``SHARP_WIDTH``.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nerfpipe.export.mesh import Mesh
+from nerfpipe.export.points import Cloud
+
+FAST_WIDTH, SHARP_WIDTH = 96, 320  # pixels across, of the live render while moving and once at rest
+REST_SECONDS = 0.3
+THUMB_WIDTH = 160  # pixels across, of the photos drawn in the frusta
+
+
+@dataclass
+class WebFrame:
+    """One camera to draw: its world c2w (OpenCV axes), vertical field of view (radians), aspect, photo."""
+
+    name: str
+    c2w: np.ndarray
+    fov: float
+    aspect: float
+    photo: np.ndarray | None = None
+
+
+@dataclass
+class WebScene:
+    """What the viewer shows, all in the normalized world; ``model`` renders the live view when given."""
+
+    frames: list[WebFrame]
+    mesh: Mesh | None = None
+    points: Cloud | None = None
+    model: Any = None
+    near: float = 0.0
+    far: float = 1.0
+
+
+def _wxyz(rotation: np.ndarray) -> np.ndarray:
+    import viser.transforms as tf
+
+    return tf.SO3.from_matrix(rotation).wxyz
+
+
+@dataclass
+class WebViewer:
+    """A running viser server and what it holds (the tests look at these handles)."""
+
+    server: Any
+    scene: WebScene
+    mesh: Any = None
+    points: Any = None
+    frusta: list[Any] = field(default_factory=list)
+    renders: int = 0  # live frames rendered so far
+    _stop: threading.Event = field(default_factory=threading.Event)
+
+    @property
+    def url(self) -> str:
+        return f"http://localhost:{self.server.get_port()}"
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.server.stop()
+
+
+def serve(scene: WebScene, host: str = "0.0.0.0", port: int = 8080) -> WebViewer:
+    """Start the viewer; it serves until ``stop()``. The live render runs in one thread per browser tab."""
+    import viser
+
+    server = viser.ViserServer(host=host, port=port, verbose=False)
+    server.scene.set_up_direction("+z")
+    viewer = WebViewer(server, scene)
+    if scene.mesh is not None:
+        colors = scene.mesh.colors if scene.mesh.colors is not None else np.full((len(scene.mesh.vertices), 3), 0.7)
+        import trimesh
+
+        solid = trimesh.Trimesh(scene.mesh.vertices, scene.mesh.triangles, process=False,
+                                vertex_colors=np.round(np.clip(colors, 0, 1) * 255).astype(np.uint8))
+        viewer.mesh = server.scene.add_mesh_trimesh("/mesh", solid)
+    if scene.points is not None:
+        viewer.points = server.scene.add_point_cloud(
+            "/points", scene.points.xyz.astype(np.float32), np.clip(scene.points.rgb, 0, 1).astype(np.float32),
+            point_size=0.004, visible=scene.mesh is None)
+    for i, frame in enumerate(scene.frames):
+        viewer.frusta.append(server.scene.add_camera_frustum(
+            f"/cameras/{i:04d}", fov=frame.fov, aspect=frame.aspect, scale=0.06, image=frame.photo,
+            wxyz=_wxyz(frame.c2w[:3, :3]), position=frame.c2w[:3, 3]))
+    if scene.model is not None:
+        server.on_client_connect(lambda client: threading.Thread(
+            target=_live_render, args=(viewer, client), daemon=True).start())
+    return viewer
+
+
+def _live_render(viewer: WebViewer, client: Any) -> None:
+    """Render the client's view whenever it changes: fast at once, sharp once it has rested."""
+    import viser.transforms as tf
+
+    shown: tuple | None = None  # (camera state, width) last rendered
+    while not viewer._stop.is_set() and client.client_id in viewer.server.get_clients():
+        camera = client.camera
+        state = (tuple(np.round(camera.wxyz, 5)), tuple(np.round(camera.position, 5)), round(camera.fov, 5),
+                 round(camera.aspect, 4))
+        moved = shown is None or shown[0] != state
+        rested = time.time() - camera.update_timestamp > REST_SECONDS
+        width = SHARP_WIDTH if rested else FAST_WIDTH
+        if moved or (rested and shown[1] != SHARP_WIDTH):
+            c2w = np.eye(4)
+            c2w[:3, :3] = tf.SO3(np.asarray(camera.wxyz)).as_matrix()
+            c2w[:3, 3] = camera.position
+            client.scene.set_background_image(render_view(viewer.scene, c2w, camera.fov, camera.aspect, width),
+                                              format="jpeg")
+            viewer.renders += 1
+            shown = (state, width)
+        else:
+            time.sleep(0.02)
+
+
+def render_view(scene: WebScene, c2w: np.ndarray, fov: float, aspect: float, width: int) -> np.ndarray:
+    """(H, W, 3) uint8: the field seen by a pinhole camera at ``c2w`` (OpenCV axes) with vertical ``fov``."""
+    import torch
+
+    height = max(2, round(width / aspect))
+    focal = 0.5 * height / np.tan(fov / 2)
+    with torch.no_grad():
+        rendered = scene.model.render_image((focal, focal, width / 2, height / 2), c2w, width, height,
+                                            scene.near, scene.far)
+    return (np.clip(rendered["rgb"].numpy(), 0, 1) * 255).astype(np.uint8)
+
+
+def web_scene(model_dir: Path, cameras_dir: Path, images_dir: Path, bounds_json: Path,
+              mesh_ply: Path | None = None, points_ply: Path | None = None) -> WebScene:
+    """A finished run's results as a ``WebScene``: the train stage's model and cameras (the world frame), the
+    ingested photos, the bounds (near, far and ``to_world``), and the mesh and point cloud when exported."""
+    from nerfpipe.artifacts import Bounds
+    from nerfpipe.export.mesh import read_mesh, transformed
+    from nerfpipe.export.points import read_ply
+    from nerfpipe.export.points import transformed as transformed_cloud
+    from nerfpipe.geometry.cameras import CameraSet
+    from nerfpipe.nerf.model import RadianceModel
+
+    bounds = Bounds.load(bounds_json)
+    cameras = CameraSet.load(cameras_dir)
+    frames = []
+    for frame in cameras.frames:
+        camera = cameras.camera_of(frame)
+        fov = 2 * float(np.arctan(0.5 * camera.height / camera.fy))
+        frames.append(WebFrame(frame.name, np.asarray(frame.c2w), fov, camera.width / camera.height,
+                               thumbnail(images_dir / frame.name)))
+    mesh = transformed(read_mesh(mesh_ply), bounds.to_world) if mesh_ply is not None else None
+    points = transformed_cloud(read_ply(points_ply), bounds.to_world) if points_ply is not None else None
+    return WebScene(frames, mesh, points, RadianceModel.load(model_dir), bounds.near, bounds.far)
+
+
+def thumbnail(path: Path) -> np.ndarray | None:
+    """A photo at ``THUMB_WIDTH`` pixels across, RGB, for a frustum; None when it cannot be read."""
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        return None
+    height = max(1, round(image.shape[0] * THUMB_WIDTH / image.shape[1]))
+    return cv2.resize(image, (THUMB_WIDTH, height), interpolation=cv2.INTER_AREA)[..., ::-1].copy()
