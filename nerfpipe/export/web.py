@@ -24,6 +24,9 @@ from nerfpipe.export.points import Cloud
 FAST_WIDTH, SHARP_WIDTH = 96, 320  # pixels across, of the live render while moving and once at rest
 REST_SECONDS = 0.3
 THUMB_WIDTH = 160  # pixels across, of the photos drawn in the frusta
+START_BACK = 0.6  # the browser's first view: this share of the first camera's distance behind it (the world's
+# origin is the scene's centre), turned by START_TURN_DEG about the up axis
+START_TURN_DEG = 12.0
 
 
 @dataclass
@@ -83,24 +86,37 @@ def serve(scene: WebScene, host: str = "0.0.0.0", port: int = 8080) -> WebViewer
     server = viser.ViserServer(host=host, port=port, verbose=False)
     server.scene.set_up_direction("+z")
     viewer = WebViewer(server, scene)
+    # with a live render the geometry starts hidden (the render is behind it); the scene tree shows each
     if scene.mesh is not None:
         colors = scene.mesh.colors if scene.mesh.colors is not None else np.full((len(scene.mesh.vertices), 3), 0.7)
         import trimesh
 
         solid = trimesh.Trimesh(scene.mesh.vertices, scene.mesh.triangles, process=False,
                                 vertex_colors=np.round(np.clip(colors, 0, 1) * 255).astype(np.uint8))
-        viewer.mesh = server.scene.add_mesh_trimesh("/mesh", solid)
+        viewer.mesh = server.scene.add_mesh_trimesh("/mesh", solid, visible=scene.model is None)
     if scene.points is not None:
         viewer.points = server.scene.add_point_cloud(
             "/points", scene.points.xyz.astype(np.float32), np.clip(scene.points.rgb, 0, 1).astype(np.float32),
-            point_size=0.004, visible=scene.mesh is None)
+            point_size=0.004, visible=scene.model is None and scene.mesh is None)
+    centres = np.array([f.c2w[:3, 3] for f in scene.frames]) if scene.frames else np.zeros((1, 3))
+    size = 0.03 * float(np.median(np.linalg.norm(centres - np.median(centres, axis=0), axis=1)) or 1.0)
     for i, frame in enumerate(scene.frames):
         viewer.frusta.append(server.scene.add_camera_frustum(
-            f"/cameras/{i:04d}", fov=frame.fov, aspect=frame.aspect, scale=0.06, image=frame.photo,
-            wxyz=_wxyz(frame.c2w[:3, :3]), position=frame.c2w[:3, 3]))
-    if scene.model is not None:
-        server.on_client_connect(lambda client: threading.Thread(
-            target=_live_render, args=(viewer, client), daemon=True).start())
+            f"/cameras/{i:04d}", fov=frame.fov, aspect=frame.aspect, scale=size, thickness=size / 80,
+            image=frame.photo, wxyz=_wxyz(frame.c2w[:3, :3]), position=frame.c2w[:3, 3]))
+
+    def on_connect(client: Any) -> None:
+        if scene.frames:  # start behind the first photo's camera, looking at the scene's centre, z up
+            first = scene.frames[0]
+            client.camera.fov = first.fov
+            turn = np.radians(START_TURN_DEG)  # about the up axis, so the first frustum does not hide the centre
+            spin = np.array([[np.cos(turn), -np.sin(turn), 0.0], [np.sin(turn), np.cos(turn), 0.0], [0.0, 0.0, 1.0]])
+            client.camera.position = (1 + START_BACK) * spin @ first.c2w[:3, 3]
+            client.camera.look_at = np.zeros(3)
+        if scene.model is not None:
+            threading.Thread(target=_live_render, args=(viewer, client), daemon=True).start()
+
+    server.on_client_connect(on_connect)
     return viewer
 
 
@@ -134,9 +150,13 @@ def render_view(scene: WebScene, c2w: np.ndarray, fov: float, aspect: float, wid
 
     height = max(2, round(width / aspect))
     focal = 0.5 * height / np.tan(fov / 2)
+    # near and far around the scene from wherever the browser's camera is: the world's centre is the scene's,
+    # and nothing the cameras saw lay farther from it than their far bound (at least the [-1, 1]^3 box)
+    reach = max(float(np.sqrt(3.0)), scene.far)
+    distance = float(np.linalg.norm(c2w[:3, 3]))
+    near, far = max(1e-2, distance - reach), distance + reach
     with torch.no_grad():
-        rendered = scene.model.render_image((focal, focal, width / 2, height / 2), c2w, width, height,
-                                            scene.near, scene.far)
+        rendered = scene.model.render_image((focal, focal, width / 2, height / 2), c2w, width, height, near, far)
     return (np.clip(rendered["rgb"].numpy(), 0, 1) * 255).astype(np.uint8)
 
 

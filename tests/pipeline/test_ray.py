@@ -89,8 +89,10 @@ def test_a_ray_batch_matches_the_local_executor_isolates_failures_and_survives_a
 
     sources = find_captures(captures)
     settings = BatchSettings(overrides=SMALL)
+    # the local executor up to the last stage whose outputs do not depend on thread counts (train's do)
     with LocalExecutor() as local:
-        local_states = {c.name: c for c in Batch(sources, tmp_path / "local", local, settings).run()}
+        local_states = {c.name: c for c in Batch(sources, tmp_path / "local", local,
+                                                 BatchSettings(overrides=SMALL, until=DETERMINISTIC[-1])).run()}
 
     killer = Killer(tmp_path / "ray" / "temple_a")
     killer.start()
@@ -111,7 +113,7 @@ def test_a_ray_batch_matches_the_local_executor_isolates_failures_and_survives_a
         for stage in DETERMINISTIC:
             assert outputs(tmp_path / "ray" / name, stage) == outputs(tmp_path / "local" / name, stage), (name, stage)
         for stage in ("train", "export_depth", "export_points", "export_mesh", "render"):
-            assert set(outputs(tmp_path / "ray" / name, stage)) == set(outputs(tmp_path / "local" / name, stage))
+            assert ray_states[name].finished[stage]["action"] == "ran" and outputs(tmp_path / "ray" / name, stage)
     # stages of different captures ran in other processes than this one, two at a time at most
     pids = {r["pid"] for c in ray_states.values() for r in c.finished.values() if "pid" in r}
     assert os.getpid() not in pids and len(pids) >= 2

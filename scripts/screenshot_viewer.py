@@ -1,0 +1,90 @@
+"""A screenshot of `nerfpipe view RUN_DIR --web` in headless Chromium, after the live render has had time
+to arrive (Chromium's own --screenshot fires at page load, before the websocket has delivered the scene).
+
+Run by hand (needs `apt-get install -y chromium`):
+
+    python scripts/screenshot_viewer.py runs/templeSparseRing docs/web_viewer.png
+
+It starts the viewer, drives Chromium through the DevTools protocol (the `websockets` package viser brings),
+waits ``WAIT_S`` seconds, captures the page, and stops both.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from pathlib import Path
+
+WAIT_S = 12.0
+SIZE = (1280, 800)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(url: str, seconds: float = 60) -> None:
+    deadline = time.time() + seconds
+    while time.time() < deadline:
+        try:
+            urllib.request.urlopen(url, timeout=2)
+            return
+        except OSError:
+            time.sleep(0.3)
+    sys.exit(f"{url} did not answer within {seconds:.0f} s")
+
+
+async def capture(debug_port: int, url: str, out: Path) -> None:
+    import websockets
+
+    target = json.loads(urllib.request.urlopen(
+        urllib.request.Request(f"http://localhost:{debug_port}/json/new?{url}", method="PUT")).read())
+    async with websockets.connect(target["webSocketDebuggerUrl"], max_size=None) as ws:
+        await asyncio.sleep(WAIT_S)
+        await ws.send(json.dumps({"id": 1, "method": "Page.captureScreenshot", "params": {"format": "png"}}))
+        while True:
+            reply = json.loads(await ws.recv())
+            if reply.get("id") == 1:
+                out.write_bytes(base64.b64decode(reply["result"]["data"]))
+                return
+
+
+def main(run_dir: Path, out: Path) -> None:
+    browser = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+    if browser is None:
+        sys.exit("no Chromium found; apt-get install -y chromium")
+    port, debug_port = free_port(), free_port()
+    viewer = subprocess.Popen([sys.executable, "-m", "nerfpipe", "view", str(run_dir), "--web", "--port", str(port)],
+                              stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    with tempfile.TemporaryDirectory() as profile:
+        chrome = subprocess.Popen(
+            [browser, "--headless", "--no-sandbox", "--use-gl=swiftshader", "--enable-unsafe-swiftshader",
+             "--ignore-gpu-blocklist", f"--window-size={SIZE[0]},{SIZE[1]}", f"--remote-debugging-port={debug_port}",
+             f"--user-data-dir={profile}", "about:blank"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            wait_for(f"http://localhost:{port}")
+            wait_for(f"http://localhost:{debug_port}/json/version")
+            asyncio.run(capture(debug_port, f"http://localhost:{port}", out))
+        finally:
+            chrome.terminate()
+            viewer.send_signal(signal.SIGINT)
+            viewer.wait(timeout=30)
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 3:
+        sys.exit(__doc__)
+    main(Path(sys.argv[1]), Path(sys.argv[2]))
