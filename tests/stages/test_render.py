@@ -200,7 +200,8 @@ def test_params_presets_and_errors(tmp_path: Path) -> None:
     photo = Camera.pinhole(100, 100, 50, 37, 101, 75)
     assert render_size(photo, 0.5) == (50, 38)  # even sides: 50.5 -> 50, 37.5 -> 38
     assert render_size(photo, 2.0, max_side=80) == (80, 60)  # 202 x 150 shrunk to fit 80: 80 x 59.4 -> 60
-    assert render_size(Camera.pinhole(1e3, 1e3, 800, 600, 1600, 1200), 0.5, RenderParams().max_side) == (160, 120)
+    # the default cap: half of 1600 x 1200 is 800 x 600, shrunk to 320 x 240 (the demo renders 40 of them in about 50 s)
+    assert render_size(Camera.pinhole(1e3, 1e3, 800, 600, 1600, 1200), 0.5, RenderParams().max_side) == (320, 240)
     if not torch.cuda.is_available():
         inputs = write_scene(tmp_path, "inward360")
         with pytest.raises(StageError, match="render.device=cuda"):
