@@ -217,7 +217,6 @@ class Pipeline:
         statuses: dict[str, StageStatus] = {}
         for name, planned in self.plan().items():
             found = self.store.inspect(name, planned.key, full=verify)
-            latest = self.store.latest(name)
             if isinstance(found, Committed):
                 upstream = {up: statuses[up].result if statuses[up].state == "fresh" else None
                             for up in self.dag.upstream[name]}
@@ -225,17 +224,16 @@ class Pipeline:
                 if problem is not None:
                     statuses[name] = StageStatus(name, "stale", (problem,), planned.key, found)
                 else:
-                    reasons = () if latest is not None and latest.key == planned.key else ("cached by an earlier run",)
+                    latest = self.store.latest_key(name) == planned.key
+                    reasons = () if latest else ("cached by an earlier run",)
                     statuses[name] = StageStatus(name, "fresh", reasons, planned.key, found)
             elif isinstance(found, Damage):
                 statuses[name] = StageStatus(name, "broken", (f"damaged result: {found}",), planned.key, None, found)
-            elif latest is not None:
+            elif (latest := self.store.latest(name)) is not None:
                 why = stale_reasons(planned, latest.manifest, planned.stage.inputs_label)
                 statuses[name] = StageStatus(name, "stale", tuple(why), planned.key, latest)
             else:
-                aside = self.store.set_aside_as(name, planned.key)
-                why = f"its damaged result was moved aside to {aside}" if aside is not None else "not run yet"
-                statuses[name] = StageStatus(name, "missing", (why,), planned.key, None)
+                statuses[name] = StageStatus(name, "missing", (self._never_ran(planned),), planned.key, None)
         return list(statuses.values())
 
     @staticmethod
@@ -357,8 +355,7 @@ class Pipeline:
         hit = self.store.get(name, planned.key)
         if hit is None or self._upstream_problem(hit, self._current_upstream(name)) is not None:
             return None
-        latest = self.store.latest(name)
-        if latest is not None and latest.key == planned.key:
+        if self.store.latest_key(name) == planned.key:
             log.info("%s: up to date, reusing its result", name)
             return StageOutcome(name, "cached", planned.key, hit.path, 0.0)
         self.store.set_latest(name, planned.key)
@@ -387,9 +384,13 @@ class Pipeline:
             return [problem or "cache key changed"], True
         latest = self.store.latest(name)
         if latest is None:
-            aside = self.store.set_aside_as(name, planned.key)
-            return [f"its damaged result was moved aside to {aside}" if aside is not None else "not run yet"], False
+            return [self._never_ran(planned)], False
         return stale_reasons(planned, latest.manifest, planned.stage.inputs_label), False
+
+    def _never_ran(self, planned: PlannedStage) -> str:
+        """Why a stage with no result and no earlier run to compare with is missing."""
+        aside = self.store.set_aside_as(planned.name, planned.key)
+        return f"its damaged result was moved aside to {aside}" if aside is not None else "not run yet"
 
     def _run_locked(self, planned: PlannedStage, forced: bool) -> StageOutcome:
         name, key = planned.name, planned.key

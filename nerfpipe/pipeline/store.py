@@ -150,13 +150,17 @@ class ArtifactStore:
         found = self.inspect(stage, key)
         return found if isinstance(found, Committed) else None
 
-    def latest(self, stage: str) -> Committed | None:
-        """The intact result the last run of ``stage`` used, if any."""
+    def latest_key(self, stage: str) -> str | None:
+        """The key the last run of ``stage`` used, whatever became of its result."""
         try:
-            key = json.loads((self.stages_dir / stage / "latest.json").read_text())["key"]
+            return json.loads((self.stages_dir / stage / "latest.json").read_text())["key"]
         except (FileNotFoundError, ValueError, KeyError):
             return None
-        return self.get(stage, key)
+
+    def latest(self, stage: str) -> Committed | None:
+        """The intact result the last run of ``stage`` used, if any."""
+        key = self.latest_key(stage)
+        return None if key is None else self.get(stage, key)
 
     def keys(self, stage: str) -> list[str]:
         folder = self.stages_dir / stage
