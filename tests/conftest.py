@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
-from types import ModuleType
 
 import pytest
 
 from tests.helpers import TEMPLE
-from tests.imaging import exif_writer as exif_writer_module
 
 
 @pytest.fixture
@@ -21,9 +19,3 @@ def capture(tmp_path: Path) -> Path:
         shutil.copy2(TEMPLE / name, folder / name)
     shutil.copy2(TEMPLE / "README.txt", folder / "README.txt")
     return folder
-
-
-@pytest.fixture(scope="session")
-def exif_writer() -> ModuleType:
-    """The helpers of ``tests/imaging/exif_writer.py`` (tiff_blob, jpeg_with_exif, ...)."""
-    return exif_writer_module

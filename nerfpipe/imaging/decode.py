@@ -22,7 +22,7 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
-from nerfpipe.imaging.exif import JPEG_SOI, PNG_SIGNATURE, ExifSummary, read_exif
+from nerfpipe.imaging.exif import ExifSummary, read_exif
 from nerfpipe.imaging.tiff import (
     TIFF_BIG_ENDIAN_MAGIC,
     TIFF_LITTLE_ENDIAN_MAGIC,
@@ -37,6 +37,9 @@ from nerfpipe.imaging.video import VIDEO_EXTENSIONS
 from nerfpipe.pipeline.errors import BadPhotoError
 
 PhotoKind = Literal["jpeg", "png", "tiff", "raw"]
+
+JPEG_SOI = b"\xff\xd8"
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 IMAGE_EXTENSIONS = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff"})
 # The camera RAW formats LibRaw opens (LibRaw's list of supported formats, by file extension).

@@ -1,8 +1,8 @@
-"""Bounds-checked reading of TIFF image file directories (IFDs).
+"""Bounds-checked walking of TIFF image file directories (IFDs), for the truncation check of TIFF and RAW files.
 
-TIFF is the container of EXIF (inside a JPEG APP1 segment or a PNG ``eXIf`` chunk), of ``.tif`` photos and of
-most camera RAW formats (DNG, NEF, CR2, ARW, KDC, ...). Both the EXIF reader and the truncation check walk IFDs,
-so the walking lives here once.
+EXIF is read with ExifRead and pixels are decoded by libtiff (through OpenCV) or LibRaw; none of them says
+whether a file was cut short: libtiff fills missing strips with zeros and only warns, ExifRead reads a missing
+value as 0. This module answers exactly that question: which IFDs, tags and strips lie inside the buffer.
 
 The bytes are untrusted: every offset is checked against the buffer, entry counts are capped, and IFD chains are
 followed with cycle protection. A garbled file therefore yields fewer entries (or ``None``), never an exception
@@ -15,7 +15,6 @@ and the 4-byte offset of the next IFD (0 ends the chain). A value that fits in 4
 
 from __future__ import annotations
 
-import math
 import struct
 from dataclasses import dataclass
 
@@ -24,16 +23,11 @@ TIFF_BIG_ENDIAN_MAGIC = b"MM\x00*"
 
 # Bytes per value for each TIFF field type (TIFF 6.0 section 2, plus type 13 IFD from the TIFF tech note 1).
 _TYPE_SIZES = {1: 1, 2: 1, 3: 2, 4: 4, 5: 8, 6: 1, 7: 1, 8: 2, 9: 4, 10: 8, 11: 4, 12: 8, 13: 4}
-# struct codes for the types read as plain numbers; RATIONAL (5) and SRATIONAL (10) are pairs, handled apart.
-_NUMBER_CODES = {1: "B", 3: "H", 4: "I", 6: "b", 8: "h", 9: "i", 11: "f", 12: "d", 13: "I"}
-_RATIONAL_CODES = {5: "I", 10: "i"}
-# BYTE, SHORT, LONG, SBYTE, SSHORT, SLONG, IFD: the types an offset or a count may be stored as.
-_INTEGER_TYPES = frozenset({1, 3, 4, 6, 8, 9, 13})
+# BYTE, SHORT, LONG, SBYTE, SSHORT, SLONG, IFD: the types an offset or a count may be stored as (struct codes).
+_INTEGER_CODES = {1: "B", 3: "H", 4: "I", 6: "b", 8: "h", 9: "i", 13: "I"}
 
 # Real IFDs hold tens to a few hundred entries; a larger count means we are reading garbage.
 MAX_IFD_ENTRIES = 1000
-# Multi-page TIFFs and RAWs chain a handful of IFDs (full image, previews, thumbnails).
-MAX_IFD_CHAIN = 64
 # Enough for the tile offsets of any real RAW (a 100 MP DNG in 256x256 tiles has ~1,500), bounded for memory.
 MAX_VALUES = 1 << 22
 
@@ -96,8 +90,8 @@ def open_tiff(data: bytes) -> TiffView | None:
 def read_ifd(tiff: TiffView, offset: int) -> Ifd | None:
     """Read the IFD at ``offset``; ``None`` if its entry table does not lie wholly inside the buffer.
 
-    Entries with an unknown type or whose value lies (partly) outside the buffer are kept: readers ask
-    ``entry_numbers``/``entry_bytes``, which answer ``None`` for those, and the truncation check needs to see them.
+    Entries with an unknown type or whose value lies (partly) outside the buffer are kept: ``entry_ints``
+    answers ``None`` for those, and the truncation check needs to see them.
     """
     data, order = tiff.data, tiff.byte_order
     # Offset 0 and offsets inside the header are never valid IFD positions.
@@ -132,56 +126,17 @@ def ifd_runs_past_end(tiff: TiffView, offset: int) -> bool:
     return offset + 2 + 12 * count + 4 > len(tiff.data)
 
 
-def ifd_chain(tiff: TiffView, offset: int) -> list[Ifd]:
-    """The IFD at ``offset`` and the ones chained after it, stopping at a bad offset or a cycle."""
-    chain: list[Ifd] = []
-    seen: set[int] = set()
-    while offset and offset not in seen and len(chain) < MAX_IFD_CHAIN:
-        seen.add(offset)
-        ifd = read_ifd(tiff, offset)
-        if ifd is None:
-            break
-        chain.append(ifd)
-        offset = ifd.next_offset
-    return chain
-
-
 def entry_in_bounds(tiff: TiffView, entry: TiffEntry) -> bool:
     """Whether the entry's value bytes lie wholly inside the buffer."""
     return entry.value_offset + entry.nbytes <= len(tiff.data)
 
 
-def entry_numbers(tiff: TiffView, entry: TiffEntry) -> tuple[float, ...] | None:
-    """The entry's values as numbers (RATIONALs divided out, ``nan`` for a zero denominator).
-
-    ``None`` for non-numeric types (ASCII, UNDEFINED), for values outside the buffer and for absurd counts.
-    """
-    if entry.count == 0 or entry.count > MAX_VALUES or not entry_in_bounds(tiff, entry):
-        return None
-    order = tiff.byte_order
-    if entry.type in _NUMBER_CODES:
-        code = _NUMBER_CODES[entry.type]
-        return struct.unpack_from(f"{order}{entry.count}{code}", tiff.data, entry.value_offset)
-    if entry.type in _RATIONAL_CODES:
-        code = _RATIONAL_CODES[entry.type]
-        pairs = struct.unpack_from(f"{order}{2 * entry.count}{code}", tiff.data, entry.value_offset)
-        return tuple(
-            numerator / denominator if denominator else math.nan
-            for numerator, denominator in zip(pairs[0::2], pairs[1::2], strict=True)
-        )
-    return None
-
-
 def entry_ints(tiff: TiffView, entry: TiffEntry) -> tuple[int, ...] | None:
-    """The entry's values if it has an integer type (offsets, byte counts, IFD pointers), else ``None``."""
-    if entry.type not in _INTEGER_TYPES:
-        return None
-    values = entry_numbers(tiff, entry)
-    return tuple(int(value) for value in values) if values is not None else None
+    """The entry's values if it has an integer type (offsets, byte counts, IFD pointers), else ``None``.
 
-
-def entry_bytes(tiff: TiffView, entry: TiffEntry) -> bytes | None:
-    """The entry's raw value bytes (for ASCII and UNDEFINED fields); ``None`` if they leave the buffer."""
-    if entry.nbytes == 0 or not entry_in_bounds(tiff, entry):
+    ``None`` too for values outside the buffer and for absurd counts.
+    """
+    code = _INTEGER_CODES.get(entry.type)
+    if code is None or entry.count == 0 or entry.count > MAX_VALUES or not entry_in_bounds(tiff, entry):
         return None
-    return tiff.data[entry.value_offset : entry.value_offset + entry.nbytes]
+    return struct.unpack_from(f"{tiff.byte_order}{entry.count}{code}", tiff.data, entry.value_offset)

@@ -7,7 +7,6 @@ import struct
 import subprocess
 import sys
 from pathlib import Path
-from types import ModuleType
 
 import cv2
 import numpy as np
@@ -33,6 +32,7 @@ from nerfpipe.imaging.decode import (
 )
 from nerfpipe.pipeline.errors import BadPhotoError
 from tests.helpers import TEMPLE
+from tests.imaging import photos
 
 TEMPLE_PNG = TEMPLE / "templeSR0001.png"
 
@@ -164,8 +164,8 @@ def test_apply_orientation_rejects_invalid_values(orientation: int) -> None:
 
 
 @pytest.mark.parametrize("orientation", range(1, 9))
-def test_jpeg_orientation_matches_opencv(exif_writer: ModuleType, tmp_path: Path, orientation: int) -> None:
-    data = exif_writer.jpeg_with_exif(corner_image(), exif_writer.orientation_tiff(orientation), quality=100)
+def test_jpeg_orientation_matches_opencv(tmp_path: Path, orientation: int) -> None:
+    data = photos.jpeg(corner_image()[:, :, ::-1], photos.orientation(orientation), quality=100)
     photo = read_photo(write(tmp_path, "oriented.jpg", data))
 
     # OpenCV applies EXIF orientation itself for IMREAD_COLOR: an independent implementation.
@@ -179,17 +179,15 @@ def test_jpeg_orientation_matches_opencv(exif_writer: ModuleType, tmp_path: Path
 
 
 @pytest.mark.parametrize("orientation", range(1, 9))
-def test_png_and_tiff_orientation_is_applied_once(
-    exif_writer: ModuleType, tmp_path: Path, orientation: int
-) -> None:
+def test_png_and_tiff_orientation_is_applied_once(tmp_path: Path, orientation: int) -> None:
     stored_rgb = corner_image()[:, :, ::-1].copy()
     expected = apply_orientation(stored_rgb, orientation)
 
-    png = exif_writer.png_with_exif(png_bytes(corner_image()), exif_writer.orientation_tiff(orientation))
+    png = photos.png(stored_rgb, photos.orientation(orientation))
     np.testing.assert_array_equal(read_photo(write(tmp_path, "o.png", png)).pixels, expected)
 
     # OpenCV's TIFF decoder orients by itself even with IMREAD_UNCHANGED; read_photo must not do it twice.
-    tiff = exif_writer.uncompressed_rgb_tiff(stored_rgb, {0x0112: (exif_writer.SHORT, (orientation,))})
+    tiff = photos.tiff(stored_rgb, photos.orientation(orientation))
     np.testing.assert_array_equal(read_photo(write(tmp_path, "o.tif", tiff)).pixels, expected)
     reference = cv2.imdecode(np.frombuffer(tiff, np.uint8), cv2.IMREAD_COLOR)[:, :, ::-1]
     np.testing.assert_array_equal(reference, expected)
@@ -224,8 +222,8 @@ def test_truncated_jpegs(tmp_path: Path) -> None:
         assert_bad_photo(path, "is truncated (JPEG ends before its end-of-image marker)")
 
 
-def test_truncated_progressive_jpeg(exif_writer: ModuleType, tmp_path: Path) -> None:
-    data = exif_writer.encode_jpeg(noisy_image(), quality=90, progressive=True)
+def test_truncated_progressive_jpeg(tmp_path: Path) -> None:
+    data = photos.jpeg(noisy_image(), quality=90, progressive=True)
     photo = read_photo(write(tmp_path, "progressive.jpg", data))
     assert photo.pixels.shape == (96, 128, 3)
     scans = jpeg_scan_starts(data)
@@ -235,14 +233,11 @@ def test_truncated_progressive_jpeg(exif_writer: ModuleType, tmp_path: Path) -> 
         assert_bad_photo(write(tmp_path, f"progressive cut {index}.jpg", data[:scan]), "is truncated")
 
 
-def test_exif_thumbnail_eoi_does_not_hide_truncation(exif_writer: ModuleType, tmp_path: Path) -> None:
-    w = exif_writer
-    thumbnail = w.encode_jpeg(noisy_image(16, 24, seed=1), quality=80)
-    tiff = w.tiff_blob(
-        {0x010F: (w.ASCII, "Canon")},
-        ifd1={0x0201: (w.LONG, w.Blob(thumbnail)), 0x0202: (w.LONG, (len(thumbnail),))},
-    )
-    data = w.jpeg_with_exif(noisy_image(), tiff, quality=95)
+def test_exif_thumbnail_eoi_does_not_hide_truncation(tmp_path: Path) -> None:
+    # A whole JPEG inside the EXIF (here as a maker note, as cameras store previews), end-of-image and all.
+    thumbnail = photos.jpeg(noisy_image(16, 24, seed=1), quality=80)
+    data = photos.jpeg(noisy_image(), photos.exif({0x010F: "Canon"}, {0x927C: thumbnail}), quality=95)
+    assert data.index(thumbnail) < data.index(b"\xff\xda")
     assert read_photo(write(tmp_path, "with thumbnail.jpg", data)).exif.make == "Canon"
 
     cut = data[: len(data) * 3 // 4]
@@ -259,7 +254,7 @@ def test_truncated_pngs(tmp_path: Path) -> None:
         assert_bad_photo(write(tmp_path, f"cut {where}.png", data[:cut]), "is truncated", "PNG")
 
 
-def test_truncated_tiffs(exif_writer: ModuleType, tmp_path: Path) -> None:
+def test_truncated_tiffs(tmp_path: Path) -> None:
     # OpenCV writes the strips first and the directory last: a cut removes the directory.
     data = cv2.imencode(".tiff", noisy_image())[1].tobytes()
     read_photo(write(tmp_path, "whole.tif", data))
@@ -269,7 +264,8 @@ def test_truncated_tiffs(exif_writer: ModuleType, tmp_path: Path) -> None:
     assert_bad_photo(write(tmp_path, "cut last byte.tif", data[:-1]), "is truncated")
 
     # Directory first, strip after (as in DNG): the directory survives, the strip runs past the end.
-    directory_first = exif_writer.uncompressed_rgb_tiff(noisy_image()[:, :, ::-1])
+    directory_first = photos.tiff(noisy_image())
+    assert struct.unpack_from("<I", directory_first, 4)[0] == 8  # Pillow writes the directory first
     read_photo(write(tmp_path, "directory first.tif", directory_first))
     cut = directory_first[: len(directory_first) - 100]
     assert_bad_photo(write(tmp_path, "strip cut.tif", cut), "is truncated (image data runs to byte")
@@ -299,12 +295,12 @@ def test_jpeg_structure_that_libjpeg_cannot_decode(tmp_path: Path) -> None:
     assert_bad_photo(write(tmp_path, "hierarchical.jpg", bytes(data)), "cannot be decoded", "not really a JPEG")
 
 
-def test_container_is_taken_from_magic_bytes(tmp_path: Path, exif_writer: ModuleType) -> None:
+def test_container_is_taken_from_magic_bytes(tmp_path: Path) -> None:
     image = corner_image()
     # A PNG saved as .jpg (and a JPEG saved as .png) is what it is, not what its name says.
     png_as_jpg = read_photo(write(tmp_path, "actually png.jpg", png_bytes(image)))
     np.testing.assert_array_equal(png_as_jpg.pixels, image[:, :, ::-1])
-    jpeg = exif_writer.encode_jpeg(image)
+    jpeg = photos.jpeg(image)
     jpeg_as_png = read_photo(write(tmp_path, "actually jpeg.png", jpeg))
     np.testing.assert_array_equal(jpeg_as_png.pixels, cv2.imdecode(np.frombuffer(jpeg, np.uint8), 1)[:, :, ::-1])
     # ... and a cut PNG named .jpg is reported as the truncated PNG it is.
@@ -367,7 +363,7 @@ def test_grayscale_jpeg_gives_three_equal_channels(tmp_path: Path) -> None:
         np.testing.assert_array_equal(photo.pixels[:, :, channel], reference)
 
 
-def test_alpha_is_kept(exif_writer: ModuleType, tmp_path: Path) -> None:
+def test_alpha_is_kept(tmp_path: Path) -> None:
     rng = np.random.default_rng(6)
     bgra = rng.integers(0, 256, (12, 10, 4), dtype=np.uint8)
     photo = read_photo(write(tmp_path, "cutout.png", png_bytes(bgra)))
@@ -380,7 +376,7 @@ def test_alpha_is_kept(exif_writer: ModuleType, tmp_path: Path) -> None:
     assert read_photo(write(tmp_path, "opaque.png", png_bytes(opaque))).has_alpha
 
     gray_alpha = rng.integers(0, 256, (5, 7, 2), dtype=np.uint8)
-    photo = read_photo(write(tmp_path, "gray alpha.png", exif_writer.png_gray_alpha(gray_alpha)))
+    photo = read_photo(write(tmp_path, "gray alpha.png", photos.png(gray_alpha)))
     assert photo.has_alpha and photo.pixels.shape == (5, 7, 4)
     np.testing.assert_array_equal(photo.pixels[:, :, 0], gray_alpha[:, :, 0])
     np.testing.assert_array_equal(photo.pixels[:, :, 2], gray_alpha[:, :, 0])
@@ -400,13 +396,9 @@ def test_paths_with_spaces_and_non_ascii(tmp_path: Path, raw_samples: Path) -> N
     assert read_photo(raw).pixels.shape == (512, 768, 3)
 
 
-def test_input_files_are_not_modified(exif_writer: ModuleType, tmp_path: Path, raw_samples: Path) -> None:
-    jpeg = write(tmp_path, "keep.jpg", exif_writer.jpeg_with_exif(corner_image(), exif_writer.orientation_tiff(6)))
-    tiff = write(
-        tmp_path,
-        "keep.tif",
-        exif_writer.uncompressed_rgb_tiff(corner_image(), {0x0112: (exif_writer.SHORT, (3,))}),
-    )
+def test_input_files_are_not_modified(tmp_path: Path, raw_samples: Path) -> None:
+    jpeg = write(tmp_path, "keep.jpg", photos.jpeg(corner_image(), photos.orientation(6)))
+    tiff = write(tmp_path, "keep.tif", photos.tiff(corner_image(), photos.orientation(3)))
     raw = write(tmp_path, "keep.kdc", (raw_samples / "kodak_dc50.kdc").read_bytes())
     for path in (jpeg, tiff, raw):
         # Read-only too: reading must not need write access.

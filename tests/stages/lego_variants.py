@@ -9,14 +9,16 @@ from __future__ import annotations
 
 import json
 import math
+from fractions import Fraction
 from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from nerfpipe.imaging.exif import TAG_EXPOSURE_TIME, TAG_F_NUMBER, TAG_ISO
 from tests.helpers import shared
-from tests.imaging.exif_writer import RATIONAL, SHORT, png_with_exif, tiff_blob
+from tests.imaging import photos
 
 LEGO = shared("nerf_synthetic_lego_400")
 
@@ -55,11 +57,10 @@ def reexpose(bgra: np.ndarray, stops: float) -> np.ndarray:
     return out
 
 
-def exif_exposure(stops: float) -> bytes:
+def exif_exposure(stops: float) -> Image.Exif:
     """EXIF saying exposure time 1/100 s x 2^stops at f/8, ISO 100."""
     micro = int(round(1e4 * 2.0**stops))  # seconds x 1e6
-    return tiff_blob({}, exif={TAG_EXPOSURE_TIME: (RATIONAL, ((micro, 1_000_000),)), TAG_F_NUMBER: (RATIONAL, ((8, 1),)),
-                               TAG_ISO: (SHORT, (100,))})
+    return photos.exif(photo={TAG_EXPOSURE_TIME: Fraction(micro, 1_000_000), TAG_F_NUMBER: Fraction(8), TAG_ISO: 100})
 
 
 def reexposed_lego(capture: Path, size: int = 100, seed: int = 0, spread: float = 1.0) -> dict[str, float]:
@@ -72,9 +73,8 @@ def reexposed_lego(capture: Path, size: int = 100, seed: int = 0, spread: float 
     for frame in doc["frames"]:
         name = Path(frame["file_path"]).name + ".png"
         s = float(rng.uniform(-spread, spread))
-        ok, png = cv2.imencode(".png", reexpose(cv2.imread(str(capture / "train" / name), cv2.IMREAD_UNCHANGED), s))
-        assert ok
-        (capture / "train" / name).write_bytes(png_with_exif(png.tobytes(), exif_exposure(s)))
+        bgra = reexpose(cv2.imread(str(capture / "train" / name), cv2.IMREAD_UNCHANGED), s)
+        (capture / "train" / name).write_bytes(photos.png(bgra[..., [2, 1, 0, 3]], exif_exposure(s)))
         stops[name] = s
     return stops
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from fractions import Fraction
 from pathlib import Path
 
 import cv2
@@ -17,6 +18,7 @@ from nerfpipe.poses.layout import discover_photos
 from nerfpipe.stages import IngestStage
 from nerfpipe.stages.ingest import target_size, to_bit_depth
 from tests.helpers import TEMPLE, shared
+from tests.imaging import photos
 
 
 def ingest(folder: Path, tmp_path: Path, **overrides) -> tuple[Path, dict]:
@@ -149,19 +151,15 @@ def test_linear_raw_output_is_darker_than_gamma_encoded(raw_capture, tmp_path):
     assert linear.mean() < 0.8 * gamma.mean()
 
 
-def test_exif_orientation_is_applied_and_the_focal_prior_follows_the_output_size(tmp_path, exif_writer):
-    w = exif_writer
+def test_exif_orientation_is_applied_and_the_focal_prior_follows_the_output_size(tmp_path):
     # an asymmetric 60x40 landscape picture; orientation 6 means "rotate 90 clockwise to view upright"
     stored = np.zeros((40, 60, 3), np.uint8)
     stored[:10, :10] = (0, 0, 255)  # red (BGR) top-left as stored
     stored[-10:, -10:] = (255, 0, 0)  # blue bottom-right
-    tiff = w.tiff_blob(
-        {0x010F: (w.ASCII, "Acme"), 0x0110: (w.ASCII, "Cam 1"), 0x0112: (w.SHORT, (6,))},
-        exif={0xA405: (w.SHORT, (28,)), 0x829A: (w.RATIONAL, ((1, 250),))},
-    )
+    exif = photos.exif({0x010F: "Acme", 0x0110: "Cam 1", 0x0112: 6}, {0xA405: 28, 0x829A: Fraction(1, 250)})
     folder = tmp_path / "photos"
     folder.mkdir()
-    (folder / "rotated.jpg").write_bytes(w.jpeg_with_exif(stored, tiff))
+    (folder / "rotated.jpg").write_bytes(photos.jpeg(stored[:, :, ::-1], exif, quality=100))
 
     out, meta = ingest(folder, tmp_path, max_size=30)
     record = meta["images"][0]

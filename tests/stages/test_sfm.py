@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from fractions import Fraction
 from pathlib import Path
 
 import cv2
@@ -16,6 +17,7 @@ from nerfpipe.geometry.cameras import CameraSet, invert_pose
 from nerfpipe.stages import IngestStage, SfmStage
 from nerfpipe.stages.sfm import SfmParams, choose_matcher
 from tests.helpers import TEMPLE, run_cli, shared
+from tests.imaging import photos
 
 
 def read_par(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -82,23 +84,21 @@ def test_matcher_choice():
     assert choose_matcher(records(300), SfmParams(exhaustive_max=500))[0] == "exhaustive"
 
 
-def test_exif_focal_prior_and_gps_reach_colmap(tmp_path, exif_writer):
+def test_exif_focal_prior_and_gps_reach_colmap(tmp_path):
     """JPEGs with a 35 mm focal length and GPS: COLMAP's camera starts from the prior, and spatial
     matching pairs the photos by their positions."""
     import pycolmap
 
     from nerfpipe.stages.sfm import _match, _single_camera, _write_priors
 
-    w = exif_writer
     folder = tmp_path / "photos"
     folder.mkdir()
     for i in (1, 2, 3, 4):
         image = cv2.imread(str(TEMPLE / f"templeSR000{i}.png"))
-        tiff = w.tiff_blob({0x010F: (w.ASCII, "Acme"), 0x0110: (w.ASCII, "Z1")},
-                           exif={0xA405: (w.SHORT, (83,))},
-                           gps={0x0001: (w.ASCII, "N"), 0x0002: (w.RATIONAL, ((48, 1), (51, 1), (i, 1))),
-                                0x0003: (w.ASCII, "E"), 0x0004: (w.RATIONAL, ((2, 1), (17, 1), (40, 1)))})
-        (folder / f"t{i}.jpg").write_bytes(w.jpeg_with_exif(image, tiff, quality=95))
+        exif = photos.exif({0x010F: "Acme", 0x0110: "Z1"}, {0xA405: 83},
+                           {0x0001: "N", 0x0002: (Fraction(48), Fraction(51), Fraction(i)),
+                            0x0003: "E", 0x0004: (Fraction(2), Fraction(17), Fraction(40))})
+        (folder / f"t{i}.jpg").write_bytes(photos.jpeg(image[:, :, ::-1], exif, quality=95))
     ingest = Pipeline([IngestStage()], folder, tmp_path / "run").run()[0]
     recs = json.loads((ingest.path / "images.json").read_text())["images"]
     assert _single_camera(recs)
