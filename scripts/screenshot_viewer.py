@@ -4,6 +4,10 @@ to arrive (Chromium's own --screenshot fires at page load, before the websocket 
 Run by hand (needs `apt-get install -y chromium`):
 
     python scripts/screenshot_viewer.py runs/templeSparseRing docs/web_viewer.png
+    python scripts/screenshot_viewer.py --training samples/templeSparseRing /tmp/watch docs/web_viewer_training.png
+
+The second watches a field in training: it starts `nerfpipe run PHOTOS --out RUN --until train --view`, takes
+the picture ``WAIT_S`` seconds after the viewer answers, and interrupts the run (Ctrl-C; it resumes later).
 
 It starts the viewer, drives Chromium through the DevTools protocol (the `websockets` package viser brings),
 waits ``WAIT_S`` seconds, captures the page, and stops both.
@@ -60,12 +64,16 @@ async def capture(debug_port: int, url: str, out: Path) -> None:
                 return
 
 
-def main(run_dir: Path, out: Path) -> None:
+def main(run_dir: Path, out: Path, photos: Path | None = None) -> None:
     browser = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
     if browser is None:
         sys.exit("no Chromium found; apt-get install -y chromium")
     port, debug_port = free_port(), free_port()
-    viewer = subprocess.Popen([sys.executable, "-m", "nerfpipe", "view", str(run_dir), "--web", "--port", str(port)],
+    if photos is None:
+        command = ["view", str(run_dir), "--web", "--port", str(port)]
+    else:
+        command = ["run", str(photos), "--out", str(run_dir), "--until", "train", "--view", "--port", str(port)]
+    viewer = subprocess.Popen([sys.executable, "-m", "nerfpipe", *command],
                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     with tempfile.TemporaryDirectory() as profile:
         chrome = subprocess.Popen(
@@ -74,7 +82,7 @@ def main(run_dir: Path, out: Path) -> None:
              f"--user-data-dir={profile}", "about:blank"],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         try:
-            wait_for(f"http://localhost:{port}")
+            wait_for(f"http://localhost:{port}", 60 if photos is None else 900)  # the stages before train first
             wait_for(f"http://localhost:{debug_port}/json/version")
             asyncio.run(capture(debug_port, f"http://localhost:{port}", out))
         finally:
@@ -85,6 +93,9 @@ def main(run_dir: Path, out: Path) -> None:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) != 3:
+    if len(sys.argv) == 3:
+        main(Path(sys.argv[1]), Path(sys.argv[2]))
+    elif len(sys.argv) == 5 and sys.argv[1] == "--training":
+        main(Path(sys.argv[3]), Path(sys.argv[4]), photos=Path(sys.argv[2]))
+    else:
         sys.exit(__doc__)
-    main(Path(sys.argv[1]), Path(sys.argv[2]))

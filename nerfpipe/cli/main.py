@@ -115,6 +115,9 @@ def run(
     only: Optional[str] = typer.Option(None, "--only", help="Run only this stage; its upstream must be fresh."),
     force: List[str] = typer.Option([], "--force", help="Rerun this stage and its downstream even if cached."),
     skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip unreadable or duplicate photos with a warning."),
+    view: bool = typer.Option(False, "--view", help="Serve the web viewer while the field trains, to watch it learn "
+                              "(stops when training ends)."),
+    port: int = typer.Option(8080, "--port", help="--view: the port to serve on."),
     debug: bool = DebugOption,
 ) -> None:
     """Run the pipeline on a folder of photos or a video, recomputing only what changed."""
@@ -124,7 +127,8 @@ def run(
         if skip_bad:
             overrides.setdefault("ingest", {})["skip_bad"] = "true"
         run_dir = out if out is not None else Path("runs") / photos_dir.resolve().name
-        pipe = Pipeline(default_stages(), photos_dir, run_dir, preset, overrides, progress=_progress_factory(), debug=debug)
+        pipe = Pipeline(default_stages(), photos_dir, run_dir, preset, overrides, progress=_progress_factory(), debug=debug,
+                        extra={"watch_port": port} if view else None)
         outcomes = pipe.run(until=until, only=only, force=force)
     table = Table(title=f"nerfpipe run -> {run_dir}", title_justify="left")
     for column in ("stage", "result", "time"):
@@ -133,6 +137,9 @@ def run(
     for o in outcomes:
         table.add_row(o.name, o.action, f"{o.seconds:.1f} s", str(o.path))
     out_console.print(table)
+    if view and not any(o.name == "train" and o.action == "ran" for o in outcomes):
+        out_console.print(f"--view: no training ran to watch; `nerfpipe view {escape(str(run_dir))} --web` shows the "
+                          "trained field", highlight=False, soft_wrap=True)
     with _user_errors(debug):
         from nerfpipe.report import write_report
 

@@ -190,7 +190,7 @@ def path_for_scene(layout: str, c2ws: np.ndarray, near: float, far: float, targe
     else:
         poses = orbit_path(c2ws, target, n_frames, elevation)
         orbit = orbit_of(c2ws, target, elevation)
-        centre = ", ".join(f"{v:.3g}" for v in orbit.target)
+        centre = ", ".join(f"{0.0 if abs(v) < 1e-9 else v:.3g}" for v in orbit.target)  # no "-1.11e-16"
         source = "given" if elevation is not None else "the cameras' mean"
         text = (f"orbit ({why}): radius {orbit.radius:.3g} around ({centre}) at "
                 f"{orbit.elevation:.1f} deg elevation ({source})")

@@ -6,6 +6,9 @@ camera can be rendered as is: the mesh and the point cloud, stored in the SfM fr
 the bounds stage's ``to_world`` similarity. The live render is progressive: when the view moves, a small
 frame (``FAST_WIDTH`` pixels wide) is rendered at once and shown behind the geometry; once the view has
 rested for ``REST_SECONDS``, the same view is rendered again at ``SHARP_WIDTH``.
+
+While a field trains (``nerfpipe run --view``) the same viewer shows the model being trained: the view at rest
+is rendered again every ``refresh_seconds``, smaller, so that watching costs training little time.
 """
 
 from __future__ import annotations
@@ -50,6 +53,8 @@ class WebScene:
     model: Any = None
     near: float = 0.0
     far: float = 1.0
+    sharp_width: int = SHARP_WIDTH  # pixels across of the render at rest
+    refresh_seconds: float | None = None  # render the view at rest again this often (a field in training)
 
 
 def _wxyz(rotation: np.ndarray) -> np.ndarray:
@@ -131,15 +136,18 @@ def _live_render(viewer: WebViewer, client: Any) -> None:
                  round(camera.aspect, 4))
         moved = shown is None or shown[0] != state
         rested = time.time() - camera.update_timestamp > REST_SECONDS
-        width = SHARP_WIDTH if rested else FAST_WIDTH
-        if moved or (rested and shown[1] != SHARP_WIDTH):
+        sharp = viewer.scene.sharp_width
+        width = sharp if rested else FAST_WIDTH
+        refresh = viewer.scene.refresh_seconds
+        due = refresh is not None and shown is not None and time.time() - shown[2] > refresh
+        if moved or (rested and (shown[1] != sharp or due)):
             c2w = np.eye(4)
             c2w[:3, :3] = tf.SO3(np.asarray(camera.wxyz)).as_matrix()
             c2w[:3, 3] = camera.position
             client.scene.set_background_image(render_view(viewer.scene, c2w, camera.fov, camera.aspect, width),
                                               format="jpeg")
             viewer.renders += 1
-            shown = (state, width)
+            shown = (state, width, time.time())
         else:
             time.sleep(0.02)
 
@@ -172,16 +180,21 @@ def web_scene(model_dir: Path, cameras_dir: Path, images_dir: Path, bounds_json:
     from nerfpipe.nerf.model import RadianceModel
 
     bounds = Bounds.load(bounds_json)
-    cameras = CameraSet.load(cameras_dir)
+    frames = web_frames(CameraSet.load(cameras_dir), images_dir)
+    mesh = transformed(read_mesh(mesh_ply), bounds.to_world) if mesh_ply is not None else None
+    points = transformed_cloud(read_ply(points_ply), bounds.to_world) if points_ply is not None else None
+    return WebScene(frames, mesh, points, RadianceModel.load(model_dir), bounds.near, bounds.far)
+
+
+def web_frames(cameras: Any, images_dir: Path) -> list[WebFrame]:
+    """One ``WebFrame`` per frame of a world-frame ``CameraSet``, with its photo from ``images_dir``."""
     frames = []
     for frame in cameras.frames:
         camera = cameras.camera_of(frame)
         fov = 2 * float(np.arctan(0.5 * camera.height / camera.fy))
         frames.append(WebFrame(frame.name, np.asarray(frame.c2w), fov, camera.width / camera.height,
                                thumbnail(images_dir / frame.name)))
-    mesh = transformed(read_mesh(mesh_ply), bounds.to_world) if mesh_ply is not None else None
-    points = transformed_cloud(read_ply(points_ply), bounds.to_world) if points_ply is not None else None
-    return WebScene(frames, mesh, points, RadianceModel.load(model_dir), bounds.near, bounds.far)
+    return frames
 
 
 def thumbnail(path: Path) -> np.ndarray | None:

@@ -147,6 +147,7 @@ class Pipeline:
         overrides: Mapping[str, Mapping[str, Any]] | None = None,
         progress: ProgressFactory = _no_progress,
         debug: bool = False,
+        extra: Mapping[str, Any] | None = None,
     ) -> None:
         self.dag = Dag(stages)
         self.source = Path(source)
@@ -155,6 +156,9 @@ class Pipeline:
         self.overrides = {k: dict(v) for k, v in (overrides or {}).items()}
         self.progress = progress
         self.debug = debug
+        # what the caller hands every running stage besides its inputs (``StageContext.extra``); not part of
+        # any cache key, so it must not change what a stage writes (e.g. a viewer to watch training in)
+        self.extra = dict(extra or {})
         self.log_path: Path | None = None  # the log file of the latest run or run_stage
         self.store = ArtifactStore(self.run_dir)
         for stage_name in self.overrides:
@@ -409,7 +413,8 @@ class Pipeline:
         self._check_space(planned, inputs)
         work = self.store.begin(name, key, resume=planned.stage.resumable and not forced)
         started = time.time()
-        ctx = StageContext(log=logging.getLogger(f"nerfpipe.stages.{name}"), progress=self.progress, debug=self.debug)
+        ctx = StageContext(log=logging.getLogger(f"nerfpipe.stages.{name}"), progress=self.progress, debug=self.debug,
+                           extra=self.extra)
         try:
             summary = dict(planned.stage.run(inputs, work, planned.params, ctx) or {})
             missing = [rel for rel in planned.stage.provides.values() if not (work / rel).exists()]

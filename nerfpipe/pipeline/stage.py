@@ -51,7 +51,8 @@ def _no_progress(total: int, description: str) -> Iterator[Callable[..., None]]:
 
 @dataclass
 class StageContext:
-    """Services the runner gives a running stage: a logger and progress bars."""
+    """Services the runner gives a running stage: a logger, progress bars, and ``extra``: what the caller of
+    the pipeline hands the stages outside their parameters (it never enters a cache key)."""
 
     log: logging.Logger
     progress: ProgressFactory = _no_progress

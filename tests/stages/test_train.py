@@ -58,14 +58,46 @@ def test_bad_train_values_are_parameter_errors() -> None:
     assert any(spec.name == "autocast" for spec in param_specs(TrainParams))
 
 
-def lego_pipeline(run_dir: Path, **train: object) -> Pipeline:
+def lego_pipeline(run_dir: Path, extra: dict | None = None, **train: object) -> Pipeline:
     overrides = {"ingest": TINY["ingest"], "train": {**TINY["train"], **train}}
-    return Pipeline(default_stages(), shared("nerf_synthetic_lego_400"), run_dir, None, overrides)
+    return Pipeline(default_stages(), shared("nerf_synthetic_lego_400"), run_dir, None, overrides, extra=extra)
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
 
 
 @pytest.mark.slow
-def test_training_writes_model_metrics_and_held_out_renders(tmp_path: Path) -> None:
-    outcome = lego_pipeline(tmp_path / "run").run(until="train")[-1]
+def test_training_writes_model_metrics_and_held_out_renders(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    import threading
+    import urllib.request
+
+    # watched (`nerfpipe run --view`): the web viewer answers while the field trains, and is gone afterwards
+    port, pages, done = free_port(), [], threading.Event()
+
+    def poll() -> None:
+        while not done.is_set():
+            try:
+                with urllib.request.urlopen(f"http://localhost:{port}", timeout=2) as page:
+                    pages.append(page.status)
+            except OSError:
+                pass
+            time.sleep(0.2)
+
+    poller = threading.Thread(target=poll, daemon=True)
+    poller.start()
+    with caplog.at_level("INFO", logger="nerfpipe"):
+        outcome = lego_pipeline(tmp_path / "run", extra={"watch_port": port}).run(until="train")[-1]
+    answered = len(pages)
+    time.sleep(1.0)
+    done.set()
+    poller.join()
+    assert answered > 0 and set(pages) == {200} and len(pages) == answered  # served during training only
+    assert f"train: watch the field learn at http://localhost:{port}" in caplog.text
     out = outcome.path
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["steps"] == 300 and metrics["heldout_rule"] == "the capture's val split"
@@ -145,9 +177,12 @@ def test_nerfpipe_run_on_the_bundled_capture_trains_evaluates_and_exports(tmp_pa
     # exports sized for a tiny field: its densities stay low, so the mesh threshold and opacity cut are too
     args += ["--set=export_mesh.resolution=64", "--set=export_mesh.density_threshold=2",
              "--set=export_points.acc_threshold=0.5", "--set=render.frames=4"]
-    result = run_cli("run", TEMPLE, "--out", run_dir, *args, timeout=1200)
+    port = free_port()
+    result = run_cli("run", TEMPLE, "--out", run_dir, *args, "--view", "--port", str(port), timeout=1200)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "train: held-out PSNR" in result.stderr
+    assert f"train: watch the field learn at http://localhost:{port}" in result.stderr
+    assert "train: the training viewer stopped" in result.stderr
     metrics = json.loads(next((run_dir / "stages" / "train").glob("*/metrics.json")).read_text())
     # no split in the Middlebury capture: every 8th of the 16 photos is held out
     assert metrics["heldout_rule"] == "every 8th image" and [v["name"] for v in metrics["views"]] == [
@@ -261,7 +296,6 @@ def check_web_viewer(run_dir: Path) -> None:
     """`nerfpipe view RUN --web`: the page is served, its scene holds the mesh, the point cloud and one frustum
     (with its photo) per camera, the field renders from a camera, and Ctrl-C stops it cleanly."""
     import signal
-    import socket
     import subprocess
     import sys
     import urllib.request
@@ -270,11 +304,6 @@ def check_web_viewer(run_dir: Path) -> None:
 
     from nerfpipe import Pipeline, default_stages
     from nerfpipe.export.web import render_view, serve, web_scene
-
-    def free_port() -> int:
-        with socket.socket() as s:
-            s.bind(("localhost", 0))
-            return s.getsockname()[1]
 
     pipe = Pipeline.from_run_dir(default_stages(), run_dir)
     path = {stage: pipe.result(stage).path for stage in ("ingest", "bounds", "train", "export_mesh", "export_points")}
