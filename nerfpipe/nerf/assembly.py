@@ -68,6 +68,7 @@ class TrainSettings(Protocol):
     early_stop: float
     # optimization
     steps: int
+    seconds: float
     batch_rays: int
     batch_samples: int
     lr: float
@@ -121,7 +122,7 @@ def training_config(params: TrainSettings, layout: str) -> TrainConfig:
     """The optimization the train parameters ask for (Section 5.3), with the scene's density noise and the
     precision settings (``tf32``, ``autocast``)."""
     return TrainConfig(
-        steps=params.steps, batch_rays=params.batch_rays, lr=params.lr, lr_final=params.lr_final,
+        steps=params.steps, seconds=params.seconds, batch_rays=params.batch_rays, lr=params.lr, lr_final=params.lr_final,
         adam_eps=params.adam_eps, adam_beta2=params.adam_beta2, batch_samples=params.batch_samples,
         density_noise=density_noise(params, layout), seed=params.seed, checkpoint_every=params.checkpoint_every,
         keep_checkpoints=params.keep_checkpoints, autocast=params.autocast, tf32=params.tf32,

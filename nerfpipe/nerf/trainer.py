@@ -26,7 +26,8 @@ CHECKPOINT_GLOB = "step_*.pt"
 
 @dataclass(frozen=True)
 class TrainConfig:
-    steps: int = 3000
+    steps: int = 3000  # 0: train for ``seconds`` instead
+    seconds: float = 0.0  # with steps = 0: train for this long, the learning rate decaying over the time
     batch_rays: int = 1024
     lr: float = 5e-4
     lr_final: float = 5e-5
@@ -75,16 +76,17 @@ def mse_to_psnr(mse: float) -> float:
     return -10.0 * math.log10(max(mse, 1e-12))
 
 
-def learning_rate(config: TrainConfig, step: int) -> float:
-    """lr * (lr_final / lr)^(step / steps): exponential decay from lr to lr_final (Section 5.3)."""
-    return config.lr * (config.lr_final / config.lr) ** (min(step, config.steps) / max(config.steps, 1))
+def learning_rate(config: TrainConfig, progress: float) -> float:
+    """lr * (lr_final / lr)^progress: exponential decay from lr to lr_final (Section 5.3), ``progress`` the share
+    of training done (step / steps, or elapsed / seconds for a time budget)."""
+    return config.lr * (config.lr_final / config.lr) ** min(max(progress, 0.0), 1.0)
 
 
 def parameter_groups(model: RadianceModel, config: TrainConfig) -> list[dict]:
     """Adam's parameter groups: the fields at ``lr``; the per-image exposure gains at ``appearance_lr`` and
     camera corrections at ``pose_lr``, when the model has them. Each group's ``base_lr`` decays as ``lr`` does;
-    a group with a ``warmup`` of w steps learns nothing before step w and ramps up linearly until step 2 w; one with
-    a ``decay_power`` p decays as the p-th power of that."""
+    a group with a ``warmup`` w (a share of training) learns nothing before w and ramps up linearly until 2 w; one
+    with a ``decay_power`` p decays as the p-th power of that."""
     groups = [{"params": [p for f in model.fields() for p in f.parameters()], "base_lr": config.lr, "warmup": 0}]
     if model.appearance is not None:
         groups.append({"params": list(model.appearance.parameters()), "base_lr": config.appearance_lr, "warmup": 0})
@@ -93,7 +95,7 @@ def parameter_groups(model: RadianceModel, config: TrainConfig) -> list[dict]:
         # them for the rest of the steps (lego, cameras off by 1 degree and 1 %, 500 steps: 0.6 dB from the clean
         # poses' held-out PSNR, against 1.3 dB when they decay as the field does)
         groups.append({"params": list(model.refinement.parameters()), "base_lr": config.pose_lr,
-                       "warmup": int(config.pose_warmup * config.steps), "decay_power": 2.0})
+                       "warmup": config.pose_warmup, "decay_power": 2.0})
     for group in groups:
         group["lr"] = group["base_lr"]
     return groups
@@ -211,7 +213,8 @@ class Trainer:
         if model.occupancy is not None and not model.ray_space.ndc:  # NDC's frustum is the cameras' view by design
             px = self.pixels
             model.occupancy.restrict_to(cells_seen(model.occupancy, model.ray_space.from_field, px.intrinsics, px.c2w))
-        self.guard = StallGuard(mean_colour_psnr(self.pixels.rgb), check_step=min(max(200, config.steps // 8), config.steps))
+        check = 200 if config.steps <= 0 else min(max(200, config.steps // 8), config.steps)
+        self.guard = StallGuard(mean_colour_psnr(self.pixels.rgb), check_step=check)
         self._initial = copy.deepcopy(model.state())
 
     @property
@@ -282,10 +285,11 @@ class Trainer:
 
         if noise > 0:  # the noise, too, is a function of (seed, step): resuming does not change it
             torch.manual_seed(self.config.seed * 1_000_003 + step)
-        decay = learning_rate(self.config, step) / self.config.lr
+        progress = self.progress(step)
+        decay = learning_rate(self.config, progress) / self.config.lr
         for group in self.optimizer.param_groups:
             warmup = group.get("warmup", 0)
-            ramp = 1.0 if not warmup else min(max((step - warmup) / warmup, 0.0), 1.0)
+            ramp = 1.0 if not warmup else min(max((progress - warmup) / warmup, 0.0), 1.0)
             group["lr"] = group["base_lr"] * decay ** group.get("decay_power", 1.0) * self.lr_scale * ramp
         with _autocast(self.device, self.config.autocast):
             if model.occupancy is not None:
@@ -357,7 +361,7 @@ class Trainer:
 
     def watch(self, psnr: float) -> None:
         """Let the stall guard see this step's batch PSNR, and act on what it says."""
-        verdict = self.guard.observe(self.step, psnr, self.step == self.config.steps)
+        verdict = self.guard.observe(self.step, psnr, self.finished())
         floor = self.guard.floor_db
         if verdict == "restart":
             log.warning("train: batch PSNR stalled near %.1f dB, the level of a render in the mean colour, at step %d; "
@@ -375,19 +379,37 @@ class Trainer:
         fine = s.n_coarse + s.n_fine if s.n_fine > 0 else 0
         return (self.config.batch_rays if rays is None else rays) * (coarse + fine)
 
+    def progress(self, step: int | None = None) -> float:
+        """The share of training done: step / steps, or with a time budget elapsed / seconds."""
+        if self.config.steps > 0:
+            return (self.step if step is None else step) / self.config.steps
+        return self.elapsed / max(self.config.seconds, 1e-9)
+
+    def finished(self) -> bool:
+        return self.progress() >= 1.0
+
+    @property
+    def total(self) -> int:
+        """Units of training for a progress bar: steps, or whole seconds of a time budget."""
+        return self.config.steps if self.config.steps > 0 else math.ceil(self.config.seconds)
+
+    def done_units(self) -> int:
+        return self.step if self.config.steps > 0 else min(int(self.elapsed), self.total)
+
     def run(self, advance: Callable[..., None] = lambda n=1, info=None: None,
             after_step: Callable[["Trainer"], bool] | None = None) -> None:
-        """Train from ``self.step`` to ``config.steps``.
+        """Train from ``self.step`` to ``config.steps`` (or until ``config.seconds`` of training have passed).
 
         ``after_step(trainer)`` runs after every step, off the clock (``elapsed`` counts training only), and
-        stops training by returning True.
+        stops training by returning True. ``advance(n, info=...)`` counts ``total`` units: steps, or seconds.
         """
         config = self.config
         for f in self.model.fields():
             f.train()
         window_start, window_steps, window_samples, window_rays = self.elapsed, 0, 0, 0
+        reported = self.done_units()
         with open(self.out / "metrics.jsonl", "a", encoding="utf-8") as metrics:
-            while self.step < config.steps:
+            while not self.finished():
                 started = time.perf_counter()
                 loss, psnr = self.train_step(self.step)
                 rays = self.rays
@@ -396,19 +418,23 @@ class Trainer:
                 if self.device.type == "cuda":
                     torch.cuda.synchronize(self.device)
                 self.step += 1
+                if config.steps <= 0:  # a time budget: whether this step ends it
+                    self.elapsed += time.perf_counter() - started
+                    started = time.perf_counter()
+                last = self.finished()
                 self.watch(psnr)
                 window_steps += 1
                 window_samples += self.samples
                 window_rays += rays
                 self.total_samples += self.samples
                 self.total_rays += rays
-                if self.step % config.log_every == 0 or self.step == config.steps:
+                if self.step % config.log_every == 0 or last:
                     self.elapsed += time.perf_counter() - started
                     started = time.perf_counter()
                     span = max(self.elapsed - window_start, 1e-9)
                     rate = window_steps / span
                     record = {"step": self.step, "wall": round(self.elapsed, 3), "loss": loss, "psnr": round(psnr, 4),
-                              "lr": learning_rate(config, self.step) * self.lr_scale, "steps_per_s": round(rate, 3),
+                              "lr": learning_rate(config, self.progress()) * self.lr_scale, "steps_per_s": round(rate, 3),
                               "samples_per_s": round(window_samples / span),
                               "samples_per_ray": round(window_samples / max(window_rays, 1), 2),
                               "rays_per_batch": rays}
@@ -417,16 +443,18 @@ class Trainer:
                         record["occupancy"] = round(self.model.occupancy.occupancy(), 4)
                     metrics.write(json.dumps(record) + "\n")
                     metrics.flush()
-                    advance(config.log_every if self.step % config.log_every == 0 else self.step % config.log_every,
-                            info=f"loss {loss:.4f}  PSNR {psnr:.2f} dB  {rate:.1f} steps/s")
-                if self.step % config.checkpoint_every == 0 or self.step == config.steps:
+                    units = self.total if last else self.done_units()
+                    advance(units - reported, info=f"loss {loss:.4f}  PSNR {psnr:.2f} dB  {rate:.1f} steps/s")
+                    reported = units
+                if self.step % config.checkpoint_every == 0 or last:
                     save_checkpoint(self.checkpoint_dir, self.step, self.elapsed, self.model, self.optimizer,
                                     config.keep_checkpoints, {"rays_per_batch": self.rays_per_batch,
                                     "total_samples": self.total_samples, "total_rays": self.total_rays,
                                     "lr_scale": self.lr_scale, "restarted_at": self.guard.restarted_at or -1,
                                     "psnr_ema": -1.0 if self.guard.ema is None else self.guard.ema})
-                    log.info("train: step %d/%d, loss %.5f, batch PSNR %.2f dB, %.0f s", self.step, config.steps,
-                             loss, psnr, self.elapsed)
+                    log.info("train: step %d%s, loss %.5f, batch PSNR %.2f dB, %.0f s", self.step,
+                             f"/{config.steps}" if config.steps > 0 else f" of a {config.seconds:g} s budget", loss,
+                             psnr, self.elapsed)
                 self.elapsed += time.perf_counter() - started
                 if after_step is not None and after_step(self):
                     break

@@ -32,18 +32,19 @@ param = field  # TrainParams has a parameter named ``field``, which shadows data
 class TrainParams:
     """The defaults are the ``fast`` preset: the grid field with empty-space skipping."""
 
-    steps: int = param(default=2000, metadata={"help": "optimization steps (the paper: 100-300k, Section 5.3)"})
+    steps: int = param(default=0, metadata={"help": "optimization steps (the paper: 100-300k, Section 5.3); 0: as many as fit in train.seconds"})
+    seconds: float = param(default=120.0, metadata={"help": "with steps=0: seconds of training, the learning rate decaying over them (Instant-NGP trains by time too)"})
     field: Literal["grid", "mlp"] = param(default="grid", metadata={"help": "grid: dense feature grids + a small MLP (fast); mlp: the paper's MLP (Fig. 7)"})
     batch_rays: int = param(default=4096, metadata={"help": "rays per batch (the paper: 4096); with batch_samples, the starting and largest / 16 batch"})
-    batch_samples: int = param(default=32768, metadata={"help": "while marching, adapt the rays per batch to about this many samples (Instant-NGP), and evaluate at most twice as many a step; 0: fixed batch_rays"})
+    batch_samples: int = param(default=16384, metadata={"help": "while marching, adapt the rays per batch to about this many samples (Instant-NGP), and evaluate at most twice as many a step; 0: fixed batch_rays"})
     occupancy: Literal["auto", "true", "false"] = param(default="auto", metadata={"help": "empty-space skipping with an occupancy grid; auto: with the grid field"})
     occupancy_resolution: int = param(default=64, metadata={"help": "cells a side of the occupancy grid"})
     march_steps: int = param(default=128, metadata={"help": "marching steps along the field box's diagonal (about one per image pixel at 100 px lego)"})
     early_stop: float = param(default=1e-4, metadata={"help": "stop a marched ray once its transmittance is below this (0: never)"})
     occupancy_threshold: float = param(default=0.01, metadata={"help": "a cell is occupied when one step through it is this optically thick"})
-    grid_levels: int = param(default=2, metadata={"help": "grid field: levels of the multiresolution grid"})
+    grid_levels: int = param(default=3, metadata={"help": "grid field: levels of the multiresolution grid"})
     grid_min_resolution: int = param(default=32, metadata={"help": "grid field: cells a side of the coarsest level"})
-    grid_max_resolution: int = param(default=96, metadata={"help": "grid field: cells a side of the finest level"})
+    grid_max_resolution: int = param(default=128, metadata={"help": "grid field: cells a side of the finest level"})
     grid_features: int = param(default=4, metadata={"help": "grid field: features per vertex and level"})
     grid_hidden: int = param(default=64, metadata={"help": "grid field: width of its MLPs"})
     n_coarse: int = param(default=32, metadata={"help": "N_c stratified samples per ray (the paper: 64); without the occupancy grid"})
@@ -85,11 +86,13 @@ class TrainParams:
     chunk: int = param(default=2048, metadata={"help": "rays per chunk when rendering whole views"})
 
     def __post_init__(self) -> None:
-        for name in ("steps", "batch_rays", "n_coarse", "depth", "width", "view_width", "holdout_every", "eval_stride",
+        for name in ("batch_rays", "n_coarse", "depth", "width", "view_width", "holdout_every", "eval_stride",
                      "checkpoint_every", "chunk", "occupancy_resolution", "march_steps", "grid_levels",
                      "grid_min_resolution", "grid_max_resolution", "grid_features", "grid_hidden"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.steps < 0 or (self.steps == 0 and not self.seconds > 0):
+            raise ValueError(f"need steps >= 1, or steps = 0 and seconds > 0; got steps={self.steps}, seconds={self.seconds}")
         for name in ("n_fine", "pos_freqs", "dir_freqs", "train_images", "keep_checkpoints", "skip_after", "batch_samples",
                      "occupancy_threshold", "appearance_lr", "pose_lr", "pose_penalty"):
             if getattr(self, name) < 0:
@@ -126,8 +129,9 @@ MLP_CPU = {
 }
 PRESETS = {
     # lego at 100 px on 2 CPU cores (``nerfpipe bench``): 500 steps in under a minute, 22.9 dB
-    "draft": {"steps": 500, "grid_levels": 1, "grid_max_resolution": 64, "occupancy_resolution": 32},
-    # the default: 2000 steps, about 6 minutes there; 28.9 dB after 3 minutes, 29.3 dB after 5
+    "draft": {"steps": 500, "grid_levels": 1, "grid_max_resolution": 64, "occupancy_resolution": 32,
+              "batch_samples": 32768},
+    # the default: 32^3, 64^3 and 128^3 grids, trained for train.seconds (120 s) as fast as the machine goes
     "fast": {},
     # the 4x128 MLP (Fig. 7's shape, smaller) marching the occupancy grid: 6000 steps, about half an hour there
     "balanced": {**MLP_CPU, "occupancy": "true", "steps": 6000, "batch_rays": 1024, "batch_samples": 32768,
@@ -223,9 +227,12 @@ class TrainStage(Stage):
             ctx.log.info("train: %s", masks)
         resumed = trainer.resume()
         if resumed is not None:
-            ctx.log.info("train: resuming from the checkpoint at step %d of %d", resumed, params.steps)
+            ctx.log.info("train: resuming from the checkpoint at step %d (%.0f s of training)", resumed, trainer.elapsed)
+        ctx.log.info("train: %s", "%d steps" % params.steps if params.steps > 0 else
+                     f"{params.seconds:g} s of training (train.seconds; as many steps as fit, the learning rate "
+                     "decaying over the time)")
         with _watching(ctx, loader, model):
-            with ctx.progress(params.steps - trainer.step, "train") as advance:
+            with ctx.progress(trainer.total - trainer.done_units(), "train") as advance:
                 trainer.run(advance)
             model.save(out)
             cameras, per_image = trained_cameras(model, loader.world, views.train)
@@ -234,7 +241,8 @@ class TrainStage(Stage):
             with ctx.progress(len(views.heldout), "evaluate") as advance:
                 evaluation = evaluate(model, loader, views.heldout, out / "eval", params.chunk, advance)
         summary = {
-            "steps": params.steps,
+            "steps": trainer.step,
+            "budget_seconds": params.seconds if params.steps == 0 else None,
             "train_seconds": round(trainer.elapsed, 2),
             "samples_per_s": round(trainer.total_samples / max(trainer.elapsed, 1e-9)),
             "samples_per_ray": round(trainer.total_samples / max(trainer.total_rays, 1), 2),

@@ -92,7 +92,7 @@ def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:
     assert isinstance(inward.coarse, GridField) and inward.fine is None
     assert inward.occupancy is not None and inward.occupancy.resolution == 64
     assert inward.occupancy.lo.tolist() == [-1] * 3 and inward.coarse.hi.tolist() == [1] * 3
-    assert said[1] == "grid field: 2 levels of [32, 96] cells a side, 4 features each, and a 64-wide MLP"
+    assert said[1] == "grid field: 3 levels of [32, 64, 128] cells a side, 4 features each, and a 64-wide MLP"
     assert said[2].startswith("empty-space skipping: a 64^3 occupancy grid over the field box")
     forward, said = build_model(TrainParams(), scene_of("forward"), world, bounds, CPU)
     # NDC's [-1, 1]^2 x [-1, 1 - 2 near / far]: the frustum out to the farthest bound
@@ -131,7 +131,8 @@ def test_training_config_carries_the_schedule_noise_and_precision() -> None:
         700, 512, 3e-3, 1e-4, 1e-8, 0.995)
     assert (config.batch_samples, config.seed, config.checkpoint_every, config.keep_checkpoints) == (0, 4, 50, 3)
     assert config.autocast == "bf16" and config.tf32 and config.density_noise == 1.0
-    assert not training_config(TrainParams(), "forward").tf32
+    default = training_config(TrainParams(), "forward")
+    assert not default.tf32 and (default.steps, default.seconds) == (0, 120.0)  # trained by time
     assert density_noise(TrainParams(), "forward") == 0.0  # the grid field has no raw-density regularizer
     assert density_noise(TrainParams(field="mlp", density_noise="0.5"), "inward360") == 0.5
 

@@ -157,3 +157,23 @@ def test_the_random_backdrop_reaches_both_passes_of_section_5_2_sampling(tmp_pat
     trainer = Trainer(model, masked(pixels_of_one_view(8), 0.0), config, tmp_path, torch.device("cpu"))
     loss, _ = trainer.train_step(1)
     assert loss == pytest.approx(0.0, abs=1e-12)  # coarse + fine, each rendering the ray's own colour
+
+
+def test_a_time_budget_trains_until_it_is_spent_with_the_learning_rate_decaying_over_it(tmp_path) -> None:
+    import json
+
+    model = marching_model()
+    config = TrainConfig(steps=0, seconds=1.5, batch_rays=256, batch_samples=2000, lr=1e-2, lr_final=1e-3, log_every=5)
+    trainer = Trainer(model, pixels_of_one_view(), config, tmp_path, torch.device("cpu"))
+    advanced = []
+    trainer.run(lambda n=1, info=None: advanced.append(n))
+    assert trainer.step > 5 and 1.5 <= trainer.elapsed < 3.0 and trainer.finished()
+    assert trainer.total == 2 and sum(advanced) == 2  # the progress bar counts whole seconds, and ends full
+    log = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
+    assert log[-1]["step"] == trainer.step  # the last step is logged (and checkpointed), whatever its number
+    lrs = [r["lr"] for r in log]
+    assert lrs == sorted(lrs, reverse=True) and lrs[-1] == pytest.approx(1e-3)  # decayed by the clock, to lr_final
+    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir())[-1] == f"step_{trainer.step:07d}.pt"
+    # resumed from its last checkpoint, the spent budget stays spent
+    again = Trainer(marching_model(), pixels_of_one_view(), config, tmp_path, torch.device("cpu"))
+    assert again.resume() == trainer.step and again.finished()

@@ -1,0 +1,113 @@
+"""Throughput of one model three ways: training, held-out evaluation and the render stage, in rays a second.
+
+Run by hand from the repository root, with ../shared beside it:
+
+    python scripts/bench_throughput.py                                   # lego at 100 px, the default preset
+    python scripts/bench_throughput.py --capture samples/templeSparseRing --size 640
+    python scripts/bench_throughput.py --set train.grid_max_resolution=128
+
+It trains the train stage's model (as ``nerfpipe run`` builds it) for ``--seconds`` of training, then measures,
+on that same model: training for ``--window`` more seconds (rays and samples a second: forward, backward and
+the optimizer step), evaluation of the held-out views (``nerf.evaluation.evaluate``, the train stage's chunk),
+and the render stage's orbit (``stages.render.render_frames`` at the render stage's size and chunk). A model
+that has trained a while is measured, because empty-space skipping depends on what the occupancy grid learned.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+LEGO = REPO.parent / "shared" / "data" / "nerf_synthetic_lego_400"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--capture", type=Path, default=LEGO)
+    parser.add_argument("--size", type=int, default=100, help="ingest.max_size")
+    parser.add_argument("--seconds", type=float, default=60.0, help="training before the measurements")
+    parser.add_argument("--window", type=float, default=15.0, help="seconds of training measured")
+    parser.add_argument("--frames", type=int, default=8, help="render-stage frames measured")
+    parser.add_argument("--set", dest="sets", action="append", default=[], help="stage.param=value, as for run")
+    parser.add_argument("--out", type=Path, default=None, help="run directory for the stages up to scene")
+    args = parser.parse_args()
+
+    from nerfpipe.nerf.cpu import flush_denormals, keep_freed_memory
+
+    keep_freed_memory()
+    with flush_denormals():
+        measure(args)
+
+
+def measure(args: argparse.Namespace) -> None:
+    import numpy as np
+
+    from nerfpipe import Pipeline, default_stages
+    from nerfpipe.artifacts import Bounds, SceneDecisions
+    from nerfpipe.bench.worker import prepare
+    from nerfpipe.export.paths import path_for_scene
+    from nerfpipe.nerf.evaluation import evaluate
+    from nerfpipe.nerf.trainer import Trainer
+    from nerfpipe.pipeline.params import parse_assignments
+    from nerfpipe.pipeline.stage import StageContext
+    from nerfpipe.stages.render import RenderParams, render_frames, render_size
+
+    overrides = parse_assignments(args.sets)
+    overrides.setdefault("ingest", {})["max_size"] = str(args.size)
+    run_dir = args.out or Path(tempfile.mkdtemp(prefix="nerfpipe-throughput-"))
+    shared = {k: v for k, v in overrides.items() if k != "train"}
+    Pipeline(default_stages(), args.capture, run_dir, None, shared).run(until="scene")
+    setup = prepare({"capture": str(args.capture), "run_dir": str(run_dir), "overrides": overrides, "eval_views": 0, "budget": args.seconds + args.window + 60})
+    model = setup.model
+    with tempfile.TemporaryDirectory() as scratch:
+        trainer = Trainer(model, setup.loader.pixel_set(setup.views.train), setup.config, Path(scratch), setup.device)
+        trainer.run(after_step=lambda t: t.elapsed >= args.seconds)
+        step0, elapsed0, rays0, samples0 = trainer.step, trainer.elapsed, trainer.total_rays, trainer.total_samples
+        trainer.run(after_step=lambda t: t.elapsed >= elapsed0 + args.window)
+        seconds = trainer.elapsed - elapsed0
+        train_rays = (trainer.total_rays - rays0) / seconds
+        train_samples = (trainer.total_samples - samples0) / seconds
+        steps = trainer.step - step0
+
+    heldout = setup.heldout
+    started = time.perf_counter()
+    result = evaluate(model, setup.loader, heldout, None, setup.chunk)
+    eval_seconds = time.perf_counter() - started
+    eval_rays = sum(setup.loader.world.camera_of(f).width * setup.loader.world.camera_of(f).height for f in heldout)
+
+    pipe = Pipeline(default_stages(), args.capture, run_dir, None, shared)
+    bounds = Bounds.load(pipe.result("bounds").path / "bounds.json")
+    layout = SceneDecisions.load(pipe.result("scene").path / "scene.json").layout.value
+    render = RenderParams()
+    world = setup.loader.world
+    c2ws = np.array([f.c2w for f in world.frames])
+    lo, hi = bounds.box()
+    poses, _ = path_for_scene(layout, c2ws, bounds.near, bounds.far, (lo + hi) / 2.0, args.frames)
+    camera = world.camera_of(world.frames[0])
+    width, height = render_size(camera, render.scale, render.max_side)
+    scaled = camera.scaled(width / camera.width, height / camera.height)
+    ctx = StageContext(log=logging.getLogger("bench"))
+    with tempfile.TemporaryDirectory() as frames:
+        started = time.perf_counter()
+        render_frames(model, poses, scaled, (bounds.near, bounds.far), Path(frames), render.chunk, ctx)
+        render_seconds = time.perf_counter() - started
+    render_rays = len(poses) * width * height
+
+    print(f"{args.capture.name} at {args.size} px, {setup.device}, model after {elapsed0:.0f} s ({step0} steps) of "
+          f"training; held-out PSNR {result['psnr']:.2f} dB")
+    print("| pass | rays/s | notes |")
+    print("|---|---:|---|")
+    print(f"| train (forward, backward, Adam) | {train_rays:,.0f} | {steps} steps in {seconds:.1f} s, "
+          f"{train_samples:,.0f} samples/s, {train_samples / train_rays:.1f} samples a ray |")
+    print(f"| evaluate ({len(heldout)} held-out views, chunk {setup.chunk}) | {eval_rays / eval_seconds:,.0f} | "
+          f"{eval_rays:,} rays in {eval_seconds:.1f} s |")
+    print(f"| render stage ({len(poses)} frames of {width}x{height}, chunk {render.chunk}, PNGs written) | "
+          f"{render_rays / render_seconds:,.0f} | {render_rays:,} rays in {render_seconds:.1f} s |")
+
+
+if __name__ == "__main__":
+    main()
