@@ -25,7 +25,7 @@ class BenchConfig:
 
 PRESET_CONFIGS = [
     BenchConfig("draft", "presets", "draft", note="grid field, one 64^3 level"),
-    BenchConfig("fast", "presets", "fast", note="grid field, 32^3 + 96^3 levels (the default)"),
+    BenchConfig("fast", "presets", "fast", note="grid field, 32^3, 64^3 and 128^3 levels, trained by time (the default)"),
     BenchConfig("balanced", "presets", "balanced", note="4x128 MLP with the occupancy grid"),
     BenchConfig("paper", "presets", "paper", note="8x256 coarse + fine MLPs, 64 + 128 samples (Section 5.3)"),
     BenchConfig("paper-1024", "presets", "paper", {"batch_rays": 1024},

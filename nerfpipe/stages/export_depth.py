@@ -26,7 +26,7 @@ class ExportDepthParams:
     scale: float = field(default=0.25, metadata={"help": "render at this fraction of each camera's resolution (1: full)"})
     views: Literal["all", "train", "heldout"] = field(default="all", metadata={"help": "which views: the training views, the held-out ones, or both"})
     acc_threshold: float = field(default=0.5, metadata={"help": "accumulated opacity below which a pixel has no depth in the 16-bit PNG and preview"})
-    chunk: int = field(default=1024, metadata={"help": "rays per chunk (on CPU, small chunks stay in cache)"})
+    chunk: int = field(default=4096, metadata={"help": "rays per chunk (4096: measured fastest on a 2-core CPU)"})
     device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
 
     def __post_init__(self) -> None:

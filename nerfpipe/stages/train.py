@@ -61,7 +61,7 @@ class TrainParams:
     include_input: bool = param(default=True, metadata={"help": "feed the raw coordinates beside their encoding (the authors' code does)"})
     view_dependence: bool = param(default=True, metadata={"help": "colour depends on the viewing direction; false is Table 2's 'No View Dependence'"})
     density_activation: Literal["relu", "softplus"] = param(default="softplus", metadata={"help": "mlp: relu (the paper) or softplus"})
-    lr: float = param(default=1e-2, metadata={"help": "initial Adam learning rate (the paper: 5e-4)"})
+    lr: float = param(default=2e-2, metadata={"help": "initial Adam learning rate (the paper: 5e-4)"})
     lr_final: float = param(default=1e-3, metadata={"help": "learning rate at the last step, reached by exponential decay (the paper: 5e-5)"})
     adam_eps: float = param(default=1e-15, metadata={"help": "Adam epsilon (the paper: 1e-7)"})
     adam_beta2: float = param(default=0.99, metadata={"help": "Adam beta2 (the paper: 0.999; Instant-NGP: 0.99)"})
@@ -83,7 +83,7 @@ class TrainParams:
     device: Literal["auto", "cpu", "cuda"] = param(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
     tf32: bool = param(default=False, metadata={"help": "CUDA: TF32 matmuls"})
     autocast: Literal["none", "bf16", "fp16"] = param(default="none", metadata={"help": "mixed precision for the MLP (compositing stays float32)"})
-    chunk: int = param(default=2048, metadata={"help": "rays per chunk when rendering whole views"})
+    chunk: int = param(default=4096, metadata={"help": "rays per chunk when rendering whole views"})
 
     def __post_init__(self) -> None:
         for name in ("batch_rays", "n_coarse", "depth", "width", "view_width", "holdout_every", "eval_stride",
