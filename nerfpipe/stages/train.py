@@ -17,9 +17,10 @@ paper holds out 1/8 of its real scenes (Section 6.1).
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Literal
+from typing import Any, Literal
 
 from nerfpipe.artifacts import ViewSplit
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
@@ -228,7 +229,7 @@ class TrainStage(Stage):
         resumed = trainer.resume()
         if resumed is not None:
             ctx.log.info("train: resuming from the checkpoint at step %d (%.0f s of training)", resumed, trainer.elapsed)
-        ctx.log.info("train: %s", "%d steps" % params.steps if params.steps > 0 else
+        ctx.log.info("train: %s", f"{params.steps} steps" if params.steps > 0 else
                      f"{params.seconds:g} s of training (train.seconds; as many steps as fit, the learning rate "
                      "decaying over the time)")
         with _watching(ctx, loader, model):

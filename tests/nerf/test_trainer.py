@@ -173,7 +173,7 @@ def test_a_time_budget_trains_until_it_is_spent_with_the_learning_rate_decaying_
     assert log[-1]["step"] == trainer.step  # the last step is logged (and checkpointed), whatever its number
     lrs = [r["lr"] for r in log]
     assert lrs == sorted(lrs, reverse=True) and lrs[-1] == pytest.approx(1e-3)  # decayed by the clock, to lr_final
-    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir())[-1] == f"step_{trainer.step:07d}.pt"
+    assert max(p.name for p in (tmp_path / "checkpoints").iterdir()) == f"step_{trainer.step:07d}.pt"
     # resumed from its last checkpoint, the spent budget stays spent
     again = Trainer(marching_model(), pixels_of_one_view(), config, tmp_path, torch.device("cpu"))
     assert again.resume() == trainer.step and again.finished()
