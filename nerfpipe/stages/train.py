@@ -131,7 +131,7 @@ MLP_CPU = {
 PRESETS = {
     # lego at 100 px on 2 CPU cores (``nerfpipe bench``): 500 steps in under a minute, 22.9 dB
     "draft": {"steps": 500, "grid_levels": 1, "grid_max_resolution": 64, "occupancy_resolution": 32,
-              "batch_samples": 32768},
+              "batch_samples": 32768, "lr": 1e-2},
     # the default: 32^3, 64^3 and 128^3 grids, trained for train.seconds (120 s) as fast as the machine goes
     "fast": {},
     # the 4x128 MLP (Fig. 7's shape, smaller) marching the occupancy grid: 6000 steps, about half an hour there
