@@ -47,7 +47,6 @@ def measure(args: argparse.Namespace) -> None:
     import numpy as np
 
     from nerfpipe import Pipeline, default_stages
-    from nerfpipe.artifacts import Bounds, SceneDecisions
     from nerfpipe.bench.worker import prepare
     from nerfpipe.export.paths import path_for_scene
     from nerfpipe.nerf.evaluation import evaluate
@@ -79,9 +78,7 @@ def measure(args: argparse.Namespace) -> None:
     eval_seconds = time.perf_counter() - started
     eval_rays = sum(setup.loader.world.camera_of(f).width * setup.loader.world.camera_of(f).height for f in heldout)
 
-    pipe = Pipeline(default_stages(), args.capture, run_dir, None, shared)
-    bounds = Bounds.load(pipe.result("bounds").path / "bounds.json")
-    layout = SceneDecisions.load(pipe.result("scene").path / "scene.json").layout.value
+    bounds, layout = setup.loader.bounds, setup.loader.scene.layout.value
     render = RenderParams()
     world = setup.loader.world
     c2ws = np.array([f.c2w for f in world.frames])

@@ -418,9 +418,8 @@ class Trainer:
                 if self.device.type == "cuda":
                     torch.cuda.synchronize(self.device)
                 self.step += 1
-                if config.steps <= 0:  # a time budget: whether this step ends it
-                    self.elapsed += time.perf_counter() - started
-                    started = time.perf_counter()
+                self.elapsed += time.perf_counter() - started  # before asking whether a time budget is spent
+                started = time.perf_counter()
                 last = self.finished()
                 self.watch(psnr)
                 window_steps += 1
@@ -429,8 +428,6 @@ class Trainer:
                 self.total_samples += self.samples
                 self.total_rays += rays
                 if self.step % config.log_every == 0 or last:
-                    self.elapsed += time.perf_counter() - started
-                    started = time.perf_counter()
                     span = max(self.elapsed - window_start, 1e-9)
                     rate = window_steps / span
                     record = {"step": self.step, "wall": round(self.elapsed, 3), "loss": loss, "psnr": round(psnr, 4),
