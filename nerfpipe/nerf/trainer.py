@@ -409,8 +409,11 @@ class Trainer:
         window_start, window_steps, window_samples, window_rays = self.elapsed, 0, 0, 0
         reported = self.done_units()
         with open(self.out / "metrics.jsonl", "a", encoding="utf-8") as metrics:
+            # the clock runs from here to each step's end, and again from the end of ``after_step``: the
+            # bookkeeping after a step (logging, checkpoints) counts towards the next one, so a time budget
+            # is judged once a step, right after it, and the step that spends it is the one logged last
+            started = time.perf_counter()
             while not self.finished():
-                started = time.perf_counter()
                 loss, psnr = self.train_step(self.step)
                 rays = self.rays
                 if not math.isfinite(loss):
@@ -418,8 +421,9 @@ class Trainer:
                 if self.device.type == "cuda":
                     torch.cuda.synchronize(self.device)
                 self.step += 1
-                self.elapsed += time.perf_counter() - started  # before asking whether a time budget is spent
-                started = time.perf_counter()
+                now = time.perf_counter()
+                self.elapsed += now - started
+                started = now
                 last = self.finished()
                 self.watch(psnr)
                 window_steps += 1
@@ -452,6 +456,6 @@ class Trainer:
                     log.info("train: step %d%s, loss %.5f, batch PSNR %.2f dB, %.0f s", self.step,
                              f"/{config.steps}" if config.steps > 0 else f" of a {config.seconds:g} s budget", loss,
                              psnr, self.elapsed)
-                self.elapsed += time.perf_counter() - started
                 if after_step is not None and after_step(self):
                     break
+                started = time.perf_counter()
