@@ -70,7 +70,8 @@ def prepare(spec: dict[str, Any]) -> Setup:
     if spec["eval_views"] and spec["eval_views"] < len(heldout):
         pick = np.unique(np.linspace(0, len(heldout) - 1, spec["eval_views"]).round().astype(int))
         heldout = [heldout[i] for i in pick]
-    model, decisions = build_model(params, loader.scene, loader.world, loader.bounds, device, [f.name for f in views.train])
+    model, decisions = build_model(params, loader.scene, loader.world, loader.bounds, device, [f.name for f in views.train],
+                                   loader.silhouettes(views.train))
     config = dataclasses.replace(training_config(params, loader.scene.layout.value), checkpoint_every=10**9,
                                  keep_checkpoints=1)
     if config.steps == 0 and "seconds" not in spec["overrides"].get("train", {}):

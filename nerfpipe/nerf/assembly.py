@@ -11,6 +11,7 @@ here are listed in ``TrainSettings``.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Protocol
 
 import numpy as np
@@ -18,6 +19,7 @@ import torch
 
 from nerfpipe.artifacts import Bounds, SceneDecisions
 from nerfpipe.geometry.cameras import CameraSet, mean_camera
+from nerfpipe.geometry.hull import Silhouettes, hull_box
 from nerfpipe.nerf.appearance import ExposureGains
 from nerfpipe.nerf.field import FieldConfig, NerfField
 from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
@@ -27,6 +29,7 @@ from nerfpipe.nerf.refinement import PoseRefinement
 from nerfpipe.nerf.renderer import SamplingConfig
 from nerfpipe.nerf.trainer import TrainConfig
 
+HULL_RESOLUTION = 64  # cells a side of the visual hull that bounds the scene box
 POSE_ERROR_PX = 1.0  # mean reprojection error of the sparse points above which camera poses are refined by default
 NDC_NEAR_FACTOR = 0.75  # the NDC near plane at 0.75 x the nearest bound, as LLFF's bd_factor places it
 
@@ -66,6 +69,8 @@ class TrainSettings(Protocol):
     march_steps: int
     occupancy_threshold: float
     early_stop: float
+    hull: str
+    hull_tolerance: float
     # optimization
     steps: int
     seconds: float
@@ -263,14 +268,41 @@ def refines_poses(params: TrainSettings, scene: SceneDecisions, world: CameraSet
                    "kept as given (train.refine_poses=on refines them)")
 
 
+def carves(params: TrainSettings, scene: SceneDecisions, silhouettes: Silhouettes | None) -> bool:
+    """Whether the visual hull of the silhouettes bounds the scene: with silhouettes (alpha, a backdrop) and
+    a scene box that is the field's box (not NDC's frustum, not a contracted space)."""
+    return (params.hull == "auto" and silhouettes is not None and scene.layout.value == "inward360"
+            and not contracts(params, scene))
+
+
+def carve_scene_box(params: TrainSettings, bounds: Bounds, silhouettes: Silhouettes) -> tuple[Bounds, str]:
+    """``bounds`` with its scene box shrunk to the box of the silhouettes' visual hull
+    (``nerfpipe.geometry.hull``), so that the grids spend their cells on the object, and what it did."""
+    lo, hi = bounds.box()
+    tight = hull_box(silhouettes.hull((lo, hi), HULL_RESOLUTION, params.hull_tolerance), (lo, hi))
+    if tight is None:
+        return bounds, (f"visual hull: the {len(silhouettes.masks)} silhouettes leave nothing of the scene box standing; "
+                        "the box is kept (train.hull=off turns carving off)")
+    shrunk = dataclasses.replace(bounds, scene_box=(tight[0].tolist(), tight[1].tolist()))
+    size = lambda a, b: " x ".join(f"{v:.2f}" for v in b - a)  # noqa: E731
+    volume = float(np.prod(tight[1] - tight[0]) / np.prod(hi - lo))
+    return shrunk, (f"visual hull of {len(silhouettes.masks)} silhouettes: the scene box shrinks from {size(lo, hi)} "
+                    f"to {size(*tight)} ({100 * volume:.0f}% of its volume), the grids' cells with it")
+
+
 def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, bounds: Bounds,
-                device: torch.device, train_names: list[str] | None = None) -> tuple[RadianceModel, list[str]]:
+                device: torch.device, train_names: list[str] | None = None,
+                silhouettes: Silhouettes | None = None) -> tuple[RadianceModel, list[str]]:
     """The fields, sampling, ray space and background this scene calls for, and a sentence per choice.
     With ``train_names``, the training images in order, also their exposure gains (starting from the
     exposures the scene measured) and pose corrections where the scene calls for them
-    (``models_appearance``, ``refines_poses``)."""
+    (``models_appearance``, ``refines_poses``). With the training photos' ``silhouettes``, the scene box
+    shrinks to the box of their visual hull (``carves``)."""
     torch.manual_seed(params.seed)
     layout = scene.layout.value
+    hull_said = None
+    if carves(params, scene, silhouettes):
+        bounds, hull_said = carve_scene_box(params, bounds, silhouettes)
     ray_space, ray_said = build_ray_space(params, scene, world, bounds)
     contracted = ray_space.contraction is not None
     box = field_box(ray_space, layout, bounds)
@@ -279,7 +311,7 @@ def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, 
     background, background_said = build_background(scene)
     noise = density_noise(params, layout)
     decisions = [
-        ray_said, field_said, occupancy_said, background_said,
+        hull_said, ray_said, field_said, occupancy_said, background_said,
         "linear RAW: trained on linear values; previews are sRGB-encoded" if scene.photometric.value == "linear_raw" else None,
         f"noise of std {noise:g} on raw density while training" if noise else None,
     ]

@@ -15,6 +15,7 @@ import torch
 
 from nerfpipe.artifacts import Bounds, SceneDecisions, frame_image_path
 from nerfpipe.geometry.cameras import CameraSet, Frame
+from nerfpipe.geometry.hull import Silhouettes
 from nerfpipe.imaging.masks import object_mask
 from nerfpipe.imaging.png import read_png
 from nerfpipe.nerf.model import RadianceModel
@@ -79,6 +80,7 @@ class ImageLoader:
         color = scene.background_color.value
         self.background = np.array(color if color is not None else (0.0, 0.0, 0.0), dtype=np.float32)
         self.backdrop = scene.backdrop()
+        self._foreground: dict[str, np.ndarray] = {}  # GrabCut takes a second a photo: each frame's mask once
 
     @staticmethod
     def from_inputs(inputs: StageInputs) -> ImageLoader:
@@ -120,7 +122,23 @@ class ImageLoader:
         ``pixels``: the frame's ``image``, when already read."""
         if self.backdrop is None:
             return None
-        return object_mask(self.image(frame) if pixels is None else pixels, *self.backdrop)
+        if frame.name not in self._foreground:
+            self._foreground[frame.name] = object_mask(self.image(frame) if pixels is None else pixels, *self.backdrop)
+        return self._foreground[frame.name]
+
+    def silhouettes(self, frames: list[Frame]) -> Silhouettes | None:
+        """The object's silhouette in each of ``frames``, with their cameras: alpha >= 0.5 for photos with
+        alpha, else the pixels that are not the constant backdrop (``foreground``); None when the scene has
+        neither."""
+        if self.use_alpha:
+            masks = [self.alpha(frame) for frame in frames]
+            if any(mask is None for mask in masks):
+                return None
+        elif self.backdrop is not None:
+            masks = [self.foreground(frame) for frame in frames]
+        else:
+            return None
+        return Silhouettes(masks, np.array([self.intrinsics(f) for f in frames]), np.array([f.c2w for f in frames]))
 
     def intrinsics(self, frame: Frame) -> tuple[float, float, float, float]:
         """(fx, fy, cx, cy) of the frame's pinhole camera."""

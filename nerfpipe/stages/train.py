@@ -43,6 +43,8 @@ class TrainParams:
     march_steps: int = param(default=128, metadata={"help": "marching steps along the field box's diagonal (about one per image pixel at 100 px lego)"})
     early_stop: float = param(default=1e-4, metadata={"help": "stop a marched ray once its transmittance is below this (0: never)"})
     occupancy_threshold: float = param(default=0.01, metadata={"help": "a cell is occupied when one step through it is this optically thick"})
+    hull: Literal["auto", "off"] = param(default="auto", metadata={"help": "auto: for inward 360 photos with silhouettes (alpha or a backdrop), shrink the scene box to the box of their visual hull, where the grids then spend their cells"})
+    hull_tolerance: float = param(default=0.05, metadata={"help": "carve a cell only when more than this share of the photos seeing it call it backdrop (mask errors)"})
     grid_levels: int = param(default=3, metadata={"help": "grid field: levels of the multiresolution grid"})
     grid_min_resolution: int = param(default=32, metadata={"help": "grid field: cells a side of the coarsest level"})
     grid_max_resolution: int = param(default=128, metadata={"help": "grid field: cells a side of the finest level"})
@@ -95,13 +97,15 @@ class TrainParams:
         if self.steps < 0 or (self.steps == 0 and not self.seconds > 0):
             raise ValueError(f"need steps >= 1, or steps = 0 and seconds > 0; got steps={self.steps}, seconds={self.seconds}")
         for name in ("n_fine", "pos_freqs", "dir_freqs", "train_images", "keep_checkpoints", "skip_after", "batch_samples",
-                     "occupancy_threshold", "appearance_lr", "pose_lr", "pose_penalty"):
+                     "occupancy_threshold", "appearance_lr", "pose_lr", "pose_penalty", "hull_tolerance"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.skip_after > self.depth - 1:
             raise ValueError(f"skip_after must be below depth ({self.depth}), got {self.skip_after}")
         if not (0 < self.lr_final <= self.lr) or self.adam_eps <= 0 or not (0 < self.adam_beta2 < 1):
             raise ValueError("need 0 < lr_final <= lr, adam_eps > 0 and 0 < adam_beta2 < 1")
+        if not self.hull_tolerance < 1:
+            raise ValueError(f"hull_tolerance must be below 1 (1 carves nothing), got {self.hull_tolerance}")
         if not (0 <= self.early_stop < 1):
             raise ValueError(f"early_stop must be in [0, 1), got {self.early_stop}")
         if self.grid_min_resolution > self.grid_max_resolution:
@@ -146,7 +150,7 @@ class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
     name = "train"
-    version = 5  # 5: per-image exposure and camera refinement; cameras/ holds the refined poses
+    version = 6  # 6: the scene box shrinks to the silhouettes' visual hull
     Params = TrainParams
     presets = PRESETS
     requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")
@@ -215,7 +219,7 @@ class TrainStage(Stage):
         layout = loader.scene.layout.value
         views = split_views(loader.world, params.holdout_every, params.train_images, params.eval_stride)
         model, decisions = build_model(params, loader.scene, loader.world, loader.bounds, device,
-                                       [f.name for f in views.train])
+                                       [f.name for f in views.train], loader.silhouettes(views.train))
         for line in decisions:
             ctx.log.info("train: %s", line)
         ctx.log.info("train: %d training images, %d held out (%s)", len(views.train), len(views.heldout), views.rule)

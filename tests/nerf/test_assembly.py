@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from nerfpipe.nerf.assembly import (
+    HULL_RESOLUTION,
     NDC_NEAR_FACTOR,
     build_background,
     build_model,
@@ -18,6 +19,7 @@ from nerfpipe.nerf.assembly import (
 from nerfpipe.nerf.field import NerfField
 from nerfpipe.nerf.grid_field import GridField
 from nerfpipe.stages.train import TrainParams
+from tests.geometry.sphere_photos import CENTER, RADIUS, sphere_views
 from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
 
 CPU = torch.device("cpu")
@@ -164,3 +166,24 @@ def test_per_image_exposure_and_camera_refinement_follow_the_data_unless_set() -
     without_names, _ = build_model(TrainParams(), varying, world, bounds, cpu)  # nothing per image to learn
     assert without_names.appearance is None and without_names.refinement is None
     assert training_config(TrainParams(pose_lr=0.002), "inward360").pose_lr == 0.002
+
+
+def test_silhouettes_shrink_the_scene_box_and_the_grids_over_it_to_their_visual_hull() -> None:
+    views, world, bounds = sphere_views(), world_of_one_camera(), bounds_of((2.0, 9.0))  # a sphere in [-1, 1]^3
+    scene = scene_of("inward360", "alpha", [1, 1, 1])
+    model, said = build_model(TrainParams(), scene, world, bounds, CPU, silhouettes=views)
+    lo, hi = (np.array(corner) for corner in model.ray_space.box)
+    cell = 2 / HULL_RESOLUTION
+    assert np.all(lo <= CENTER - RADIUS - cell + 1e-6) and np.all(hi >= CENTER + RADIUS + cell - 1e-6)
+    assert np.all(hi - lo < 2 * RADIUS + 8 * cell)  # the ring looks down at it: a little taller than the sphere
+    assert model.coarse.lo.tolist() == pytest.approx(lo.tolist()) and model.coarse.hi.tolist() == pytest.approx(hi.tolist())
+    assert model.occupancy.lo.tolist() == pytest.approx(lo.tolist()) and model.occupancy.hi.tolist() == pytest.approx(hi.tolist())
+    assert said[0].startswith("visual hull of 12 silhouettes: the scene box shrinks from 2.00 x 2.00 x 2.00 to ")
+    # not asked for, or no box to shrink: the scene box as the bounds stage made it
+    for params, kind in ((TrainParams(hull="off"), scene), (TrainParams(), scene_of("inward360", "none")),
+                         (TrainParams(field="mlp"), scene_of("forward", "alpha", [1, 1, 1]))):
+        kept, said = build_model(params, kind, world, bounds, CPU, silhouettes=views)
+        assert not said[0].startswith("visual hull")
+        assert kept.ray_space.box in (None, ((-1, -1, -1), (1, 1, 1)))
+    kept, _ = build_model(TrainParams(), scene, world, bounds, CPU)  # no silhouettes
+    assert kept.ray_space.box == ((-1, -1, -1), (1, 1, 1))

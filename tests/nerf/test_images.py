@@ -87,6 +87,24 @@ def test_a_constant_backdrop_gives_each_pixel_its_foreground_alpha(image_folders
     assert loader_of(image_folders, background="color").pixel_set(loader.world.frames).alpha is None
 
 
+def test_silhouettes_come_from_alpha_or_the_backdrop_masks(image_folders) -> None:
+    loader = loader_of(image_folders)  # alpha: a.png has alpha (0.2 everywhere, below 0.5), the others none
+    a = loader.world.frames[0]
+    only_a = loader.silhouettes([a])
+    assert len(only_a.masks) == 1 and only_a.masks[0].shape == (8, 12) and not only_a.masks[0].any()
+    assert only_a.intrinsics.tolist() == [[10.0, 10.0, 6.0, 4.0]] and only_a.c2ws.tolist() == [np.eye(4).tolist()]
+    assert loader.silhouettes(loader.world.frames) is None  # a photo without alpha has no silhouette to give
+    assert loader_of(image_folders, background="none").silhouettes(loader.world.frames) is None
+    pixels = np.zeros((8, 12, 3), np.uint8)
+    pixels[..., 2] = 255
+    pixels[2:6, 3:8] = (255, 0, 0)
+    write_png(image_folders["images"] / "grey.png", pixels)
+    backdrop = loader_of(image_folders, background="color", tolerance=0.1)
+    masks = backdrop.silhouettes(backdrop.world.frames[:2]).masks
+    assert masks[0].all() and masks[1].sum() == 20 and masks[1][2:6, 3:8].all()  # red a.png; the red block
+    assert backdrop.foreground(backdrop.world.frames[1]) is masks[1]  # GrabCut once a photo
+
+
 def test_an_image_of_another_size_than_its_camera_is_an_error(image_folders) -> None:
     loader = loader_of(image_folders, width=13)
     with pytest.raises(StageError, match="is 12x8 but its camera is 13x8; rerun with --force undistort"):
