@@ -20,6 +20,7 @@ import torch
 from nerfpipe.artifacts import Bounds, SceneDecisions
 from nerfpipe.geometry.cameras import CameraSet, mean_camera
 from nerfpipe.geometry.hull import Silhouettes, hull_box
+from nerfpipe.geometry.normalize import robust_box
 from nerfpipe.nerf.appearance import ExposureGains
 from nerfpipe.nerf.field import FieldConfig, NerfField
 from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
@@ -275,19 +276,29 @@ def carves(params: TrainSettings, scene: SceneDecisions, silhouettes: Silhouette
             and not contracts(params, scene))
 
 
-def carve_scene_box(params: TrainSettings, bounds: Bounds, silhouettes: Silhouettes) -> tuple[Bounds, str]:
+def carve_scene_box(params: TrainSettings, bounds: Bounds, silhouettes: Silhouettes,
+                    points: np.ndarray | None = None) -> tuple[Bounds, str]:
     """``bounds`` with its scene box shrunk to the box of the silhouettes' visual hull
-    (``nerfpipe.geometry.hull``), so that the grids spend their cells on the object, and what it did."""
+    (``nerfpipe.geometry.hull``), so that the grids spend their cells on the object, and what it did.
+
+    ``points``: (N, 3) sparse points in the world. A mask that calls part of the object backdrop in a few
+    photos would carve it away; the box never shrinks past the robust box of what SfM triangulated."""
     lo, hi = bounds.box()
     tight = hull_box(silhouettes.hull((lo, hi), HULL_RESOLUTION, params.hull_tolerance), (lo, hi))
     if tight is None:
         return bounds, (f"visual hull: the {len(silhouettes.masks)} silhouettes leave nothing of the scene box standing; "
                         "the box is kept (train.hull=off turns carving off)")
+    kept = ""
+    if points is not None and len(points):
+        p_lo, p_hi = robust_box(points)
+        grown = (np.maximum(np.minimum(tight[0], p_lo), lo), np.minimum(np.maximum(tight[1], p_hi), hi))
+        if not (np.allclose(grown[0], tight[0]) and np.allclose(grown[1], tight[1])):
+            tight, kept = grown, ", kept around the sparse points"
     shrunk = dataclasses.replace(bounds, scene_box=(tight[0].tolist(), tight[1].tolist()))
     size = lambda a, b: " x ".join(f"{v:.2f}" for v in b - a)  # noqa: E731
     volume = float(np.prod(tight[1] - tight[0]) / np.prod(hi - lo))
     return shrunk, (f"visual hull of {len(silhouettes.masks)} silhouettes: the scene box shrinks from {size(lo, hi)} "
-                    f"to {size(*tight)} ({100 * volume:.0f}% of its volume), the grids' cells with it")
+                    f"to {size(*tight)} ({100 * volume:.0f}% of its volume{kept}), the grids' cells with it")
 
 
 def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, bounds: Bounds,
@@ -302,7 +313,8 @@ def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, 
     layout = scene.layout.value
     hull_said = None
     if carves(params, scene, silhouettes):
-        bounds, hull_said = carve_scene_box(params, bounds, silhouettes)
+        points = None if world.points is None else np.asarray(world.points.xyz)
+        bounds, hull_said = carve_scene_box(params, bounds, silhouettes, points)
     ray_space, ray_said = build_ray_space(params, scene, world, bounds)
     contracted = ray_space.contraction is not None
     box = field_box(ray_space, layout, bounds)

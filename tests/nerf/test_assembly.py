@@ -13,9 +13,11 @@ from nerfpipe.nerf.assembly import (
     build_background,
     build_model,
     build_occupancy,
+    carve_scene_box,
     density_noise,
     training_config,
 )
+from nerfpipe.geometry.normalize import robust_box
 from nerfpipe.nerf.field import NerfField
 from nerfpipe.nerf.grid_field import GridField
 from nerfpipe.stages.train import TrainParams
@@ -187,3 +189,20 @@ def test_silhouettes_shrink_the_scene_box_and_the_grids_over_it_to_their_visual_
         assert kept.ray_space.box in (None, ((-1, -1, -1), (1, 1, 1)))
     kept, _ = build_model(TrainParams(), scene, world, bounds, CPU)  # no silhouettes
     assert kept.ray_space.box == ((-1, -1, -1), (1, 1, 1))
+
+
+def test_the_visual_hull_never_cuts_off_the_sparse_points() -> None:
+    # silhouettes of the sphere, and points SfM triangulated on a part the masks lost (x up to 0.9)
+    views, bounds = sphere_views(), bounds_of((2.0, 9.0))
+    rng = np.random.default_rng(0)
+    directions = rng.normal(size=(200, 3))
+    on_sphere = CENTER + RADIUS * directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    lost = np.column_stack([rng.uniform(0.5, 0.9, 100), rng.uniform(-0.1, 0.1, 100), rng.uniform(-0.1, 0.1, 100)])
+    points = np.vstack([on_sphere, lost])
+    carved, said = carve_scene_box(TrainParams(), bounds, views, points)
+    lo, hi = (np.array(c) for c in carved.scene_box)
+    p_lo, p_hi = robust_box(points)
+    assert np.all(lo <= p_lo + 1e-9) and np.all(hi >= p_hi - 1e-9) and hi[0] > 0.85
+    assert hi[1] < 0.5 and said.endswith("kept around the sparse points), the grids' cells with it")
+    inside, said = carve_scene_box(TrainParams(), bounds, views, on_sphere)  # points within the hull: no say
+    assert "sparse points" not in said and inside.scene_box[1][0] < 0.7
