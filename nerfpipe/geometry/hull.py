@@ -24,6 +24,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from nerfpipe.geometry.normalize import project
+
 Box = tuple[np.ndarray, np.ndarray]
 
 
@@ -54,20 +56,17 @@ def visual_hull(silhouettes: Sequence[np.ndarray], intrinsics: np.ndarray, c2ws:
     radius = 0.5 * float(np.linalg.norm((hi - lo) / resolution))  # the sphere around a cell
     seen = np.zeros(len(centers), dtype=np.int32)
     misses = np.zeros(len(centers), dtype=np.int32)
-    for mask, (fx, fy, cx, cy), c2w in zip(silhouettes, np.asarray(intrinsics, dtype=np.float64), np.asarray(c2ws, dtype=np.float64)):
+    for mask, (fx, fy, cx, cy), c2w in zip(silhouettes, np.asarray(intrinsics, dtype=np.float64), c2ws):
         h, w = mask.shape
-        local = (centers - c2w[:3, 3]) @ c2w[:3, :3]
-        z = local[:, 2]
-        front = z > 1e-9
-        zs = np.where(front, z, 1.0)
-        u, v = fx * local[:, 0] / zs + cx, fy * local[:, 1] / zs + cy
-        inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        uv, z = project(c2w, np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), centers)
+        u, v = uv[:, 0], uv[:, 1]
+        inside = (z > 1e-9) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
         # pixels to the nearest silhouette pixel (0 on the silhouette); a photo with none carves all it sees
         background = np.ascontiguousarray(~mask, dtype=np.uint8)
         distance = cv2.distanceTransform(background, cv2.DIST_L2, 5) if mask.any() else np.full(mask.shape, np.inf, np.float32)
         col = np.clip(u[inside].astype(np.int64), 0, w - 1)
         row = np.clip(v[inside].astype(np.int64), 0, h - 1)
-        reach = max(fx, fy) * radius / zs[inside] + slack_px
+        reach = max(fx, fy) * radius / z[inside] + slack_px
         seen[inside] += 1
         misses[inside] += distance[row, col] > reach
     enough = max(2, int(np.ceil(min_share * len(silhouettes))))

@@ -343,14 +343,20 @@ def depths(c2w: np.ndarray, xyz: np.ndarray) -> np.ndarray:
     return (np.asarray(xyz, dtype=np.float64) - c2w[:3, 3]) @ c2w[:3, 2]
 
 
-def in_view(c2w: np.ndarray, K: np.ndarray, width: int, height: int, xyz: np.ndarray) -> np.ndarray:
-    """(M,) bool: which points (M, 3) project inside the image of a pinhole camera K (3, 3), in front of it."""
+def project(c2w: np.ndarray, K: np.ndarray, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel positions uv (M, 2) and depths z (M,) of world points ``xyz`` (M, 3) in the pinhole camera K
+    (3, 3) at ``c2w`` (4, 4, OpenCV); a point at or behind the camera (z <= 0) gets uv as if at z = 1."""
     c2w = np.asarray(c2w, dtype=np.float64)
     cam = (np.asarray(xyz, dtype=np.float64) - c2w[:3, 3]) @ c2w[:3, :3]
     z = cam[:, 2]
-    front = z > 0
-    uv = cam[:, :2] / np.where(front, z, 1.0)[:, None] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
-    return front & (uv[:, 0] >= 0) & (uv[:, 0] <= width) & (uv[:, 1] >= 0) & (uv[:, 1] <= height)
+    uv = cam[:, :2] / np.where(z > 0, z, 1.0)[:, None] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+    return uv, z
+
+
+def in_view(c2w: np.ndarray, K: np.ndarray, width: int, height: int, xyz: np.ndarray) -> np.ndarray:
+    """(M,) bool: which points (M, 3) project inside the image of a pinhole camera K (3, 3), in front of it."""
+    uv, z = project(c2w, K, xyz)
+    return (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= width) & (uv[:, 1] >= 0) & (uv[:, 1] <= height)
 
 
 def near_far_from_points(

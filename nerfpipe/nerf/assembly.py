@@ -295,7 +295,10 @@ def carve_scene_box(params: TrainSettings, bounds: Bounds, silhouettes: Silhouet
         if not (np.allclose(grown[0], tight[0]) and np.allclose(grown[1], tight[1])):
             tight, kept = grown, ", kept around the sparse points"
     shrunk = dataclasses.replace(bounds, scene_box=(tight[0].tolist(), tight[1].tolist()))
-    size = lambda a, b: " x ".join(f"{v:.2f}" for v in b - a)  # noqa: E731
+
+    def size(a: np.ndarray, b: np.ndarray) -> str:
+        return " x ".join(f"{v:.2f}" for v in b - a)
+
     volume = float(np.prod(tight[1] - tight[0]) / np.prod(hi - lo))
     return shrunk, (f"visual hull of {len(silhouettes.masks)} silhouettes: the scene box shrinks from {size(lo, hi)} "
                     f"to {size(*tight)} ({100 * volume:.0f}% of its volume{kept}), the grids' cells with it")
