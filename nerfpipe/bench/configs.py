@@ -28,9 +28,10 @@ PRESET_CONFIGS = [
     BenchConfig("fast", "presets", "fast", note="grid field, 32^3, 64^3 and 128^3 levels, trained by time (the default)"),
     BenchConfig("balanced", "presets", "balanced", note="4x128 MLP with the occupancy grid"),
     BenchConfig("paper", "presets", "paper", note="8x256 coarse + fine MLPs, 64 + 128 samples (Section 5.3)"),
-    BenchConfig("paper-1024", "presets", "paper", {"batch_rays": 1024},
+    BenchConfig("paper-1024", "presets", "paper", {"optim.batch_rays": 1024},
                 note="the paper preset at 1024 rays a step (4096 hold 20 GB of activations on a CPU)"),
-    BenchConfig("paper+occupancy", "presets", "paper", {"occupancy": "true", "batch_rays": 1024, "batch_samples": 32768},
+    BenchConfig("paper+occupancy", "presets", "paper", {"sampler.kind": "marching", "optim.batch_rays": 1024,
+                                                          "optim.batch_samples": 32768},
                 note="the paper's MLP marching the occupancy grid"),
 ]
 
@@ -38,19 +39,19 @@ PRESET_CONFIGS = [
 # CPU-scale MLP (4x128) with the paper's coarse and fine networks and its sampling scaled to 100 px: N_c = 16,
 # N_f = 32, 16 + (16 + 32) = 64 evaluations a ray. "No hierarchical" takes as many stratified samples with
 # one network, as the paper's (256, -) matches its 64 + (64 + 128).
-COMPLETE = {**MLP_CPU, "n_coarse": 16, "n_fine": 32, "fine_network": True}
+COMPLETE = {**MLP_CPU, "sampler.n_coarse": 16, "sampler.n_fine": 32, "field.fine_network": True}
 ABLATION_CONFIGS = [
     BenchConfig("complete", "ablations", None, COMPLETE,
                 note="Table 2 row 9: L = 10, view dependence, hierarchical (16 + 32, coarse and fine networks)"),
-    BenchConfig("no PE", "ablations", None, {**COMPLETE, "positional_encoding": False}, note="row 2: raw x and d"),
-    BenchConfig("no view dependence", "ablations", None, {**COMPLETE, "view_dependence": False}, note="row 3"),
+    BenchConfig("no PE", "ablations", None, {**COMPLETE, "field.positional_encoding": False}, note="row 2: raw x and d"),
+    BenchConfig("no view dependence", "ablations", None, {**COMPLETE, "field.view_dependence": False}, note="row 3"),
     BenchConfig("no hierarchical", "ablations", None,
-                {**COMPLETE, "hierarchical": False, "n_coarse": 64, "fine_network": False},
+                {**COMPLETE, "sampler.hierarchical": False, "sampler.n_coarse": 64, "field.fine_network": False},
                 note="row 4: 64 stratified samples, one network"),
     BenchConfig("far fewer images", "ablations", None, {**COMPLETE, "train_images": 25}, note="row 5: 25 images"),
     BenchConfig("fewer images", "ablations", None, {**COMPLETE, "train_images": 50}, note="row 6: 50 images"),
-    BenchConfig("fewer frequencies", "ablations", None, {**COMPLETE, "pos_freqs": 5}, note="row 7: L = 5"),
-    BenchConfig("more frequencies", "ablations", None, {**COMPLETE, "pos_freqs": 15}, note="row 8: L = 15"),
+    BenchConfig("fewer frequencies", "ablations", None, {**COMPLETE, "field.pos_freqs": 5}, note="row 7: L = 5"),
+    BenchConfig("more frequencies", "ablations", None, {**COMPLETE, "field.pos_freqs": 15}, note="row 8: L = 15"),
 ]
 
 CONFIGS = {c.name: c for c in PRESET_CONFIGS + ABLATION_CONFIGS}

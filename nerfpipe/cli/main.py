@@ -2,18 +2,24 @@
 
 from __future__ import annotations
 
-import contextlib
 import logging
 from pathlib import Path
-from typing import Callable, Iterator, List, Optional
+from typing import Callable, List, Optional
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from nerfpipe.pipeline import NerfpipeError, Pipeline, param_specs, parse_assignments
-from nerfpipe.pipeline.errors import os_error_to_user_error
+from nerfpipe.cli.console import (
+    STATE_STYLE,
+    batch_progress,
+    bench_line,
+    progress_factory,
+    setup_logging,
+    user_errors,
+)
+from nerfpipe.pipeline import Pipeline, param_specs, parse_assignments
 from nerfpipe.pipeline.lock import RunLock
 from nerfpipe.stages import default_stages
 
@@ -25,84 +31,11 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 out_console = Console()
-err_console = Console(stderr=True)
 
-STATE_STYLE = {"fresh": "green", "stale": "yellow", "broken": "red", "missing": "red"}
 
 DebugOption = typer.Option(False, "--debug", help="Show tracebacks and debug logs.")
 PresetOption = typer.Option(None, "--preset", "-p", help="Named preset applied to every stage that has it.")
 SetOption = typer.Option([], "--set", "-s", help="Override one parameter: STAGE.PARAM=VALUE (repeatable).")
-
-
-class _ConsoleHandler(logging.Handler):
-    """Concise terminal logs: plain info lines, labelled warnings; the run's log file has everything."""
-
-    PREFIX = {logging.DEBUG: "[dim]debug:[/] ", logging.WARNING: "[yellow]warning:[/] ", logging.ERROR: "[red]error:[/] "}
-
-    def emit(self, record: logging.LogRecord) -> None:
-        prefix = self.PREFIX.get(record.levelno, "")
-        err_console.print(prefix + escape(self.format(record)), highlight=False, soft_wrap=True)
-
-
-def _setup_logging(debug: bool) -> None:
-    handler = _ConsoleHandler()
-    handler.setLevel(logging.DEBUG if debug else logging.INFO)
-    handler.setFormatter(logging.Formatter("%(message)s"))
-    root = logging.getLogger("nerfpipe")
-    root.handlers[:] = [handler]
-    root.setLevel(logging.DEBUG if debug else logging.INFO)
-    root.propagate = False
-
-
-@contextlib.contextmanager
-def _user_errors(debug: bool) -> Iterator[None]:
-    """User errors become one line and a non-zero exit; ``--debug`` shows the traceback as well.
-
-    So does a full disk or a read-only filesystem met outside a stage (writing the report, say).
-    """
-    try:
-        yield
-    except (NerfpipeError, OSError) as err:
-        user_error = err if isinstance(err, NerfpipeError) else os_error_to_user_error(err, err.filename or ".")
-        if user_error is None:
-            raise
-        if debug:
-            err_console.print_exception()
-        err_console.print(f"[bold red]error:[/] {escape(str(user_error))}", highlight=False, soft_wrap=True)
-        raise typer.Exit(user_error.exit_code) from None
-    except KeyboardInterrupt:
-        err_console.print("[bold red]interrupted[/]: the stage that was running was not committed", highlight=False)
-        raise typer.Exit(130) from None
-
-
-def _progress_factory() -> Callable:
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
-    @contextlib.contextmanager
-    def progress(total: int, description: str) -> Iterator[Callable[..., None]]:
-        if not err_console.is_terminal:
-            yield lambda n=1, info=None: None
-            return
-        columns = (
-            TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-            TextColumn("left"), TimeRemainingColumn(), TextColumn("{task.fields[info]}"),
-        )
-        with Progress(*columns, console=err_console, transient=True) as bar:
-            task = bar.add_task(description, total=total, info="")
-
-            def advance(n: int = 1, info: str | None = None) -> None:
-                bar.update(task, advance=n, **({} if info is None else {"info": info}))
-
-            yield advance
-
-    return progress
 
 
 @app.command()
@@ -121,13 +54,13 @@ def run(
     debug: bool = DebugOption,
 ) -> None:
     """Run the pipeline on a folder of photos or a video, recomputing only what changed."""
-    _setup_logging(debug)
-    with _user_errors(debug):
+    setup_logging(debug)
+    with user_errors(debug):
         overrides = parse_assignments(set_)
         if skip_bad:
             overrides.setdefault("ingest", {})["skip_bad"] = "true"
         run_dir = out if out is not None else Path("runs") / photos_dir.resolve().name
-        pipe = Pipeline(default_stages(), photos_dir, run_dir, preset, overrides, progress=_progress_factory(), debug=debug,
+        pipe = Pipeline(default_stages(), photos_dir, run_dir, preset, overrides, progress=progress_factory(), debug=debug,
                         extra={"watch_port": port} if view else None)
         outcomes = pipe.run(until=until, only=only, force=force)
     table = Table(title=f"nerfpipe run -> {run_dir}", title_justify="left")
@@ -140,7 +73,7 @@ def run(
     if view and not any(o.name == "train" and o.action == "ran" for o in outcomes):
         out_console.print(f"--view: no training ran to watch; `nerfpipe view {escape(str(run_dir))} --web` shows the "
                           "trained field", highlight=False, soft_wrap=True)
-    with _user_errors(debug):
+    with user_errors(debug):
         from nerfpipe.report import write_report
 
         page = write_report(run_dir)
@@ -157,8 +90,8 @@ def status(
     debug: bool = DebugOption,
 ) -> None:
     """Each stage fresh / stale / broken / missing, with the reason. --preset/--set ask "what if"."""
-    _setup_logging(debug)
-    with _user_errors(debug):
+    setup_logging(debug)
+    with user_errors(debug):
         pipe = Pipeline.from_run_dir(default_stages(), run_dir, preset, parse_assignments(set_))
         moved = pipe.verify() if verify else []
         statuses = pipe.status()
@@ -199,12 +132,12 @@ def view(
     debug: bool = DebugOption,
 ) -> None:
     """Look at a run's mesh, point cloud or cameras; with no display, write RUN_DIR/view_<kind>.png instead."""
-    _setup_logging(debug)
+    setup_logging(debug)
     import difflib
 
     from nerfpipe.pipeline import Committed, InputError, ParamError
 
-    with _user_errors(debug):
+    with user_errors(debug):
         if kind not in VIEW_KINDS:
             close = difflib.get_close_matches(kind, VIEW_KINDS, n=1)
             hint = f"did you mean {close[0]}?" if close else f"choose one of {', '.join(VIEW_KINDS)}"
@@ -284,10 +217,10 @@ def report(
     debug: bool = DebugOption,
 ) -> None:
     """Write RUN_DIR/report/index.html: capture, SfM, scene decisions, training, depth, mesh, timings."""
-    _setup_logging(debug)
+    setup_logging(debug)
     from nerfpipe.report import write_report
 
-    with _user_errors(debug):
+    with user_errors(debug):
         page = write_report(run_dir)
     out_console.print(f"report: {escape(str(page))}", highlight=False, soft_wrap=True)
 
@@ -309,11 +242,11 @@ def bench(
     debug: bool = DebugOption,
 ) -> None:
     """Train each configuration for a time budget; held-out PSNR/SSIM at 30 s, 1, 2, 3, 5, 10 min, speed, memory."""
-    _setup_logging(debug)
+    setup_logging(debug)
     from nerfpipe.bench.configs import CONFIGS, GROUPS, select
     from nerfpipe.bench.run import run_bench
 
-    with _user_errors(debug):
+    with user_errors(debug):
         try:
             chosen = select(configs)
         except KeyError as err:
@@ -334,18 +267,12 @@ def bench(
             overrides.setdefault("ingest", {})["max_size"] = str(size)
         overrides.setdefault("train", {}).setdefault("eval_stride", "4")
         folder = run_bench(capture, out, chosen, budget, overrides, eval_views, marks, seeds,
-                           on_result=lambda r: out_console.print(_bench_line(r, seeds > 1), highlight=False))
+                           on_result=lambda r: out_console.print(bench_line(r, seeds > 1), highlight=False))
         from nerfpipe.report import write_report
 
         page = write_report(out)
     out_console.print((folder / "bench.md").read_text(), highlight=False, soft_wrap=True)
     out_console.print(f"bench: {escape(str(folder))}\nreport: {escape(str(page))}", highlight=False, soft_wrap=True)
-
-
-def _bench_line(result: dict, with_seed: bool) -> str:
-    seed = f" (seed {result['seed']})" if with_seed else ""
-    return (f"{result['name']}{seed}: {result['points'][-1]['psnr']:.2f} dB after {result['train_seconds']:.0f} s "
-            f"({result['samples_per_ray']:.1f} samples/ray, {result['samples_per_s']:,} samples/s)")
 
 
 @app.command()
@@ -364,13 +291,13 @@ def batch(
     debug: bool = DebugOption,
 ) -> None:
     """Run every capture folder inside CAPTURES_ROOT, each stage a task of the executor; same cache as `run`."""
-    _setup_logging(debug)
+    setup_logging(debug)
     if not debug:
         logging.getLogger("nerfpipe").handlers[0].setLevel(logging.ERROR)  # each capture's log file has the rest
     from nerfpipe.pipeline.batch import SUMMARY, Batch, BatchSettings, find_captures
     from nerfpipe.pipeline.executors import LocalExecutor, RayExecutor
 
-    with _user_errors(debug):
+    with user_errors(debug):
         if executor not in ("local", "ray"):
             raise typer.BadParameter(f"expected local or ray, got {executor!r}", param_hint="--executor")
         if max_parallel < 0:
@@ -380,7 +307,7 @@ def batch(
         sources = find_captures(captures_root)
         settings = BatchSettings(preset=preset, overrides=parse_assignments(set_), until=until, max_parallel=max_parallel)
         runner = LocalExecutor(max_parallel or 1, max_retries) if executor == "local" else RayExecutor(address, max_retries)
-        with runner, _batch_progress(len(sources)) as on_change:
+        with runner, batch_progress(len(sources)) as on_change:
             states = Batch(sources, out, runner, settings, on_change).run()
     table = Table(title=f"nerfpipe batch -> {out} ({executor})", title_justify="left")
     for column in ("capture", "state", "ran", "cached", "time"):
@@ -397,42 +324,6 @@ def batch(
                       f"summary: {escape(str(out / SUMMARY))}", highlight=False, soft_wrap=True)
     if failed:
         raise typer.Exit(1)
-
-
-@contextlib.contextmanager
-def _batch_progress(total: int) -> Iterator[Callable]:
-    """One line per capture (state, current stage, time) and the totals: a live table on a terminal,
-    else a line whenever a capture moves on."""
-    def totals(states) -> str:
-        counts = {k: sum(1 for c in states if c.state == k) for k in ("running", "done", "failed", "queued")}
-        return ", ".join(f"{v} {k}" for k, v in counts.items()) + f" of {total}"
-
-    if not err_console.is_terminal:
-        seen: dict[str, tuple] = {}
-
-        def on_change(states) -> None:
-            for c in states:
-                now = (c.state, c.stage)
-                if seen.get(c.name) != now and c.state != "queued":
-                    seen[c.name] = now
-                    where = c.stage or ""
-                    err_console.print(f"batch: {c.name}: {c.state} {where} ({totals(states)})".replace("  ", " "),
-                                      highlight=False, soft_wrap=True)
-
-        yield on_change
-        return
-    from rich.live import Live
-
-    def render(states) -> Table:
-        table = Table(title=totals(states), title_justify="left", box=None)
-        for column in ("capture", "state", "stage", "time"):
-            table.add_column(column)
-        for c in states:
-            table.add_row(c.name, c.state, c.stage or "", f"{c.seconds:.0f} s" if c.started else "")
-        return table
-
-    with Live(console=err_console, transient=True, refresh_per_second=4) as live:
-        yield lambda states: live.update(render(states))
 
 
 @app.command()
@@ -464,10 +355,10 @@ def clean(
     debug: bool = DebugOption,
 ) -> None:
     """Delete cached results other than each stage's latest, and unfinished work folders."""
-    _setup_logging(debug)
+    setup_logging(debug)
     from nerfpipe.pipeline import ArtifactStore, InputError
 
-    with _user_errors(debug):
+    with user_errors(debug):
         if not (run_dir / "run.json").is_file():
             raise InputError(run_dir, "is not a nerfpipe run directory (no run.json)", "pass the --out folder of a run")
         with RunLock(run_dir):

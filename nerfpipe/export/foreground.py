@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nerfpipe.export.screenshot import ViewCamera
+from nerfpipe.export.views import ViewCamera
 from nerfpipe.imaging.masks import dilate
 from nerfpipe.nerf.images import ImageLoader
 

@@ -29,14 +29,19 @@ Conventions: ``c2w`` are (4, 4) OpenCV camera-to-world matrices (x right, y down
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
+
+from nerfpipe.geometry.rig import (
+    look_at_center,
+    optical_axes,
+    rig_kind,
+    unit,
+)
 
 WORLD_UP = np.array([0.0, 0.0, 1.0])
 WORLD_HEADING = np.array([0.0, 1.0, 0.0])
 
-RigKind = Literal["forward", "inward", "outward"]
 
 
 @dataclass(frozen=True)
@@ -86,19 +91,9 @@ class Similarity:
         return Similarity(scale, matrix[:3, :3] / scale, matrix[:3, 3].copy())
 
 
-# -- directions ------------------------------------------------------------------------------------------
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
-def optical_axes(c2ws: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) c2w -> (N, 3) unit viewing directions (OpenCV +z axis in world)."""
-    return _unit(np.asarray(c2ws, dtype=np.float64)[:, :3, 2])
-
-
 def up_vectors(c2ws: np.ndarray) -> np.ndarray:
     """(N, 4, 4) c2w -> (N, 3) unit image-up vectors (OpenCV -y axis in world)."""
-    return _unit(-np.asarray(c2ws, dtype=np.float64)[:, :3, 1])
+    return unit(-np.asarray(c2ws, dtype=np.float64)[:, :3, 1])
 
 
 def up_direction(
@@ -159,7 +154,7 @@ def level_horizon_up(c2ws: np.ndarray, planarity: float = 0.05, spread: float = 
     looking at its centre tilts towards the side with more cameras). The sign agrees with the mean up.
     """
     c2ws = np.asarray(c2ws, dtype=np.float64)
-    right = _unit(c2ws[:, :3, 0])
+    right = unit(c2ws[:, :3, 0])
     values, vectors = np.linalg.eigh(right.T @ right / len(right))
     if not (values[0] < planarity * values[1] and values[1] > spread):
         return None
@@ -175,13 +170,13 @@ def rotation_aligning(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     into opposite half-spaces (c < 0) we first align a with -b (well-conditioned) and then turn by pi
     about an axis u perpendicular to b (H = 2 u u^T - I maps -b to b).
     """
-    a = _unit(np.asarray(a, dtype=np.float64))
-    b = _unit(np.asarray(b, dtype=np.float64))
+    a = unit(np.asarray(a, dtype=np.float64))
+    b = unit(np.asarray(b, dtype=np.float64))
     c = float(a @ b)
     if c < 0:
         # the least-aligned basis axis gives a well-defined perpendicular
         helper = np.eye(3)[int(np.argmin(np.abs(b)))]
-        u = _unit(np.cross(b, helper))
+        u = unit(np.cross(b, helper))
         half_turn = 2.0 * np.outer(u, u) - np.eye(3)
         return half_turn @ rotation_aligning(a, -b)
     v = np.cross(a, b)
@@ -216,64 +211,6 @@ def canonical_rotation(c2ws: np.ndarray, up: np.ndarray) -> np.ndarray:
         return align
     yaw = np.arctan2(WORLD_HEADING[1], WORLD_HEADING[0]) - np.arctan2(heading[1], heading[0])
     return rotation_about_z(yaw) @ align
-
-
-# -- rig geometry ----------------------------------------------------------------------------------------
-def look_at_center(c2ws: np.ndarray) -> np.ndarray:
-    """The point closest to all optical axes in the least-squares sense, (N, 4, 4) c2w -> (3,).
-
-    Minimizes sum_i ||(I - d_i d_i^T)(p - o_i)||^2 over p (distance from p to the line o_i + t d_i), whose
-    normal equations are (sum_i P_i) p = sum_i P_i o_i with P_i = I - d_i d_i^T. For (nearly) parallel
-    axes the system is singular along the common direction; lstsq then returns the minimum-norm solution,
-    which callers reject with ``axis_angles_to``.
-    """
-    c2ws = np.asarray(c2ws, dtype=np.float64)
-    d = optical_axes(c2ws)
-    o = c2ws[:, :3, 3]
-    projectors = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
-    lhs = projectors.sum(axis=0)
-    rhs = np.einsum("nij,nj->i", projectors, o)
-    return np.linalg.lstsq(lhs, rhs, rcond=None)[0]
-
-
-def axis_angles_to(c2ws: np.ndarray, point: np.ndarray) -> np.ndarray:
-    """(N,) angles in degrees between each optical axis and the direction from its camera to ``point`` (3,).
-
-    0 means the camera looks straight at the point, 180 that the point is behind it.
-    """
-    c2ws = np.asarray(c2ws, dtype=np.float64)
-    to_point = np.asarray(point, dtype=np.float64)[None] - c2ws[:, :3, 3]
-    norms = np.linalg.norm(to_point, axis=1)
-    cos = np.einsum("ij,ij->i", optical_axes(c2ws), to_point) / np.maximum(norms, 1e-300)
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-
-
-def viewing_spread(c2ws: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The mean viewing direction m = normalize(sum_i d_i) (3,) and the angles (N,) in degrees between each d_i and m."""
-    d = optical_axes(c2ws)
-    total = d.sum(axis=0)
-    norm = np.linalg.norm(total)
-    if norm < 1e-12:
-        return np.zeros(3), np.full(len(d), 90.0)
-    mean = total / norm
-    return mean, np.degrees(np.arccos(np.clip(d @ mean, -1.0, 1.0)))
-
-
-def rig_kind(c2ws: np.ndarray, forward_max_angle_deg: float = 45.0, converge_max_angle_deg: float = 25.0) -> RigKind:
-    """How a rig looks at its scene, from the poses alone.
-
-    ``forward``: every viewing direction lies within ``forward_max_angle_deg`` of the mean one (the
-    paper's real forward-facing scenes, Section 6.1). ``inward``: otherwise, when the cameras look at a
-    common point (median angle between an axis and the direction to ``look_at_center`` below
-    ``converge_max_angle_deg``). ``outward``: neither (panoramas, walk-throughs).
-    """
-    c2ws = np.asarray(c2ws, dtype=np.float64)
-    _, angles = viewing_spread(c2ws)
-    if len(c2ws) < 2 or angles.max() < forward_max_angle_deg:
-        return "forward"
-    if np.median(axis_angles_to(c2ws, look_at_center(c2ws))) < converge_max_angle_deg:
-        return "inward"
-    return "outward"
 
 
 def robust_box(points: np.ndarray, quantile: float = 0.01, mad_k: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
@@ -399,21 +336,3 @@ def near_far_from_rig(
     return np.maximum(dist - radius, near_floor * radius), dist + radius
 
 
-def rig_radius(c2ws: np.ndarray, center: np.ndarray, fraction: float = 0.5) -> float:
-    """Radius of the scene sphere assumed around ``center`` when there are no points: ``fraction`` of the
-    median camera distance to it (0.5 of 4 = 2 for the NeRF synthetic scenes)."""
-    c2ws = np.asarray(c2ws, dtype=np.float64)
-    return float(fraction * np.median(np.linalg.norm(c2ws[:, :3, 3] - np.asarray(center), axis=1)))
-
-
-def azimuth_coverage(c2ws: np.ndarray, center: np.ndarray) -> float:
-    """Degrees of azimuth about +z (world up) through ``center`` that the cameras cover: 360 minus the
-    largest gap between the sorted camera azimuths (360 for a full ring)."""
-    c2ws = np.asarray(c2ws, dtype=np.float64)
-    offset = c2ws[:, :2, 3] - np.asarray(center, dtype=np.float64)[:2]
-    keep = np.linalg.norm(offset, axis=1) > 1e-12
-    if keep.sum() < 2:
-        return 0.0
-    az = np.sort(np.degrees(np.arctan2(offset[keep, 1], offset[keep, 0])))
-    gaps = np.diff(np.concatenate([az, az[:1] + 360.0]))
-    return float(360.0 - gaps.max())

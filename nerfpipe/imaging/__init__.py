@@ -15,14 +15,13 @@ from nerfpipe.imaging.decode import (
     RawOptions,
     SizeLimits,
     apply_orientation,
-    check_integrity,
     photo_kind,
     read_header,
     read_photo,
-    sniff_container,
     unsupported_advice,
 )
 from nerfpipe.imaging.exif import ExifSummary, focal_prior_px, read_exif
+from nerfpipe.imaging.integrity import check_integrity, sniff_container
 
 __all__ = [
     "IMAGE_EXTENSIONS",

@@ -13,23 +13,22 @@ never written to.
 from __future__ import annotations
 
 import io
-import re
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import cv2
 import numpy as np
 
 from nerfpipe.imaging.exif import ExifSummary, read_exif
+from nerfpipe.imaging.integrity import (
+    CONTAINER_NAMES,
+    RECOPY_ADVICE,
+    check_integrity,
+    sniff_container,
+)
 from nerfpipe.imaging.tiff import (
-    TIFF_BIG_ENDIAN_MAGIC,
-    TIFF_LITTLE_ENDIAN_MAGIC,
-    TiffView,
-    entry_in_bounds,
-    entry_ints,
-    ifd_runs_past_end,
     open_tiff,
     read_ifd,
 )
@@ -38,8 +37,6 @@ from nerfpipe.pipeline.errors import BadPhotoError
 
 PhotoKind = Literal["jpeg", "png", "tiff", "raw"]
 
-JPEG_SOI = b"\xff\xd8"
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 IMAGE_EXTENSIONS = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff"})
 # The camera RAW formats LibRaw opens (LibRaw's list of supported formats, by file extension).
@@ -67,34 +64,15 @@ _KIND_BY_EXTENSION: dict[str, PhotoKind] = {
     ".tiff": "tiff",
     **{extension: "raw" for extension in RAW_EXTENSIONS},
 }
-_CONTAINER_NAMES = {"jpeg": "JPEG", "png": "PNG", "tiff": "TIFF", "raw": "camera RAW"}
 _HEIC_EXTENSIONS = frozenset({".heic", ".heif", ".hif"})
 _VIDEO_EXTENSIONS = VIDEO_EXTENSIONS | {".insv"}
 _CONVERT_TO_PNG_EXTENSIONS = frozenset({".gif", ".bmp", ".webp"})
 
-_RECOPY_ADVICE = "copy it again from the camera or card, or remove it from the photo folder"
-# BigTIFF headers: decodable by OpenCV (libtiff), but with 8-byte offsets our IFD reader does not walk.
-_BIGTIFF_MAGICS = (b"II+\x00", b"MM\x00+")
-# In entropy-coded JPEG data a 0xFF byte is followed by 0x00 (stuffing) or RST0-7 (0xD0-0xD7); any other byte
-# after 0xFF is a real marker (ITU T.81 B.1.1.5). A 0xFF run is fill, so the marker is the last 0xFF of the run.
-_JPEG_MARKER_AFTER_SCAN = re.compile(rb"\xff[\x01-\xcf\xd8-\xfe]")
-_JPEG_STANDALONE_MARKERS = frozenset({0x01, *range(0xD0, 0xD8)})
-_JPEG_EOI, _JPEG_SOS = 0xD9, 0xDA
-# TIFF tags pointing at image data, as (offsets tag, byte counts tag): strips, tiles, and the JPEG thumbnail
-# of IFD1 (JPEGInterchangeFormat / JPEGInterchangeFormatLength).
-_TIFF_DATA_TAGS = ((0x0111, 0x0117), (0x0144, 0x0145), (0x0201, 0x0202))
-_TIFF_SUB_IFDS_TAG = 0x014A
-_TIFF_EXIF_IFD_TAG = 0x8769
 _TIFF_ORIENTATION_TAG = 0x0112
 _TIFF_SHORT = 3
-# PNG colour type -> samples per pixel (PNG spec 11.2.2); and deflate's best compression ratio (RFC 1951)
-_PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
-_DEFLATE_MAX_RATIO = 1032
-# DNGs and NEFs hold a handful of IFDs; more means a loop we have not caught or garbage.
-_MAX_TIFF_IFDS = 256
 
 # RawOptions.highlight_mode names to rawpy.HighlightMode members (LibRaw's -H 0, 1, 2, 5).
-_HIGHLIGHT_MODES = {"clip": "Clip", "ignore": "Ignore", "blend": "Blend", "reconstruct": "ReconstructDefault"}
+HIGHLIGHT_MODES = {"clip": "Clip", "ignore": "Ignore", "blend": "Blend", "reconstruct": "ReconstructDefault"}
 _WHITE_BALANCES = ("camera", "auto", "daylight")
 
 
@@ -114,9 +92,9 @@ class RawOptions:
     white_balance: str = "camera"
 
     def __post_init__(self) -> None:
-        if self.highlight_mode not in _HIGHLIGHT_MODES:
+        if self.highlight_mode not in HIGHLIGHT_MODES:
             raise ValueError(
-                f"highlight_mode must be one of {', '.join(_HIGHLIGHT_MODES)}, got {self.highlight_mode!r}"
+                f"highlight_mode must be one of {', '.join(HIGHLIGHT_MODES)}, got {self.highlight_mode!r}"
             )
         if self.white_balance not in _WHITE_BALANCES:
             raise ValueError(
@@ -239,46 +217,6 @@ def unsupported_advice(path: Path | str) -> str:
     return "it is not a photo nerfpipe reads (JPEG, PNG, TIFF or camera RAW); move it out of the photo folder"
 
 
-def sniff_container(data: bytes) -> Literal["jpeg", "png", "tiff"] | None:
-    """The image container named by the file's magic bytes, or ``None`` for anything else (including CR3, RAF)."""
-    if data.startswith(JPEG_SOI + b"\xff"):
-        return "jpeg"
-    if data.startswith(PNG_SIGNATURE):
-        return "png"
-    if data[:4] in (TIFF_LITTLE_ENDIAN_MAGIC, TIFF_BIG_ENDIAN_MAGIC, *_BIGTIFF_MAGICS):
-        return "tiff"
-    return None
-
-
-def check_integrity(path: Path, data: bytes, kind: str) -> None:
-    """Raise ``BadPhotoError`` if ``data``, the bytes of ``path`` (extension kind ``kind``), is not a whole photo.
-
-    The container is taken from the magic bytes when they are a known one, so a PNG saved as ``.jpg`` is
-    checked (and later decoded) as the PNG it is. JPEG must reach its end-of-image marker after the last scan,
-    PNG its IEND chunk, and the image data of every TIFF IFD must lie inside the file. RAW containers that are
-    not TIFF-based (CR3, RAF, ...) are left to LibRaw.
-    """
-    if kind not in _CONTAINER_NAMES:
-        raise ValueError(f"kind must be one of {', '.join(_CONTAINER_NAMES)}, got {kind!r}")
-    if not data:
-        raise BadPhotoError(path, "is empty (0 bytes)", _RECOPY_ADVICE)
-    container = sniff_container(data)
-    if container is None:
-        if kind == "raw":
-            return
-        raise BadPhotoError(
-            path,
-            f"is not a valid {_CONTAINER_NAMES[kind]} file",
-            "its content is not a JPEG, PNG or TIFF image; re-export it or remove it from the photo folder",
-        )
-    if container == "jpeg":
-        _check_jpeg(path, data)
-    elif container == "png":
-        _check_png(path, data)
-    else:
-        _check_tiff(path, data)
-
-
 def apply_orientation(image: np.ndarray, orientation: int) -> np.ndarray:
     """The upright view of a stored image with EXIF orientation ``orientation`` (1..8), as a contiguous array.
 
@@ -338,7 +276,9 @@ def read_photo(path: Path, raw: RawOptions = RawOptions(), limits: SizeLimits = 
     check_integrity(path, data, kind)
     exif = read_exif(data)
     if kind == "raw":
-        return _develop_raw(path, data, exif, raw, limits)
+        from nerfpipe.imaging.raw import develop_raw  # rawpy loads LibRaw: only when a RAW shows up
+
+        return develop_raw(path, data, exif, raw, limits)
     header = read_header(data)
     if header is not None:
         check_size(path, (header.width, header.height), limits)
@@ -353,16 +293,16 @@ def _decode_image(path: Path, data: bytes, exif: ExifSummary) -> DecodedPhoto:
         # PNG decoders do not), and how much of it has changed between versions. Decoding a copy that says
         # "as stored" keeps one rule for every container: OpenCV decodes, we orient.
         data = _tiff_with_stored_orientation(data)
-    container_name = _CONTAINER_NAMES[container]
+    container_name = CONTAINER_NAMES[container]
     try:
         # IMREAD_UNCHANGED keeps 16-bit depth and alpha, and (unlike IMREAD_COLOR) leaves orientation to us.
         stored = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as err:
         raise BadPhotoError(
-            path, f"cannot be decoded (corrupt or not really a {container_name}: {err.msg})", _RECOPY_ADVICE
+            path, f"cannot be decoded (corrupt or not really a {container_name}: {err.msg})", RECOPY_ADVICE
         ) from err
     if stored is None or stored.size == 0:
-        raise BadPhotoError(path, f"cannot be decoded (corrupt or not really a {container_name})", _RECOPY_ADVICE)
+        raise BadPhotoError(path, f"cannot be decoded (corrupt or not really a {container_name})", RECOPY_ADVICE)
     pixels = _to_rgb(path, stored)
     pixels = apply_orientation(pixels, exif.orientation)
     return DecodedPhoto(
@@ -417,203 +357,3 @@ def _to_rgb(path: Path, stored: np.ndarray) -> np.ndarray:
     raise BadPhotoError(path, f"has {channels} channels", "export it as an RGB or RGBA image (3 or 4 channels)")
 
 
-def _develop_raw(path: Path, data: bytes, exif: ExifSummary, options: RawOptions, limits: SizeLimits) -> DecodedPhoto:
-    """Develop a camera RAW with LibRaw into (H, W, 3) uint16 sRGB; LibRaw applies the RAW's own flip."""
-    # rawpy loads LibRaw (a large native library); only pay for it when a RAW file shows up.
-    import rawpy
-
-    try:
-        with rawpy.imread(io.BytesIO(data)) as raw_image:
-            check_size(path, (raw_image.sizes.width, raw_image.sizes.height), limits)
-            pixels = raw_image.postprocess(**_postprocess_args(rawpy, options))
-    except (rawpy.LibRawError, rawpy.NotSupportedError) as err:
-        raise BadPhotoError(
-            path,
-            f"cannot be decoded by LibRaw ({type(err).__name__}: {_libraw_message(err)})",
-            "check that it opens in the camera maker's software; if it does, convert it to DNG "
-            "(Adobe DNG Converter) or export a 16-bit TIFF",
-        ) from err
-    if pixels.ndim == 2:
-        # Monochrome sensors come out with one channel.
-        pixels = np.repeat(pixels[:, :, np.newaxis], 3, axis=2)
-    pixels = np.ascontiguousarray(pixels, dtype=np.uint16)
-    return DecodedPhoto(
-        pixels=pixels,
-        bit_depth=16,
-        has_alpha=False,
-        exif=exif,
-        is_raw=True,
-        linear=options.linear,
-        source_size=(pixels.shape[1], pixels.shape[0]),
-    )
-
-
-def _postprocess_args(rawpy: Any, options: RawOptions) -> dict[str, Any]:
-    """Keyword arguments of ``rawpy.RawPy.postprocess`` for ``options`` (rawpy passed in: it is imported late)."""
-    args: dict[str, Any] = {
-        "output_bps": 16,
-        "output_color": rawpy.ColorSpace.sRGB,
-        "highlight_mode": getattr(rawpy.HighlightMode, _HIGHLIGHT_MODES[options.highlight_mode]),
-        # Neither flag set means LibRaw's daylight multipliers.
-        "use_camera_wb": options.white_balance == "camera",
-        "use_auto_wb": options.white_balance == "auto",
-    }
-    if options.linear:
-        args["gamma"] = (1.0, 1.0)
-        args["no_auto_bright"] = True
-    return args
-
-
-def _libraw_message(err: Exception) -> str:
-    """LibRaw's error text (rawpy passes it as bytes)."""
-    message = err.args[0] if err.args else ""
-    if isinstance(message, bytes):
-        message = message.decode("utf-8", errors="replace")
-    return str(message) or "no details"
-
-
-def _truncated(path: Path, detail: str) -> BadPhotoError:
-    return BadPhotoError(path, f"is truncated ({detail})", _RECOPY_ADVICE)
-
-
-def _check_jpeg(path: Path, data: bytes) -> None:
-    """Walk the JPEG segments by their lengths and require an end-of-image marker after the last scan.
-
-    Segments (APPn with EXIF and its thumbnail, DQT, DHT, SOF, ...) are skipped by length, so the EOI of an
-    embedded thumbnail is never mistaken for ours. After each start-of-scan the entropy-coded data runs to the
-    next real marker; progressive JPEGs have several scans, each walked in turn.
-    """
-    position = 2
-    seen_scan = False
-    while True:
-        if position + 2 > len(data):
-            raise _truncated(path, "JPEG ends before its end-of-image marker")
-        if data[position] != 0xFF:
-            # Stray bytes between segments: libjpeg skips to the next marker with a warning; so do we.
-            position = data.find(b"\xff", position)
-            if position < 0:
-                raise _truncated(path, "JPEG ends before its end-of-image marker")
-            continue
-        marker = data[position + 1]
-        if marker == 0xFF:
-            position += 1
-            continue
-        if marker == _JPEG_EOI:
-            if not seen_scan:
-                raise BadPhotoError(
-                    path, "is not a valid JPEG file (it ends before any image data)", _RECOPY_ADVICE
-                )
-            return
-        if marker in _JPEG_STANDALONE_MARKERS or marker == 0x00:
-            position += 2
-            continue
-        if position + 4 > len(data):
-            raise _truncated(path, "JPEG ends before its end-of-image marker")
-        (length,) = struct.unpack_from(">H", data, position + 2)
-        if length < 2:
-            raise BadPhotoError(
-                path, f"is not a valid JPEG file (corrupt segment at byte {position})", _RECOPY_ADVICE
-            )
-        position += 2 + length
-        if position > len(data):
-            raise _truncated(path, "JPEG ends before its end-of-image marker")
-        if marker == _JPEG_SOS:
-            seen_scan = True
-            next_marker = _JPEG_MARKER_AFTER_SCAN.search(data, position)
-            if next_marker is None:
-                raise _truncated(path, "JPEG ends before its end-of-image marker")
-            position = next_marker.start()
-
-
-def _check_png(path: Path, data: bytes) -> None:
-    """Walk the PNG chunks by their lengths up to IEND; a chunk running past the end means a cut-off file.
-
-    The image data must also be long enough for the size IHDR states: deflate shrinks data at most 1032
-    times (RFC 1951's longest match, 258 bytes, costs at least 2 bits), so shorter IDAT data cannot hold the
-    image, and libpng would print its own error line before OpenCV gives up.
-    """
-    position = len(PNG_SIGNATURE)
-    idat_bytes, raw_bytes = 0, 0
-    while True:
-        if position + 8 > len(data):
-            raise _truncated(path, "PNG ends before its IEND chunk")
-        length, chunk_type = struct.unpack_from(">I4s", data, position)
-        # PNG chunk lengths are limited to 2^31 - 1 (PNG spec 5.3).
-        if length >= 2**31:
-            raise BadPhotoError(
-                path, f"is not a valid PNG file (corrupt chunk at byte {position})", _RECOPY_ADVICE
-            )
-        if chunk_type == b"IHDR" and length >= 10 and position + 18 <= len(data):
-            width, height, bit_depth, colour_type = struct.unpack_from(">IIBB", data, position + 8)
-            channels = _PNG_CHANNELS.get(colour_type, 1)
-            raw_bytes = height * (1 + (width * channels * bit_depth + 7) // 8)  # a filter byte starts each row
-        elif chunk_type == b"IDAT":
-            idat_bytes += length
-        position += 12 + length
-        if position > len(data):
-            raise _truncated(path, f"PNG chunk {chunk_type.decode('latin-1')!r} runs past the end of the file")
-        if chunk_type == b"IEND":
-            break
-    if idat_bytes * _DEFLATE_MAX_RATIO < raw_bytes:
-        raise BadPhotoError(
-            path,
-            f"is not a valid PNG file (its {idat_bytes} bytes of image data cannot hold the "
-            f"{width}x{height} image its header states)",
-            _RECOPY_ADVICE,
-        )
-
-
-def _check_tiff(path: Path, data: bytes) -> None:
-    """Require every IFD (chain, SubIFDs, Exif IFD) and all strip / tile / thumbnail data inside the file."""
-    tiff = open_tiff(data)
-    if tiff is None:
-        # BigTIFF: left to libtiff.
-        return
-    data_end = _tiff_image_data_end(path, tiff)
-    if data_end > len(data):
-        raise _truncated(path, f"image data runs to byte {data_end} but the file has {len(data)} bytes")
-
-
-def _tiff_image_data_end(path: Path, tiff: TiffView) -> int:
-    """The largest end offset of the image data that the IFDs of ``tiff`` reference.
-
-    Raises ``BadPhotoError`` when an IFD, an offset table or any value of an image IFD (the IFD0 chain and
-    SubIFDs, which libtiff and LibRaw read in full) lies past the end of the file, i.e. the file was cut, or
-    when the first IFD is garbage. Values in the Exif IFD are metadata: a bad one there does not stop decoding.
-    """
-    data_end = 0
-    pending = [(tiff.first_ifd_offset, True)]
-    visited: set[int] = set()
-    while pending and len(visited) < _MAX_TIFF_IFDS:
-        offset, is_image_ifd = pending.pop()
-        if offset == 0 or offset in visited:
-            continue
-        visited.add(offset)
-        ifd = read_ifd(tiff, offset)
-        if ifd is None:
-            if ifd_runs_past_end(tiff, offset):
-                raise _truncated(path, f"TIFF directory at byte {offset} lies past the end of the file")
-            if offset == tiff.first_ifd_offset:
-                raise BadPhotoError(path, "is not a valid TIFF file (corrupt first directory)", _RECOPY_ADVICE)
-            # A garbage pointer to a secondary IFD (e.g. in a maker's private tags) does not stop decoding.
-            continue
-        if is_image_ifd:
-            for entry in ifd.entries.values():
-                if not entry_in_bounds(tiff, entry):
-                    raise _truncated(path, f"TIFF tag 0x{entry.tag:04X} lies past the end of the file")
-        for offsets_tag, counts_tag in _TIFF_DATA_TAGS:
-            offsets_entry, counts_entry = ifd.entries.get(offsets_tag), ifd.entries.get(counts_tag)
-            if offsets_entry is None or counts_entry is None:
-                continue
-            if not (entry_in_bounds(tiff, offsets_entry) and entry_in_bounds(tiff, counts_entry)):
-                raise _truncated(path, "TIFF strip or tile table lies past the end of the file")
-            starts = entry_ints(tiff, offsets_entry) or ()
-            sizes = entry_ints(tiff, counts_entry) or ()
-            ends = [start + size for start, size in zip(starts, sizes, strict=False) if size > 0]
-            data_end = max([data_end, *ends])
-        for pointer_tag, child_is_image_ifd in ((_TIFF_SUB_IFDS_TAG, True), (_TIFF_EXIF_IFD_TAG, False)):
-            entry = ifd.entries.get(pointer_tag)
-            children = entry_ints(tiff, entry) if entry is not None else None
-            pending.extend((child, child_is_image_ifd) for child in children or ())
-        pending.append((ifd.next_offset, is_image_ifd))
-    return data_end

@@ -22,12 +22,12 @@ from nerfpipe.geometry.cameras import CameraSet, mean_camera
 from nerfpipe.geometry.hull import Silhouettes, hull_box
 from nerfpipe.geometry.normalize import robust_box
 from nerfpipe.nerf.appearance import ExposureGains
-from nerfpipe.nerf.field import FieldConfig, NerfField
-from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
-from nerfpipe.nerf.model import Field, RadianceModel, RaySpace
-from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
+from nerfpipe.nerf.config import FieldParams, OptimParams, PerImageParams, SamplerParams, SpaceParams
+from nerfpipe.nerf.fields import Field, field_class
+from nerfpipe.nerf.model import RadianceModel, RaySpace
 from nerfpipe.nerf.refinement import PoseRefinement
-from nerfpipe.nerf.renderer import SamplingConfig
+from nerfpipe.nerf.registry import SAMPLERS, resolve
+from nerfpipe.nerf.samplers import Sampler
 from nerfpipe.nerf.trainer import TrainConfig
 
 HULL_RESOLUTION = 64  # cells a side of the visual hull that bounds the scene box
@@ -38,101 +38,56 @@ Box = tuple[tuple[float, ...], tuple[float, ...]]
 
 
 class TrainSettings(Protocol):
-    """The train parameters read here (``nerfpipe.stages.train.TrainParams`` documents each)."""
+    """The train parameters read here (``nerfpipe.stages.train.TrainParams``): its groups
+    (``nerfpipe.nerf.config``) and the schedule around them."""
 
-    # fields
-    field: str
-    depth: int
-    width: int
-    view_width: int
-    skip_after: int
-    positional_encoding: bool
-    pos_freqs: int
-    dir_freqs: int
-    include_input: bool
-    view_dependence: bool
-    density_activation: str
-    fine_network: bool
-    grid_levels: int
-    grid_min_resolution: int
-    grid_max_resolution: int
-    grid_features: int
-    grid_hidden: int
-    # sampling and ray space
-    n_coarse: int
-    n_fine: int
-    hierarchical: bool
-    lindisp: str
-    clip_to_box: bool
-    contract: str
-    occupancy: str
-    occupancy_resolution: int
-    march_steps: int
-    occupancy_threshold: float
-    early_stop: float
-    hull: str
-    hull_tolerance: float
-    # optimization
+    field: FieldParams
+    sampler: SamplerParams
+    space: SpaceParams
+    optim: OptimParams
+    per_image: PerImageParams
     steps: int
     seconds: float
-    batch_rays: int
-    batch_samples: int
-    lr: float
-    lr_final: float
-    adam_eps: float
-    adam_beta2: float
-    density_noise: str
+    seed: int
     checkpoint_every: int
     keep_checkpoints: int
-    seed: int
     autocast: str
     tf32: bool
-    # per training image
-    appearance: str
-    refine_poses: str
-    appearance_lr: float
-    pose_lr: float
-    pose_penalty: float
 
 
 def contracts(params: TrainSettings, scene: SceneDecisions) -> bool:
     """Whether space beyond the scene box is contracted (mip-NeRF 360): by default for unbounded scenes, and
     for inward 360 ones whose background is part of the scene (no backdrop colour, no alpha), since a box
     would cut off the floor and walls the photos show and train them as density inside it."""
-    if params.contract != "auto":
-        return params.contract == "true"
+    if params.space.contract != "auto":
+        return params.space.contract == "on"
     layout = scene.layout.value
     return layout == "unbounded360" or (layout == "inward360" and scene.background.value == "none")
-
-
-def field_kind(params: TrainSettings, layout: str, contracted: bool = False) -> str:
-    """The grid field needs a bounded space to hold its grids: a box, NDC's frustum or the contracted cube;
-    an unbounded scene that is not contracted trains the MLP."""
-    return "mlp" if layout == "unbounded360" and not contracted else params.field
 
 
 def density_noise(params: TrainSettings, layout: str) -> float:
     """The authors regularize real forward-facing scenes with noise of std 1 on the raw density; not synthetic
     ones. The MLP's raw density only: the grid field has no such regularizer."""
-    if params.density_noise != "auto":
-        return float(params.density_noise)
-    return 1.0 if layout == "forward" and field_kind(params, layout) == "mlp" else 0.0
+    if params.optim.density_noise != "auto":
+        return float(params.optim.density_noise)
+    return 1.0 if layout == "forward" and params.field.kind == "mlp" else 0.0
 
 
 def lindisp(params: TrainSettings, layout: str) -> bool:
     """Sample linearly in disparity: by default for unbounded scenes, whose far bound is far away."""
-    return layout == "unbounded360" if params.lindisp == "auto" else params.lindisp == "true"
+    return layout == "unbounded360" if params.sampler.lindisp == "auto" else params.sampler.lindisp == "on"
 
 
 def training_config(params: TrainSettings, layout: str) -> TrainConfig:
     """The optimization the train parameters ask for (Section 5.3), with the scene's density noise and the
     precision settings (``tf32``, ``autocast``)."""
+    o, p = params.optim, params.per_image
     return TrainConfig(
-        steps=params.steps, seconds=params.seconds, batch_rays=params.batch_rays, lr=params.lr, lr_final=params.lr_final,
-        adam_eps=params.adam_eps, adam_beta2=params.adam_beta2, batch_samples=params.batch_samples,
+        steps=params.steps, seconds=params.seconds, batch_rays=o.batch_rays, lr=o.lr, lr_final=o.lr_final,
+        adam_eps=o.adam_eps, adam_beta2=o.adam_beta2, batch_samples=o.batch_samples,
         density_noise=density_noise(params, layout), seed=params.seed, checkpoint_every=params.checkpoint_every,
         keep_checkpoints=params.keep_checkpoints, autocast=params.autocast, tf32=params.tf32,
-        appearance_lr=params.appearance_lr, pose_lr=params.pose_lr, pose_penalty=params.pose_penalty,
+        appearance_lr=p.appearance_lr, pose_lr=p.pose_lr, pose_penalty=p.pose_penalty,
     )
 
 
@@ -155,7 +110,7 @@ def build_ray_space(params: TrainSettings, scene: SceneDecisions, world: CameraS
                              ndc_size=(reference.width, reference.height), ndc_near=near_plane)
         return ray_space, (f"forward-facing: rays in NDC of the mean camera, near plane {near_plane:.3g}, "
                            "samples linear in NDC depth (near to infinity)")
-    if layout == "inward360" and params.clip_to_box:
+    if layout == "inward360" and params.space.clip_to_box:
         return RaySpace(box=scene_box(bounds)), "inward 360: world rays, each clipped to the scene box and its image's near/far"
     what = "unbounded 360: world rays over each image's near/far" if layout == "unbounded360" else "world rays over each image's near/far"
     return RaySpace(), what + (", samples linear in disparity" if lindisp(params, layout) else "")
@@ -174,45 +129,34 @@ def field_box(ray_space: RaySpace, layout: str, bounds: Bounds) -> Box | None:
     return box
 
 
-def build_fields(params: TrainSettings, layout: str, box: Box | None, device: torch.device,
-                 contracted: bool = False) -> tuple[tuple[Field, Field | None], str | None]:
-    """The coarse field and the fine one (None: the coarse one serves both): dense grids and a small MLP,
-    or the MLP of Fig. 7."""
-    if field_kind(params, layout, contracted) == "grid":
-        config = GridFieldConfig(
-            levels=params.grid_levels, min_resolution=params.grid_min_resolution,
-            max_resolution=params.grid_max_resolution, features=params.grid_features, hidden=params.grid_hidden,
-            dir_freqs=params.dir_freqs if params.positional_encoding else 0, view_dependent=params.view_dependence,
-        )
-        return (GridField(*box, config).to(device), None), (
-            f"grid field: {config.levels} levels of {config.resolutions()} cells a side, "
-            f"{config.features} features each, and a {config.hidden}-wide MLP")
-    config = FieldConfig(
-        depth=params.depth, width=params.width, skips=(params.skip_after - 1,) if params.skip_after else (),
-        view_width=params.view_width, pos_freqs=params.pos_freqs if params.positional_encoding else 0,
-        dir_freqs=params.dir_freqs if params.positional_encoding else 0, include_input=params.include_input,
-        view_dependent=params.view_dependence, density_activation=params.density_activation,
-    )
-    coarse = NerfField(config).to(device)
-    fine = NerfField(config).to(device) if params.fine_network and params.hierarchical and params.n_fine > 0 else None
-    said = "unbounded 360: the grid field needs a bounded box, so the MLP (Fig. 7) is trained" if params.field == "grid" else None
-    return (coarse, fine), said
+def build_fields(params: TrainSettings, box: Box | None, device: torch.device) -> tuple[tuple[Field, Field | None], str | None]:
+    """The coarse field and the fine one (None: the coarse one serves both), of the registered kind
+    ``field.kind`` (``nerfpipe.nerf.registry.FIELDS``). A field that spans a box falls back to the MLP of
+    Fig. 7 where the scene has none (unbounded and not contracted)."""
+    kind, said = params.field.kind, None
+    if box is None and field_class(kind).needs_box:
+        kind, said = "mlp", f"unbounded 360: the {kind} field needs a bounded box, so the MLP (Fig. 7) is trained"
+    cls = field_class(kind)
+    coarse = cls.from_params(params.field, box).to(device)
+    s = params.sampler
+    two = params.field.fine_network and s.hierarchical and s.n_fine > 0
+    fine = cls.from_params(params.field, box).to(device) if two else None
+    return (coarse, fine), said or coarse.describe()
 
 
-def build_occupancy(params: TrainSettings, layout: str, box: Box | None, device: torch.device,
-                    contracted: bool = False) -> tuple[tuple[OccupancyGrid | None, MarchingConfig | None], str | None]:
-    """Empty-space skipping (Instant-NGP): an occupancy grid over the field box and the marching through it;
-    by default with the grid field. Neither without a box: Section 5.2's sampling then."""
-    if not (params.occupancy == "true" or (params.occupancy == "auto" and field_kind(params, layout, contracted) == "grid")):
-        return (None, None), None
-    if box is None:
-        return (None, None), "no occupancy grid: an unbounded scene has no box to grid; Section 5.2's sampling instead"
-    grid = OccupancyGrid(*box, params.occupancy_resolution).to(device)
-    marching = MarchingConfig(steps=params.march_steps, threshold=params.occupancy_threshold, early_stop=params.early_stop)
-    return (grid, marching), (
-        f"empty-space skipping: a {params.occupancy_resolution}^3 occupancy grid over the field box, "
-        f"{params.march_steps} marching steps along its diagonal, rays stop at transmittance "
-        f"{params.early_stop:g} (instead of N_c + N_f samples per ray)")
+def build_sampler(params: TrainSettings, coarse: Field, box: Box | None, layout: str, ray_space: RaySpace,
+                  device: torch.device) -> tuple[Sampler, str | None]:
+    """Where rays are sampled: the registered sampler ``sampler.kind`` (``nerfpipe.nerf.registry.SAMPLERS``);
+    auto marches an occupancy grid (empty-space skipping, Instant-NGP) with a field that spans a box, and
+    samples as Section 5.2 does otherwise. Marching needs a box to grid: without one, Section 5.2's sampling."""
+    kind = params.sampler.kind
+    if kind == "auto":
+        kind = "marching" if coarse.needs_box else "hierarchical"
+    said = None
+    if kind == "marching" and box is None:
+        kind, said = "hierarchical", "no occupancy grid: an unbounded scene has no box to grid; Section 5.2's sampling instead"
+    sampler = resolve(SAMPLERS, kind).from_params(params.sampler, box, lindisp(params, layout), ray_space.contracted)
+    return sampler.to(device), said or sampler.describe()
 
 
 def build_background(scene: SceneDecisions) -> tuple[tuple[float, ...] | None, str]:
@@ -236,9 +180,10 @@ def models_appearance(params: TrainSettings, scene: SceneDecisions) -> tuple[boo
     """Whether each photo's exposure and white balance is learned (``nerfpipe.nerf.appearance``): by default
     when the scene analysis found the exposure varying (EXIF, else the brightness of the same points)."""
     varies = bool(scene.exposure_varies.value)
-    if params.appearance != "auto":
-        on = params.appearance == "on"
-        return on, f"per-image exposure and white balance {'learned' if on else 'not modelled'} (train.appearance={params.appearance})"
+    choice = params.per_image.appearance
+    if choice != "auto":
+        on = choice == "on"
+        return on, f"per-image exposure and white balance {'learned' if on else 'not modelled'} (train.per_image.appearance={choice})"
     if varies:
         return True, "exposure varies across the photos: each photo's exposure and white balance is learned " \
                      "(3 gains on linear light); renders show the photos' mean exposure"
@@ -252,9 +197,10 @@ def refines_poses(params: TrainSettings, scene: SceneDecisions, world: CameraSet
     poses whose points reproject within it: on the beer capture (COLMAP, 0.75 px) refining measured 0.2 dB
     worse and on the temple (calibrated, 0.36 px) no better, at a third more training time. Not for rendered
     captures (photos with alpha), whose poses are exact by construction."""
-    if params.refine_poses != "auto":
-        on = params.refine_poses == "on"
-        return on, f"camera poses {'refined' if on else 'kept as given'} (train.refine_poses={params.refine_poses})"
+    choice = params.per_image.refine_poses
+    if choice != "auto":
+        on = choice == "on"
+        return on, f"camera poses {'refined' if on else 'kept as given'} (train.per_image.refine_poses={choice})"
     if scene.background.value == "alpha":
         return False, "rendered capture (photos with alpha): its camera poses are exact and kept as given"
     points = world.points
@@ -266,13 +212,14 @@ def refines_poses(params: TrainSettings, scene: SceneDecisions, world: CameraSet
         return True, (f"sparse points reproject with a mean error of {error:.2f} px (> {POSE_ERROR_PX:g} px): each "
                       "training camera's pose is refined with the field (rotation and translation, centred)")
     return False, (f"sparse points reproject within {error:.2f} px on average (<= {POSE_ERROR_PX:g} px): camera poses "
-                   "kept as given (train.refine_poses=on refines them)")
+                   "kept as given (train.per_image.refine_poses=on refines them)")
 
 
 def carves(params: TrainSettings, scene: SceneDecisions, silhouettes: Silhouettes | None) -> bool:
     """Whether the visual hull of the silhouettes bounds the scene: with silhouettes (alpha, a backdrop) and
-    a scene box that is the field's box (not NDC's frustum, not a contracted space)."""
-    return (params.hull == "auto" and silhouettes is not None and scene.layout.value == "inward360"
+    a scene box that is the field's box (not NDC's frustum, not a contracted space). ``auto`` and ``on``
+    carve alike; ``on`` also says why when it cannot (``build_model``)."""
+    return (params.space.hull != "off" and silhouettes is not None and scene.layout.value == "inward360"
             and not contracts(params, scene))
 
 
@@ -284,10 +231,10 @@ def carve_scene_box(params: TrainSettings, bounds: Bounds, silhouettes: Silhouet
     ``points``: (N, 3) sparse points in the world. A mask that calls part of the object backdrop in a few
     photos would carve it away; the box never shrinks past the robust box of what SfM triangulated."""
     lo, hi = bounds.box()
-    tight = hull_box(silhouettes.hull((lo, hi), HULL_RESOLUTION, params.hull_tolerance), (lo, hi))
+    tight = hull_box(silhouettes.hull((lo, hi), HULL_RESOLUTION, params.space.hull_tolerance), (lo, hi))
     if tight is None:
         return bounds, (f"visual hull: the {len(silhouettes.masks)} silhouettes leave nothing of the scene box standing; "
-                        "the box is kept (train.hull=off turns carving off)")
+                        "the box is kept (train.space.hull=off turns carving off)")
     kept = ""
     if points is not None and len(points):
         p_lo, p_hi = robust_box(points)
@@ -318,15 +265,17 @@ def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, 
     if carves(params, scene, silhouettes):
         points = None if world.points is None else np.asarray(world.points.xyz)
         bounds, hull_said = carve_scene_box(params, bounds, silhouettes, points)
+    elif params.space.hull == "on":
+        hull_said = ("train.space.hull=on: the scene box is kept, since a visual hull needs inward 360 photos with "
+                     "silhouettes (alpha or a backdrop) and a scene box that is not contracted")
     ray_space, ray_said = build_ray_space(params, scene, world, bounds)
-    contracted = ray_space.contraction is not None
     box = field_box(ray_space, layout, bounds)
-    (coarse, fine), field_said = build_fields(params, layout, box, device, contracted)
-    (occupancy, marching), occupancy_said = build_occupancy(params, layout, box, device, contracted)
+    (coarse, fine), field_said = build_fields(params, box, device)
+    sampler, sampler_said = build_sampler(params, coarse, box, layout, ray_space, device)
     background, background_said = build_background(scene)
     noise = density_noise(params, layout)
     decisions = [
-        hull_said, ray_said, field_said, occupancy_said, background_said,
+        hull_said, ray_said, field_said, sampler_said, background_said,
         "linear RAW: trained on linear values; previews are sRGB-encoded" if scene.photometric.value == "linear_raw" else None,
         f"noise of std {noise:g} on raw density while training" if noise else None,
     ]
@@ -340,7 +289,6 @@ def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, 
         stops = [known.get(name, 0.0) for name in train_names] if known else None
         appearance = ExposureGains(len(train_names), linear, stops).to(device) if with_appearance else None
         refinement = PoseRefinement(len(train_names)).to(device) if with_refinement else None
-    sampling = SamplingConfig(params.n_coarse, params.n_fine if params.hierarchical else 0, lindisp(params, layout))
     info = {"layout": layout, "photometric": scene.photometric.value, "to_sfm": bounds.to_sfm}
-    model = RadianceModel(coarse, fine, sampling, ray_space, background, info, occupancy, marching, appearance, refinement)
+    model = RadianceModel(coarse, fine, sampler, ray_space, background, info, appearance, refinement)
     return model, [d for d in decisions if d is not None]

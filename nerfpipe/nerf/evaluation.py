@@ -17,7 +17,6 @@ from nerfpipe.nerf.appearance import apply_gains, fit_gains
 from nerfpipe.nerf.images import ImageLoader
 from nerfpipe.nerf.model import RadianceModel
 
-
 APPEARANCE_PROTOCOL = ("each held-out photo's exposure and white balance (3 gains) fitted on its left half, PSNR and "
                        "SSIM on its right half, as NeRF-W does (psnr_mean_appearance: the whole view at the training "
                        "photos' mean exposure)")

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -35,6 +36,9 @@ class NerfField(nn.Module):
     positional encoding (``pos_freqs = dir_freqs = 0``) the raw coordinates go in.
     """
 
+    kind = "mlp"
+    needs_box = False  # it takes any point
+
     def __init__(self, config: FieldConfig = FieldConfig()) -> None:
         super().__init__()
         self.config = config
@@ -52,6 +56,27 @@ class NerfField(nn.Module):
         self.feature = nn.Linear(config.width, config.width)
         self.view = nn.Linear(config.width + dir_dim, config.view_width)
         self.rgb = nn.Linear(config.view_width, 3)
+
+    @classmethod
+    def from_params(cls, params: Any, box: Any = None) -> "NerfField":
+        """From ``nerfpipe.nerf.config.FieldParams``; the MLP needs no box."""
+        return cls(FieldConfig(
+            depth=params.depth, width=params.width, skips=(params.skip_after - 1,) if params.skip_after else (),
+            view_width=params.view_width, pos_freqs=params.pos_freqs if params.positional_encoding else 0,
+            dir_freqs=params.dir_freqs if params.positional_encoding else 0, include_input=params.include_input,
+            view_dependent=params.view_dependence, density_activation=params.density_activation,
+        ))
+
+    @classmethod
+    def from_spec(cls, spec: dict[str, Any]) -> "NerfField":
+        return cls(FieldConfig(**{**spec["field"], "skips": tuple(spec["field"]["skips"])}))
+
+    def spec(self) -> dict[str, Any]:
+        return {"field": asdict(self.config)}
+
+    def describe(self) -> None:
+        """The paper's field needs no sentence in the train log."""
+        return None
 
     def density_activation(self, raw: Tensor) -> Tensor:
         if self.config.density_activation == "softplus":

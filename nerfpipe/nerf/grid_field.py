@@ -16,13 +16,15 @@ contiguous row: a forward pass is ``index_select`` of rows, the backward pass ``
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from typing import Any
 
 import torch
 from torch import Tensor, nn
 
 from nerfpipe.nerf.encoding import encoded_size, positional_encoding
 
+Box = tuple[tuple[float, ...], tuple[float, ...]]
 MAX_LOG_DENSITY = 15.0  # exp(15) = 3.3e6: opaque within 1e-6 of any step, and no overflow
 
 
@@ -108,6 +110,32 @@ class GridField(nn.Module):
 
     Points outside the box have density 0 (the box is the scene: the scene box, or NDC's frustum).
     """
+
+    kind = "grid"
+    needs_box = True  # its grids span a bounded box
+
+    @classmethod
+    def from_params(cls, params: Any, box: Box | None) -> "GridField":
+        """From ``nerfpipe.nerf.config.FieldParams``."""
+        config = GridFieldConfig(
+            levels=params.levels, min_resolution=params.min_resolution, max_resolution=params.max_resolution,
+            features=params.features, hidden=params.hidden,
+            dir_freqs=params.dir_freqs if params.positional_encoding else 0, view_dependent=params.view_dependence,
+        )
+        return cls(*box, config)
+
+    @classmethod
+    def from_spec(cls, spec: dict[str, Any]) -> "GridField":
+        lo, hi = spec["field_box"]
+        return cls(tuple(lo), tuple(hi), GridFieldConfig(**spec["field"]))
+
+    def spec(self) -> dict[str, Any]:
+        return {"field": asdict(self.config), "field_box": [self.lo.tolist(), self.hi.tolist()]}
+
+    def describe(self) -> str:
+        c = self.config
+        return f"grid field: {c.levels} levels of {c.resolutions()} cells a side, {c.features} features each, " \
+               f"and a {c.hidden}-wide MLP"
 
     def __init__(self, lo: tuple[float, ...], hi: tuple[float, ...], config: GridFieldConfig = GridFieldConfig()) -> None:
         super().__init__()

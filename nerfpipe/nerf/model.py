@@ -1,6 +1,7 @@
-"""A trained radiance field with everything needed to render it: fields, sampling, background and the
-ray space the scene analysis chose (world rays clipped to the scene box, or NDC rays). Saved as
-``model.pt`` (tensors only, loadable with ``torch.load(..., weights_only=True)``) and ``model.json``."""
+"""A trained radiance field with everything needed to render it: fields, a sampler, background and the
+ray space the scene analysis chose (world rays clipped to the scene box, NDC rays, or contracted space).
+Saved as ``model.pt`` (tensors only, loadable with ``torch.load(..., weights_only=True)``) and
+``model.json`` (each part's kind and spec, rebuilt through ``nerfpipe.nerf.registry``)."""
 
 from __future__ import annotations
 
@@ -16,12 +17,12 @@ from torch import Tensor
 
 from nerfpipe.nerf.appearance import ExposureGains
 from nerfpipe.nerf.contraction import BOUND, Contraction
-from nerfpipe.nerf.field import FieldConfig, NerfField
-from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
-from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid, render_marched_segments
+from nerfpipe.nerf.fields import Field, field_spec, load_field
 from nerfpipe.nerf.rays import camera_rays, intersect_box, ndc_points, ndc_points_inverse, ndc_rays, pixel_centers
 from nerfpipe.nerf.refinement import PoseRefinement
-from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
+from nerfpipe.nerf.registry import SAMPLERS, resolve
+from nerfpipe.nerf.renderer import RayBatch
+from nerfpipe.nerf.samplers import Sampler
 
 
 @dataclass(frozen=True)
@@ -128,37 +129,30 @@ class RaySpace:
         return self.box
 
 
-Field = NerfField | GridField
-
-
 @dataclass
 class RadianceModel:
-    """Coarse (and fine) fields plus how to sample and composite them.
+    """Coarse (and fine) fields, the sampler that says where along each ray to evaluate them, the background
+    they are composited onto, and the ray space the scene analysis chose.
 
-    With an ``occupancy`` grid (and its ``marching`` settings), rays march through the grid's occupied
-    cells (``nerfpipe.nerf.occupancy``) and ``coarse`` is the only field; otherwise they are sampled as in
-    Section 5.2 (``sampling``: N_c stratified, N_f hierarchical).
-
-    Learned per training image when the scene calls for them (``nerfpipe.nerf.assembly``): ``appearance``,
-    each photo's exposure and white balance (renders show the training photos' mean appearance), and
-    ``refinement``, each camera's pose correction.
+    ``sampler``: ``nerfpipe.nerf.samplers`` (Section 5.2's hierarchical sampling, or marching an occupancy
+    grid with the coarse field only). Learned per training image when the scene calls for them
+    (``nerfpipe.nerf.assembly``): ``appearance``, each photo's exposure and white balance (renders show the
+    training photos' mean appearance), and ``refinement``, each camera's pose correction.
     """
 
     coarse: Field
     fine: Field | None
-    sampling: SamplingConfig
+    sampler: Sampler
     ray_space: RaySpace
     background: tuple[float, float, float] | None
     info: dict[str, Any] = field(default_factory=dict)
-    occupancy: OccupancyGrid | None = None
-    marching: MarchingConfig | None = None
     appearance: ExposureGains | None = None
     refinement: PoseRefinement | None = None
 
     @property
     def field_kind(self) -> str:
-        """``grid`` (dense grids and a small MLP) or ``mlp`` (Fig. 7)."""
-        return "grid" if isinstance(self.coarse, GridField) else "mlp"
+        """The field's name in the registry (``grid``: dense grids and a small MLP; ``mlp``: Fig. 7)."""
+        return self.coarse.kind
 
     def fields(self) -> list[Field]:
         return [self.coarse] + ([self.fine] if self.fine is not None else [])
@@ -184,22 +178,15 @@ class RadianceModel:
         for f in self.fields():
             f.eval()
         coarse, fine = self.world_field(self.coarse), None if self.fine is None else self.world_field(self.fine)
-        if self.occupancy is None:
-            out = render_chunked(coarse, fine, rays, self.sampling, self.background_tensor(), chunk)
-            s = self.sampling
-            out["samples"] = torch.tensor(float(s.n_coarse + (s.n_coarse + s.n_fine if s.n_fine else 0)))
-            return out
         parts: dict[str, list[Tensor]] = {"rgb": [], "depth": [], "disparity": [], "acc": []}
         evaluated = 0
         background = self.background_tensor()
-        for start in range(0, len(rays), chunk):
-            r = rays.slice(start, start + chunk)
-            out, n = render_marched_segments(coarse, r.origins, r.directions, r.viewdirs, r.near, r.far,
-                                             self.occupancy, self.marching, background,
-                                             contraction=self.ray_space.contracted)
-            evaluated += n
-            for key in parts:
-                parts[key].append(out[key])
+        with torch.no_grad():
+            for start in range(0, len(rays), chunk):
+                out, n = self.sampler.render(coarse, fine, rays.slice(start, start + chunk), background)
+                evaluated += n
+                for key in parts:
+                    parts[key].append(out[key])
         result = {key: torch.cat(values) if values else torch.zeros(0) for key, values in parts.items()}
         result["samples"] = torch.tensor(evaluated / max(len(rays), 1))
         return result
@@ -238,40 +225,28 @@ class RadianceModel:
         return {key: value.reshape(shapes.get(key, (height, width))).cpu() for key, value in out.items()}
 
     # -- files ---------------------------------------------------------------------------------
+    def parts(self) -> dict[str, Any]:
+        """Every part with tensors, by the name its state is saved under."""
+        named = {"coarse": self.coarse, "fine": self.fine, "occupancy": self.sampler, "appearance": self.appearance,
+                 "refinement": self.refinement}
+        return {name: part for name, part in named.items() if part is not None}
+
     def state(self) -> dict[str, Any]:
-        """Every tensor of the model: the fields' weights and the occupancy grid."""
-        weights = {"coarse": self.coarse.state_dict()}
-        if self.fine is not None:
-            weights["fine"] = self.fine.state_dict()
-        if self.occupancy is not None:
-            weights["occupancy"] = self.occupancy.state_dict()
-        for name in ("appearance", "refinement"):
-            if getattr(self, name) is not None:
-                weights[name] = getattr(self, name).state_dict()
-        return weights
+        """Every tensor of the model: the fields' weights, the sampler's state (an occupancy grid), the
+        per-image parts; parts without tensors are left out."""
+        return {name: state for name, part in self.parts().items() if (state := part.state_dict())}
 
     def load_state(self, weights: dict[str, Any]) -> None:
-        self.coarse.load_state_dict(weights["coarse"])
-        if self.fine is not None:
-            self.fine.load_state_dict(weights["fine"])
-        if self.occupancy is not None:
-            self.occupancy.load_state_dict(weights["occupancy"])
-        for name in ("appearance", "refinement"):
-            if getattr(self, name) is not None:
-                getattr(self, name).load_state_dict(weights[name])
+        for name, part in self.parts().items():
+            if part.state_dict():
+                part.load_state_dict(weights[name])
 
     def save(self, folder: Path) -> None:
         torch.save(self.state(), folder / "model.pt")
-        grid = self.field_kind == "grid"
         doc = {
-            "field_kind": self.field_kind,
-            "field": asdict(self.coarse.config),
-            "field_box": [self.coarse.lo.tolist(), self.coarse.hi.tolist()] if grid else None,
+            "field": field_spec(self.coarse),
             "fine_network": self.fine is not None,
-            "occupancy": None if self.occupancy is None else {
-                "resolution": self.occupancy.resolution, "box": [self.occupancy.lo.tolist(), self.occupancy.hi.tolist()],
-                "marching": asdict(self.marching)},
-            "sampling": asdict(self.sampling),
+            "sampler": {"kind": self.sampler.kind, **self.sampler.spec()},
             "ray_space": asdict(self.ray_space),
             "background": None if self.background is None else list(self.background),
             "appearance": None if self.appearance is None else {
@@ -283,22 +258,11 @@ class RadianceModel:
 
     @staticmethod
     def load(folder: Path, device: torch.device | str = "cpu") -> "RadianceModel":
+        """The model ``save`` wrote: every part rebuilt from model.json through the registry, then its weights."""
         doc = json.loads((folder / "model.json").read_text())
         weights = torch.load(folder / "model.pt", map_location=device, weights_only=True)
-
-        def make_field() -> Field:
-            if doc.get("field_kind", "mlp") == "grid":
-                lo, hi = doc["field_box"]
-                return GridField(tuple(lo), tuple(hi), GridFieldConfig(**doc["field"])).to(device)
-            return NerfField(field_config_from_json(doc["field"])).to(device)
-
-        coarse = make_field()
-        fine = make_field() if doc["fine_network"] else None
-        occupancy = marching = None
-        if doc.get("occupancy"):
-            occ = doc["occupancy"]
-            occupancy = OccupancyGrid(tuple(occ["box"][0]), tuple(occ["box"][1]), occ["resolution"]).to(device)
-            marching = MarchingConfig(**occ["marching"])
+        coarse = load_field(doc["field"]).to(device)
+        fine = load_field(doc["field"]).to(device) if doc["fine_network"] else None
         rs = doc["ray_space"]
         ray_space = RaySpace(
             ndc=rs["ndc"],
@@ -307,15 +271,11 @@ class RadianceModel:
             box=None if rs["box"] is None else (tuple(rs["box"][0]), tuple(rs["box"][1])),
             contraction=None if rs.get("contraction") is None else (tuple(rs["contraction"][0]), tuple(rs["contraction"][1])),
         )
+        sampler = resolve(SAMPLERS, doc["sampler"]["kind"]).from_spec(doc["sampler"], ray_space.contracted).to(device)
         background = None if doc["background"] is None else tuple(doc["background"])
         appearance = None if not doc.get("appearance") else \
             ExposureGains(doc["appearance"]["images"], doc["appearance"]["linear"]).to(device)
         refinement = None if not doc.get("refinement") else PoseRefinement(doc["refinement"]["images"]).to(device)
-        model = RadianceModel(coarse, fine, SamplingConfig(**doc["sampling"]), ray_space, background, doc.get("info", {}),
-                              occupancy, marching, appearance, refinement)
+        model = RadianceModel(coarse, fine, sampler, ray_space, background, doc.get("info", {}), appearance, refinement)
         model.load_state(weights)
         return model
-
-
-def field_config_from_json(d: dict[str, Any]) -> FieldConfig:
-    return FieldConfig(**{**d, "skips": tuple(d["skips"])})

@@ -7,7 +7,6 @@ import copy
 import json
 import logging
 import math
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,12 +15,11 @@ from typing import Callable
 import torch
 from torch import Tensor
 
+from nerfpipe.nerf.checkpoints import load_latest_checkpoint, save_checkpoint
 from nerfpipe.nerf.model import Field, RadianceModel
-from nerfpipe.nerf.occupancy import cells_seen, render_marched
-from nerfpipe.nerf.renderer import render_rays
+from nerfpipe.nerf.stall import StallGuard, mean_colour_psnr, mse_to_psnr
 
 log = logging.getLogger("nerfpipe.nerf.trainer")
-CHECKPOINT_GLOB = "step_*.pt"
 
 
 @dataclass(frozen=True)
@@ -71,11 +69,6 @@ class PixelSet:
         return PixelSet(*(None if getattr(self, k) is None else getattr(self, k).to(device) for k in self.FIELDS))
 
 
-def mse_to_psnr(mse: float) -> float:
-    """PSNR in dB of images in [0, 1] from their mean squared error."""
-    return -10.0 * math.log10(max(mse, 1e-12))
-
-
 def learning_rate(config: TrainConfig, progress: float) -> float:
     """lr * (lr_final / lr)^progress: exponential decay from lr to lr_final (Section 5.3), ``progress`` the share
     of training done (step / steps, or elapsed / seconds for a time budget)."""
@@ -99,78 +92,6 @@ def parameter_groups(model: RadianceModel, config: TrainConfig) -> list[dict]:
     for group in groups:
         group["lr"] = group["base_lr"]
     return groups
-
-
-def checkpoints(folder: Path) -> list[Path]:
-    return sorted(folder.glob(CHECKPOINT_GLOB), key=lambda p: int(p.stem.split("_")[1]))
-
-
-def save_checkpoint(folder: Path, step: int, elapsed: float, model: RadianceModel, optimizer: torch.optim.Optimizer,
-                    keep: int, extra: dict | None = None) -> Path:
-    """Write ``step_<n>.pt`` atomically (a killed write leaves only a temp file), then prune old ones."""
-    folder.mkdir(parents=True, exist_ok=True)
-    state = {"step": step, "elapsed": elapsed, **model.state(), "optimizer": optimizer.state_dict(), **(extra or {})}
-    path = folder / f"step_{step:07d}.pt"
-    tmp = folder / f".{path.name}.tmp"
-    torch.save(state, tmp)
-    with open(tmp, "rb") as f:
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    if keep > 0:
-        for old in checkpoints(folder)[:-keep]:
-            old.unlink()
-    return path
-
-
-def load_latest_checkpoint(folder: Path, device: torch.device) -> dict | None:
-    """The newest checkpoint that loads (tensors only: ``weights_only=True``), or None."""
-    for path in reversed(checkpoints(folder)):
-        try:
-            return torch.load(path, map_location=device, weights_only=True)
-        except Exception as err:  # a damaged file: fall back to the one before
-            log.warning("checkpoint %s is unreadable (%s); trying the one before", path.name, err)
-    return None
-
-
-def mean_colour_psnr(rgb: Tensor) -> float:
-    """PSNR of a render that is the training pixels' mean colour everywhere (rgb: (P, 3)): the level a
-    training that learns nothing of the scene settles at."""
-    return mse_to_psnr(float(((rgb - rgb.mean(dim=0)) ** 2).mean()))
-
-
-@dataclass
-class StallGuard:
-    """Tells a training that learns nothing: one whose batch PSNR (an exponential moving average, weight
-    ``smoothing`` per step) is within ``margin_db`` of the mean-colour level at ``check_step``.
-
-    The first time, the trainer restarts from its initial weights with a fresh occupancy grid and half the
-    learning rate (a diverged optimizer or an occupancy grid that lost the scene recover that way); a stall
-    that outlasts the restart, or one found at the last step, is reported and left as it is.
-    """
-
-    floor_db: float  # the mean-colour level
-    check_step: int
-    margin_db: float = 1.0
-    smoothing: float = 0.1
-    ema: float | None = None
-    restarted_at: int | None = None
-    stalled: bool = False
-
-    def observe(self, step: int, psnr: float, last: bool) -> str:
-        """After ``step``: "restart", "stalled" (the first time a stall is found and no restart is left) or "ok"."""
-        self.ema = psnr if self.ema is None else (1 - self.smoothing) * self.ema + self.smoothing * psnr
-        due = last or step == self.check_step or (self.restarted_at is not None and step == self.restarted_at + self.check_step)
-        if not due or self.stalled or self.ema > self.floor_db + self.margin_db:
-            return "ok"
-        if self.restarted_at is None and not last:
-            self.restarted_at, self.ema = step, None
-            return "restart"
-        self.stalled = True
-        return "stalled"
-
-    def report(self) -> dict:
-        return {"mean_colour_psnr": round(self.floor_db, 3), "batch_psnr_ema": None if self.ema is None else round(self.ema, 3),
-                "restarted_at": self.restarted_at, "stalled": self.stalled}
 
 
 def set_precision(config: TrainConfig, device: torch.device) -> None:
@@ -210,9 +131,9 @@ class Trainer:
         self.total_samples = 0
         self.total_rays = 0
         self.lr_scale = 1.0  # halved by a restart after a stall
-        if model.occupancy is not None and not model.ray_space.ndc:  # NDC's frustum is the cameras' view by design
-            px = self.pixels
-            model.occupancy.restrict_to(cells_seen(model.occupancy, model.ray_space.from_field, px.intrinsics, px.c2w))
+        # NDC's frustum is the cameras' view by design: nothing there to restrict to what they see
+        model.sampler.start(None if model.ray_space.ndc else model.ray_space.from_field, self.pixels.intrinsics,
+                            self.pixels.c2w)
         check = 200 if config.steps <= 0 else min(max(200, config.steps // 8), config.steps)
         self.guard = StallGuard(mean_colour_psnr(self.pixels.rgb), check_step=check)
         self._initial = copy.deepcopy(model.state())
@@ -254,15 +175,11 @@ class Trainer:
         index = torch.randint(self.pixels.rgb.shape[0], (int(self.rays_per_batch),), generator=generator, device=self.device)
         return index, generator
 
-    def update_occupancy(self, step: int, generator: torch.Generator) -> None:
-        """Refresh the occupancy grid from the field's density every ``update_every`` steps."""
-        grid, marching = self.model.occupancy, self.model.marching
-        if grid is None or step % marching.update_every:
-            return
+    def before_step(self, step: int, generator: torch.Generator) -> None:
+        """Let the sampler catch up with the field (an occupancy grid refreshed from its density)."""
         was_training = self.model.coarse.training
         self.model.coarse.eval()
-        grid.update(self.model.coarse.query_density, grid.diagonal / marching.steps, marching.threshold,
-                    step < marching.warmup, generator)
+        self.model.sampler.before_step(step, self.model.coarse.query_density, generator)
         self.model.coarse.train(was_training)
 
     def train_step(self, step: int) -> tuple[float, float]:
@@ -276,7 +193,6 @@ class Trainer:
         target, backdrop = self.backdrop_targets(index, px.rgb[index], generator)
         if backdrop is None:
             backdrop = self.background
-        background = None  # the renders are composited onto it below, after the photos' exposure
         noise = self.config.density_noise
 
         def field(fn: Field) -> Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]:
@@ -292,27 +208,19 @@ class Trainer:
             ramp = 1.0 if not warmup else min(max((progress - warmup) / warmup, 0.0), 1.0)
             group["lr"] = group["base_lr"] * decay ** group.get("decay_power", 1.0) * self.lr_scale * ramp
         with _autocast(self.device, self.config.autocast):
-            if model.occupancy is not None:
-                self.update_occupancy(step, generator)
-                # a grid update can make every ray longer at once: at most twice the samples wanted, whatever
-                # the number of rays drawn
-                final, self.samples = render_marched(
-                    field(model.coarse), model.world_density(model.coarse), rays.origins, rays.directions,
-                    rays.viewdirs, rays.near, rays.far, model.occupancy, model.marching, background, True,
-                    generator, max_samples=2 * self.config.batch_samples, contraction=model.ray_space.contracted)
-                out = {"coarse": final}
-                self.rays = len(final.rgb)
-                target = target[:self.rays]
-                if self.config.batch_samples > 0:  # Instant-NGP: keep the samples per batch about constant
-                    per_ray = max(self.samples / self.rays, 1.0)
-                    wanted = min(max(self.config.batch_samples / per_ray, 256.0), 16.0 * self.config.batch_rays)
-                    # grow smoothly; shrink at once, since a batch too large costs time and memory
-                    self.rays_per_batch = min(0.8 * self.rays_per_batch + 0.2 * wanted, wanted)
-            else:
-                out = render_rays(field(model.coarse), None if model.fine is None else field(model.fine),
-                                  rays, model.sampling, background, randomized=True, generator=generator)
-                self.samples = self.samples_per_step(len(index))
-                self.rays = len(index)
+            self.before_step(step, generator)
+            # a grid update can make every ray longer at once: at most twice the samples wanted, whatever the
+            # number of rays drawn (a sampler whose cost per ray is fixed ignores the bound)
+            out, self.samples = model.sampler.render_train(
+                field(model.coarse), None if model.fine is None else field(model.fine), model.world_density(model.coarse),
+                rays, generator, 2 * self.config.batch_samples)
+            self.rays = len(out["coarse"].rgb)
+            target = target[:self.rays]
+            if self.config.batch_samples > 0 and model.sampler.adaptive:  # Instant-NGP: samples per batch about constant
+                per_ray = max(self.samples / self.rays, 1.0)
+                wanted = min(max(self.config.batch_samples / per_ray, 256.0), 16.0 * self.config.batch_rays)
+                # grow smoothly; shrink at once, since a batch too large costs time and memory
+                self.rays_per_batch = min(0.8 * self.rays_per_batch + 0.2 * wanted, wanted)
         if backdrop is not None and backdrop.dim() == 2:
             backdrop = backdrop[:self.rays]
         for c in out.values():
@@ -353,8 +261,7 @@ class Trainer:
     def restart(self) -> None:
         """Back to the initial weights with a fresh occupancy grid and optimizer, at half the learning rate."""
         self.model.load_state(copy.deepcopy(self._initial))
-        if self.model.occupancy is not None:
-            self.model.occupancy.reset()
+        self.model.sampler.reset()
         self.optimizer.state.clear()
         self.lr_scale *= 0.5
         self.rays_per_batch = float(self.config.batch_rays)
@@ -371,13 +278,6 @@ class Trainer:
             log.warning("train: batch PSNR %.1f dB is still at the level of a render in the mean colour (%.1f dB) at "
                         "step %d: the renders will be close to one flat colour; check the poses and the scene "
                         "decisions (nerfpipe status)", self.guard.ema, floor, self.step)
-
-    def samples_per_step(self, rays: int | None = None) -> int:
-        """Field evaluations of a step of ``rays`` rays with Section 5.2's sampling: N_c, then N_c + N_f."""
-        s = self.model.sampling
-        coarse = s.n_coarse
-        fine = s.n_coarse + s.n_fine if s.n_fine > 0 else 0
-        return (self.config.batch_rays if rays is None else rays) * (coarse + fine)
 
     def progress(self, step: int | None = None) -> float:
         """The share of training done: step / steps, or with a time budget elapsed / seconds."""
@@ -440,8 +340,9 @@ class Trainer:
                               "samples_per_ray": round(window_samples / max(window_rays, 1), 2),
                               "rays_per_batch": rays}
                     window_start, window_steps, window_samples, window_rays = self.elapsed, 0, 0, 0
-                    if self.model.occupancy is not None:
-                        record["occupancy"] = round(self.model.occupancy.occupancy(), 4)
+                    occupied = self.model.sampler.occupied_share()
+                    if occupied is not None:
+                        record["occupancy"] = round(occupied, 4)
                     metrics.write(json.dumps(record) + "\n")
                     metrics.flush()
                     units = self.total if last else self.done_units()

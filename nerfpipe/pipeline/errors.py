@@ -8,6 +8,7 @@ Any other exception is a bug in nerfpipe and is shown with its traceback.
 from __future__ import annotations
 
 import errno
+import shutil
 from pathlib import Path
 
 
@@ -91,3 +92,20 @@ def os_error_to_user_error(err: OSError, where: Path | str) -> NerfpipeError | N
     if err.errno == errno.EROFS:
         return InputError(where, "is on a read-only filesystem", "pass --out a folder on a writable disk")
     return None
+
+
+DISK_NEARLY_FULL = 1 << 20  # bytes: a stage failing with less than this left is taken to have filled the disk
+
+
+def disk_full(err: BaseException, work: Path, run_dir: Path, stage: str) -> DiskFullError | None:
+    """``DiskFullError`` if ``err`` came from a full disk: ENOSPC, or any failure (libraries that write
+    natively, like torch.save, raise their own errors) while the disk has less than a MiB left."""
+    if isinstance(err, OSError) and err.errno in DISK_FULL_ERRNOS:
+        return DiskFullError(run_dir, stage=stage)
+    if not isinstance(err, Exception):
+        return None
+    try:
+        free = shutil.disk_usage(work if work.exists() else run_dir).free
+    except OSError:
+        return None
+    return DiskFullError(run_dir, stage=stage) if free < DISK_NEARLY_FULL else None

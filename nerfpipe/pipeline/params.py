@@ -4,12 +4,21 @@ A stage's parameters are a frozen dataclass. Each field may carry ``metadata={"h
 ``Literal[...]`` annotation lists the allowed values; ``__post_init__`` may raise ``ValueError`` for
 values out of range. Overrides arrive as text from the command line or as Python values from the API,
 and are checked and converted here, so a stage only ever sees valid, typed values.
+
+A field whose type is itself a parameter dataclass is a group, named with dots: ``train.field.levels``
+is the ``levels`` of the ``field`` group of ``train``'s parameters. Presets and overrides name every
+parameter by its dotted path. Every switch is an ``Auto`` (``auto``, ``on`` or ``off``). A params class
+may map retired names to their new paths in ``ALIASES`` (``{"grid_levels": "field.levels"}``); they and
+the retired switch spellings (``true``, ``false``, ``yes``, ``no``) still work, with a deprecation
+message.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import difflib
+import logging
+import math
 import types
 import typing
 from dataclasses import dataclass
@@ -17,9 +26,20 @@ from typing import Any, Literal, Mapping
 
 from nerfpipe.pipeline.errors import ParamError
 
+log = logging.getLogger("nerfpipe")
+
+Auto = Literal["auto", "on", "off"]  # every switch: decided from the data, or forced on or off
+
 _TRUE = {"1", "true", "yes", "on"}
 _FALSE = {"0", "false", "no", "off"}
 _NONE = {"none", "null"}
+
+
+def param(default: Any, help: str) -> Any:
+    """A parameter field with its default and the help text ``nerfpipe stages`` and docs/parameters.md show."""
+    if dataclasses.is_dataclass(default):
+        return dataclasses.field(default_factory=lambda: default, metadata={"help": help})
+    return dataclasses.field(default=default, metadata={"help": help})
 
 
 @dataclass(frozen=True)
@@ -46,17 +66,59 @@ class ParamSpec:
         return f"{name} or none" if optional else name
 
 
-def param_specs(params_cls: type) -> list[ParamSpec]:
+def is_group(tp: Any) -> bool:
+    """Whether a field of this type is a group of parameters (a nested parameter dataclass)."""
+    return isinstance(tp, type) and dataclasses.is_dataclass(tp)
+
+
+def param_specs(params_cls: type, prefix: str = "") -> list[ParamSpec]:
+    """Every parameter of ``params_cls``, groups flattened into dotted names, in declaration order."""
     hints = typing.get_type_hints(params_cls)
     specs = []
     for f in dataclasses.fields(params_cls):
+        if is_group(hints[f.name]):
+            specs.extend(param_specs(hints[f.name], f"{prefix}{f.name}."))
+            continue
         default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
-        specs.append(ParamSpec(f.name, hints[f.name], default, f.metadata.get("help", "")))
+        specs.append(ParamSpec(prefix + f.name, hints[f.name], default, f.metadata.get("help", "")))
     return specs
 
 
 def params_to_dict(params: Any) -> dict[str, Any]:
     return dataclasses.asdict(params)
+
+
+def flatten(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A nested parameter dictionary (``params_to_dict``) as dotted names -> values."""
+    flat: dict[str, Any] = {}
+    for name, value in values.items():
+        if isinstance(value, Mapping):
+            flat.update(flatten(value, f"{prefix}{name}."))
+        else:
+            flat[prefix + name] = value
+    return flat
+
+
+def _deprecated(message: str, _said: set[str] = set()) -> None:
+    """Say ``message`` once per process (parameters are built more than once in a run)."""
+    if message not in _said:
+        _said.add(message)
+        log.warning("%s", message)
+
+
+def _instantiate(params_cls: type, values: Mapping[str, Any]) -> Any:
+    """``params_cls`` from typed dotted values, its groups built from theirs (a group's __post_init__ runs first)."""
+    hints = typing.get_type_hints(params_cls)
+    kwargs: dict[str, Any] = {}
+    for f in dataclasses.fields(params_cls):
+        if is_group(hints[f.name]):
+            head = f.name + "."
+            inner = {name[len(head):]: v for name, v in values.items() if name.startswith(head)}
+            if inner:
+                kwargs[f.name] = _instantiate(hints[f.name], inner)
+        elif f.name in values:
+            kwargs[f.name] = values[f.name]
+    return params_cls(**kwargs)
 
 
 def _strip_optional(tp: Any) -> tuple[Any, bool]:
@@ -78,6 +140,12 @@ def coerce(value: Any, tp: Any, qualname: str) -> Any:
         for choice in choices:
             if value == choice or (isinstance(value, str) and value.strip() == str(choice)):
                 return choice
+        if {"on", "off"} <= set(choices):  # a switch: the spellings it had before Auto
+            text = str(value).strip().lower()
+            if text in _TRUE | _FALSE:
+                new = "on" if text in _TRUE else "off"
+                _deprecated(f"{qualname}={value}: the switches now read auto, on or off; taken as {qualname}={new}")
+                return new
         allowed = ", ".join(str(c) for c in choices)
         raise ParamError(f"{qualname}: {value!r} is not one of {allowed}")
     if inner is bool:
@@ -96,12 +164,15 @@ def coerce(value: Any, tp: Any, qualname: str) -> Any:
         except ValueError:
             raise ParamError(f"{qualname}: expected an integer, got {value!r}") from None
     if inner is float:
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
         try:
-            return float(str(value).strip())
+            if isinstance(value, bool):
+                raise ValueError
+            number = float(value) if isinstance(value, (int, float)) else float(str(value).strip())
         except ValueError:
             raise ParamError(f"{qualname}: expected a number, got {value!r}") from None
+        if not math.isfinite(number):
+            raise ParamError(f"{qualname}: expected a finite number, got {value!r}")
+        return number
     if inner is str:
         return str(value)
     raise TypeError(f"{qualname}: unsupported parameter type {tp!r}")  # a bug in the stage, not user error
@@ -114,12 +185,23 @@ def build_params(
     preset: str | None,
     overrides: Mapping[str, Any],
 ) -> Any:
-    """Defaults, then the named preset (if this stage has it), then overrides; checked and typed."""
+    """Defaults, then the named preset (if this stage has it), then overrides; checked and typed.
+
+    Parameters are named by their dotted paths (``field.levels``); a retired name in the params class's
+    ``ALIASES`` is taken as its new path (and, where the alias is ``(path, {old value: new value})``, its
+    value translated), with a deprecation message."""
     specs = {s.name: s for s in param_specs(params_cls)}
+    aliases: Mapping[str, str] = getattr(params_cls, "ALIASES", {})
     values: dict[str, Any] = {}
     if preset is not None and preset in presets:
         values.update(presets[preset])
     for name, raw in overrides.items():
+        if name not in specs and name in aliases:
+            new, values_of = aliases[name] if isinstance(aliases[name], tuple) else (aliases[name], {})
+            text = str(raw).strip().lower()
+            shown = f"{stage}.{new}" + (f"={values_of[text]}" if text in values_of else "")
+            _deprecated(f"{stage}.{name} is now {shown}; the old name still works for now")
+            name, raw = new, values_of.get(text, raw)
         if name not in specs:
             close = difflib.get_close_matches(name, list(specs), n=1)
             hint = f"did you mean {stage}.{close[0]}?" if close else f"{stage} has: {', '.join(specs)}"
@@ -127,9 +209,25 @@ def build_params(
         values[name] = raw
     typed = {name: coerce(v, specs[name].type, f"{stage}.{name}") for name, v in values.items()}
     try:
-        return params_cls(**typed)
+        return _instantiate(params_cls, typed)
     except ValueError as err:
         raise ParamError(f"{stage}: {err}") from None
+
+
+def override(params: Any, values: Mapping[str, Any]) -> Any:
+    """``params`` with the parameters named by dotted paths in ``values`` replaced (Python values, unchecked
+    beyond each dataclass's own ``__post_init__``)."""
+    own: dict[str, Any] = {}
+    groups: dict[str, dict[str, Any]] = {}
+    for name, value in values.items():
+        head, dot, rest = name.partition(".")
+        if dot:
+            groups.setdefault(head, {})[rest] = value
+        else:
+            own[name] = value
+    for head, inner in groups.items():
+        own[head] = override(getattr(params, head), inner)
+    return dataclasses.replace(params, **own)
 
 
 def parse_assignments(assignments: list[str]) -> dict[str, dict[str, str]]:
@@ -145,7 +243,8 @@ def parse_assignments(assignments: list[str]) -> dict[str, dict[str, str]]:
 
 
 def describe_changes(stage: str, old: Mapping[str, Any], new: Mapping[str, Any]) -> list[str]:
-    """``["ingest.max_size 1600 -> 800", ...]`` for every parameter whose value differs."""
+    """``["ingest.max_size 1600 -> 800", ...]`` for every parameter whose value differs (groups by dotted name)."""
+    old, new = flatten(old), flatten(new)
     changes = []
     for name in sorted(set(old) | set(new)):
         if old.get(name, "<unset>") != new.get(name, "<unset>"):

@@ -9,127 +9,42 @@ the input files.
 from __future__ import annotations
 
 import contextlib
-import importlib.metadata
 import json
 import logging
-import os
-import platform
 import shutil
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Literal, Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 from nerfpipe.pipeline.dag import Dag
 from nerfpipe.pipeline.errors import (
-    DISK_FULL_ERRNOS,
     DiskFullError,
     InputError,
     NerfpipeError,
     ParamError,
     UpstreamNotReadyError,
+    disk_full,
     os_error_to_user_error,
 )
-from nerfpipe.pipeline.fingerprint import Fingerprint, FingerprintCache, diff_inputs
+from nerfpipe.pipeline.fingerprint import FingerprintCache
 from nerfpipe.pipeline.hashing import cache_key
 from nerfpipe.pipeline.lock import RunLock, StageLock
-from nerfpipe.pipeline.params import build_params, describe_changes, params_to_dict
+from nerfpipe.pipeline.logfile import log_to_file
+from nerfpipe.pipeline.params import build_params, params_to_dict
+from nerfpipe.pipeline.plan import (
+    PlannedStage,
+    StageOutcome,
+    StageStatus,
+    library_versions,
+    running_because,
+    stale_reasons,
+)
 from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress, capture_root
 from nerfpipe.pipeline.store import ArtifactStore, Committed, Damage, write_json_atomic
 
 log = logging.getLogger("nerfpipe")
 
 RUN_CONFIG = "run.json"
-DISK_NEARLY_FULL = 1 << 20  # bytes: a stage failing with less than this left is taken to have filled the disk
-
-
-@dataclass(frozen=True)
-class PlannedStage:
-    """A stage with its resolved parameters, fingerprinted inputs and cache key."""
-
-    stage: Stage
-    params: Any
-    files: tuple[Fingerprint, ...]
-    material: dict[str, Any]
-    key: str
-
-    @property
-    def name(self) -> str:
-        return self.stage.name
-
-
-@dataclass(frozen=True)
-class StageStatus:
-    """``fresh``: its result for the current settings is intact and built on its upstream's current results.
-    ``stale``: settings, inputs or an upstream result changed. ``broken``: its result is damaged (``damage``
-    says which file and how) and will be computed again. ``missing``: never run with these settings."""
-
-    name: str
-    state: Literal["fresh", "stale", "broken", "missing"]
-    reasons: tuple[str, ...]
-    key: str
-    result: Committed | None  # the result for ``key`` when fresh, else the latest one, if any
-    damage: Damage | None = None
-
-
-@dataclass(frozen=True)
-class StageOutcome:
-    name: str
-    action: Literal["cached", "restored", "ran"]
-    key: str
-    path: Path
-    seconds: float
-    reasons: tuple[str, ...] = ()
-    summary: Mapping[str, Any] = field(default_factory=dict)
-
-
-def stale_reasons(planned: PlannedStage, previous: Mapping[str, Any], inputs_label: str) -> list[str]:
-    """Why ``planned`` differs from the ``previous`` manifest, e.g. ``params changed: ingest.max_size 1600 -> 800``."""
-    reasons = []
-    if previous.get("version") != planned.material["version"]:
-        reasons.append(f"code changed: {planned.name} version {previous.get('version')} -> {planned.material['version']}")
-    changes = describe_changes(planned.name, previous.get("params", {}), planned.material["params"])
-    if changes:
-        reasons.append("params changed: " + ", ".join(changes))
-    old_up, new_up = previous.get("upstream", {}), planned.material["upstream"]
-    for up in sorted(set(old_up) | set(new_up)):
-        if old_up.get(up) != new_up.get(up):
-            reasons.append(f"upstream {up} changed")
-    old_inputs = {rel: meta["sha256"] for rel, meta in previous.get("inputs", {}).items()}
-    added, removed, modified = diff_inputs(old_inputs, planned.material["inputs"])
-    if added or removed or modified:
-        parts = [f"{len(v)} {word}" for v, word in ((added, "added"), (modified, "modified"), (removed, "removed")) if v]
-        reasons.append(f"{inputs_label} changed: " + ", ".join(parts))
-    return reasons or ["cache key changed"]
-
-
-def running_because(reasons: Sequence[str]) -> str:
-    """The log line that starts a stage: ``running for the first time``, ``running again: params changed: ...``."""
-    if list(reasons) == ["not run yet"]:
-        return "running for the first time"
-    if list(reasons) == ["forced"]:
-        return "running again, as --force asked"
-    return "running again: " + "; ".join(reasons)
-
-
-def library_versions(names: Sequence[str]) -> dict[str, str]:
-    versions = {"python": platform.python_version()}
-    for name in ("nerfpipe", *names):
-        try:
-            versions[name] = importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            versions[name] = "not installed"
-    return versions
-
-
-class _LogFileHandler(logging.FileHandler):
-    """The run's log file. When it cannot be written (the disk filled up), it stops writing instead of
-    printing logging's "--- Logging error ---" traceback: the terminal still gets the messages, and the
-    error that follows says what happened."""
-
-    def handleError(self, record: logging.LogRecord) -> None:
-        self.close()
-        self.setLevel(logging.CRITICAL + 1)
 
 
 class Pipeline:
@@ -425,7 +340,7 @@ class Pipeline:
             # and the next attempt at this key wipes it.
             raise
         except BaseException as err:
-            full = self._disk_full(err, work, name)
+            full = disk_full(err, work, self.run_dir, name)
             if not planned.stage.resumable:
                 self.store.abandon(work)
             if full is not None:
@@ -453,19 +368,6 @@ class Pipeline:
             if needed > free:
                 raise DiskFullError(self.run_dir, needed, free, planned.name)
 
-    def _disk_full(self, err: BaseException, work: Path, stage: str) -> DiskFullError | None:
-        """``DiskFullError`` if ``err`` came from a full disk: ENOSPC, or any failure (libraries that write
-        natively, like torch.save, raise their own errors) while the disk has less than a MiB left."""
-        if isinstance(err, OSError) and err.errno in DISK_FULL_ERRNOS:
-            return DiskFullError(self.run_dir, stage=stage)
-        if not isinstance(err, Exception):
-            return None
-        try:
-            free = shutil.disk_usage(work if work.exists() else self.run_dir).free
-        except OSError:
-            return None
-        return DiskFullError(self.run_dir, stage=stage) if free < DISK_NEARLY_FULL else None
-
     def save_config(self) -> None:
         """Record the capture folder and settings in run.json, for ``status``, ``report`` and ``view``."""
         config = {"source": str(self.source.resolve()), "preset": self.preset, "overrides": self.overrides}
@@ -479,24 +381,7 @@ class Pipeline:
 
     @contextlib.contextmanager
     def _log_to_file(self, label: str = "run") -> Iterator[Path]:
-        logs = self.run_dir / "logs"
-        logs.mkdir(parents=True, exist_ok=True)
-        path = logs / f"{label}-{time.strftime('%Y%m%d-%H%M%S')}-{int(time.time() * 1000) % 1000:03d}-{os.getpid()}.log"
-        self.log_path = path
-        handler = _LogFileHandler(path, encoding="utf-8")
-        handler.setLevel(logging.DEBUG)
-        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)-7s %(name)s: %(message)s"))
-        root = logging.getLogger("nerfpipe")
-        previous_level = root.level
-        root.setLevel(logging.DEBUG)
-        root.addHandler(handler)
-        log.debug("run of %s into %s (preset %s, overrides %s)", self.source, self.run_dir, self.preset, self.overrides)
-        try:
+        with log_to_file(self.run_dir / "logs", label) as path:
+            self.log_path = path
+            log.debug("run of %s into %s (preset %s, overrides %s)", self.source, self.run_dir, self.preset, self.overrides)
             yield path
-        except BaseException as err:
-            log.debug("run ended by %s", type(err).__name__, exc_info=True)
-            raise
-        finally:
-            root.removeHandler(handler)
-            root.setLevel(previous_level)
-            handler.close()

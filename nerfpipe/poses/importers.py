@@ -26,13 +26,12 @@ from __future__ import annotations
 
 import math
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-from nerfpipe.artifacts import PHOTO_SUBFOLDER, output_names
+from nerfpipe.artifacts import PHOTO_SUBFOLDER
 from nerfpipe.geometry.cameras import (
     CAMERA_MODELS,
     OPENGL_TO_OPENCV,
@@ -45,12 +44,15 @@ from nerfpipe.geometry.cameras import (
 )
 from nerfpipe.pipeline.errors import InputError
 from nerfpipe.poses.layout import IMAGE_SUFFIXES, CaptureLayout, _read_json, resolve_inside
-
-ROTATION_TOLERANCE = 1e-3  # max |R^T R - I| and |det R - 1| before a matrix is refused as a rotation
-ASPECT_TOLERANCE = 0.01  # relative aspect-ratio mismatch between a pose file's camera and the photo
-
-# LLFF columns [down, right, backwards] -> OpenCV [right, down, forward] = [c1, c0, -c2].
-LLFF_TO_OPENCV = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+from nerfpipe.poses.llff import import_llff
+from nerfpipe.poses.middlebury import import_middlebury
+from nerfpipe.poses.photos import (
+    CameraTable,
+    Photos,
+    checked_rotation,
+    relative_names,
+    to_ingested_size,
+)
 
 
 def import_poses(layout: CaptureLayout, records: list[dict[str, Any]]) -> CameraSet:
@@ -60,106 +62,23 @@ def import_poses(layout: CaptureLayout, records: list[dict[str, Any]]) -> Camera
     importer = IMPORTERS.get(layout.kind)
     if importer is None:
         raise ValueError(f"no pose importer for layout {layout.kind!r}")
-    return importer(layout, _Photos(layout, records))
+    return importer(layout, Photos(layout, records))
 
 
 # ---------------------------------------------------------------------------------------------------
 # Shared pieces
 
 
-class _Photos:
-    """Maps the photos pose files name to their images.json records and ingest names."""
-
-    def __init__(self, layout: CaptureLayout, records: list[dict[str, Any]]) -> None:
-        self.capture = layout.capture
-        self._by_source = {r["source"]: r for r in records}
-        self._by_resolved = {(self.capture / r["source"]).resolve(): r for r in records}
-        self._names = output_names([self.relpath(p) for p in layout.photos])
-
-    def relpath(self, path: Path) -> str:
-        return path.relative_to(self.capture).as_posix()
-
-    def record(self, path: Path) -> dict[str, Any] | None:
-        record = self._by_source.get(self.relpath(path))
-        return record if record is not None else self._by_resolved.get(path.resolve())
-
-    def name(self, path: Path) -> str:
-        record = self.record(path)
-        if record is not None:
-            return record["name"]
-        return self._names.get(self.relpath(path), self.relpath(path))
-
-
-class _CameraTable:
-    """Camera ids, one per distinct (key, camera); ``key`` keeps cameras a pose file separates apart."""
-
-    def __init__(self) -> None:
-        self.cameras: dict[int, Camera] = {}
-        self._ids: dict[tuple[Any, Camera], int] = {}
-
-    def add(self, camera: Camera, key: Any = None) -> int:
-        if (key, camera) not in self._ids:
-            self._ids[(key, camera)] = len(self.cameras) + 1
-            self.cameras[len(self.cameras) + 1] = camera
-        return self._ids[(key, camera)]
-
-
-def to_ingested_size(camera: Camera, record: dict[str, Any], pose_file: Path, where: str) -> Camera:
-    """``camera`` (for the original photo) scaled to the photo's ingested size ``record["width"/"height"]``.
-
-    A camera whose aspect ratio is not the photo's (after EXIF orientation) describes other images.
-    """
-    src_w, src_h = record["source_width"], record["source_height"]
-    if abs(src_w * camera.height - src_h * camera.width) > ASPECT_TOLERANCE * src_h * camera.width:
-        raise InputError(pose_file, f"{where}: the camera is {camera.width}x{camera.height} but the photo "
-                         f"{record['source']} is {src_w}x{src_h}",
-                         "the pose file must describe these photos, in the same orientation and aspect ratio")
-    width, height = record["width"], record["height"]
-    return replace(camera.scaled(width / camera.width, height / camera.height), width=width, height=height)
-
-
-def checked_rotation(R: np.ndarray, pose_file: Path, where: str) -> np.ndarray:
-    """The nearest exact rotation to ``R`` (3, 3); ``InputError`` unless R is one within ROTATION_TOLERANCE."""
-    if not np.all(np.isfinite(R)):
-        raise InputError(pose_file, f"{where}: the pose holds a non-finite value", "fix or regenerate the pose file")
-    det = float(np.linalg.det(R))
-    error = float(np.abs(R.T @ R - np.eye(3)).max())
-    if abs(det - 1.0) > ROTATION_TOLERANCE or error > ROTATION_TOLERANCE:
-        raise InputError(pose_file, f"{where}: the rotation is not a rotation (det {det:.6g}, |R^T R - I| = {error:.3g})",
-                         "the 3x3 part of a pose must be orthonormal with determinant +1; fix or regenerate the pose file")
-    u, _, vt = np.linalg.svd(R)
-    return u @ vt
-
-
-def parse_numbers(tokens: list[str], pose_file: Path, line_no: int) -> np.ndarray:
-    values = []
-    for token in tokens:
-        try:
-            value = float(token)
-        except ValueError:
-            raise InputError(pose_file, f"malformed number {token!r} on line {line_no}",
-                             "fix the line or regenerate the pose file") from None
-        if not math.isfinite(value):
-            raise InputError(pose_file, f"non-finite number {token!r} on line {line_no}",
-                             "fix the line or regenerate the pose file")
-        values.append(value)
-    return np.array(values)
-
-
-def _rel(layout: CaptureLayout, paths: list[Path]) -> list[str]:
-    return [p.relative_to(layout.capture).as_posix() if p.is_relative_to(layout.capture) else str(p) for p in paths]
-
-
 # ---------------------------------------------------------------------------------------------------
 # COLMAP sparse model
 
 
-def import_colmap(layout: CaptureLayout, photos: _Photos) -> CameraSet:
+def import_colmap(layout: CaptureLayout, photos: Photos) -> CameraSet:
     model_dir = layout.pose_files[0].parent
     images_file = next((p for p in layout.pose_files if p.stem == "images"), layout.pose_files[0])
     rec = read_colmap_model(model_dir)
 
-    table = _CameraTable()
+    table = CameraTable()
     frames: list[Frame] = []
     frame_of_image: dict[int, int] = {}
     unregistered: set[str] = set()
@@ -188,7 +107,7 @@ def import_colmap(layout: CaptureLayout, photos: _Photos) -> CameraSet:
     unregistered.update(photos.name(p) for p in layout.photos if photos.relpath(p) not in seen)
 
     return CameraSet(table.cameras, frames, colmap_points(rec, frame_of_image, len(frames)), "colmap_model",
-                     sorted(unregistered), {"pose_files": _rel(layout, layout.pose_files)})
+                     sorted(unregistered), {"pose_files": relative_names(layout, layout.pose_files)})
 
 
 def read_colmap_model(model_dir: Path) -> Any:
@@ -239,12 +158,12 @@ INTRINSIC_KEYS = ("camera_angle_x", "camera_angle_y", "fl_x", "fl_y", "cx", "cy"
                   "k1", "k2", "k3", "k4", "p1", "p2", "camera_model", "is_fisheye")
 
 
-def import_transforms(layout: CaptureLayout, photos: _Photos) -> CameraSet:
-    table = _CameraTable()
+def import_transforms(layout: CaptureLayout, photos: Photos) -> CameraSet:
+    table = CameraTable()
     frames: list[Frame] = []
     unregistered: list[str] = []
     seen: set[str] = set()
-    extra: dict[str, Any] = {"pose_files": _rel(layout, layout.pose_files)}
+    extra: dict[str, Any] = {"pose_files": relative_names(layout, layout.pose_files)}
     for pose_file in layout.pose_files:
         doc = _read_json(pose_file)
         if "aabb_scale" in doc:  # several files (splits) with different scales: the largest box covers all
@@ -353,112 +272,11 @@ def transforms_camera(values: dict[str, Any], record: dict[str, Any], pose_file:
 # LLFF poses_bounds.npy
 
 
-NPY_MAGIC = b"\x93NUMPY"  # the first bytes of every .npy file (NEP 1)
-
-
-def import_llff(layout: CaptureLayout, photos: _Photos) -> CameraSet:
-    pose_file = layout.pose_files[0]
-    with open(pose_file, "rb") as f:
-        magic = f.read(len(NPY_MAGIC))
-    if magic != NPY_MAGIC:
-        # np.load would try to read it as a pickle and say so, hinting at allow_pickle: never for a pose file
-        raise InputError(pose_file, "is not a NumPy .npy file (it does not start with the .npy signature)",
-                         "regenerate it with LLFF's imgs2poses, or remove it to let SfM compute the poses")
-    try:
-        array = np.load(pose_file, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as err:
-        problem = "holds Python objects, not numbers" if "pickle" in str(err) else f"is not a readable .npy array ({err})"
-        raise InputError(pose_file, problem, "regenerate it with LLFF's imgs2poses") from None
-    if array.ndim != 2 or array.shape[1] != 17 or not np.issubdtype(array.dtype, np.number):
-        raise InputError(pose_file, f"has shape {array.shape} ({array.dtype}); poses_bounds.npy must be (N, 17): "
-                         "a 3x5 [R | t | hwf] pose and near, far per image", "regenerate it with LLFF's imgs2poses")
-    # rows follow COLMAP/LLFF name order: lexicographic, as sorted(os.listdir("images"))
-    images = sorted((p for p in layout.photos if p.parent == layout.capture / PHOTO_SUBFOLDER), key=lambda p: p.name)
-    if len(array) != len(images):
-        raise InputError(pose_file, f"has {len(array)} rows but {PHOTO_SUBFOLDER}/ holds {len(images)} photos",
-                         "rows follow the sorted image names: keep exactly the photos the poses were computed for")
-
-    table = _CameraTable()
-    frames: list[Frame] = []
-    unregistered: list[str] = []
-    bounds: dict[str, list[float]] = {}
-    for row, (values, path) in enumerate(zip(array.astype(np.float64), images)):
-        where = f"row {row} ({path.name})"
-        if not np.all(np.isfinite(values)):
-            raise InputError(pose_file, f"{where} holds a non-finite value", "regenerate it with LLFF's imgs2poses")
-        pose = values[:15].reshape(3, 5)
-        R = checked_rotation(pose[:, :3] @ LLFF_TO_OPENCV, pose_file, where)
-        (height, width, focal), (near, far) = map(float, pose[:, 4]), map(float, values[15:])
-        if min(height, width, focal) <= 0 or not 0 < near <= far:
-            raise InputError(pose_file, f"{where}: needs positive h, w, focal and 0 < near <= far, "
-                             f"got hwf ({height:g}, {width:g}, {focal:g}) and bounds ({near:g}, {far:g})",
-                             "regenerate it with LLFF's imgs2poses")
-        record = photos.record(path)
-        if record is None:
-            unregistered.append(photos.name(path))
-            continue
-        camera = Camera.pinhole(focal, focal, width / 2, height / 2, round(width), round(height))
-        camera_id = table.add(to_ingested_size(camera, record, pose_file, where))
-        frames.append(Frame(record["name"], camera_id, pose_from_rt(R, pose[:, 3])))
-        bounds[record["name"]] = [near, far]
-    return CameraSet(table.cameras, frames, None, "llff", sorted(unregistered),
-                     {"pose_files": _rel(layout, layout.pose_files), "llff_bounds": bounds})
-
-
 # ---------------------------------------------------------------------------------------------------
 # Middlebury *_par.txt
 
-PAR_FIELDS = 22  # name, K (9), R (9), t (3)
 
-
-def import_middlebury(layout: CaptureLayout, photos: _Photos) -> CameraSet:
-    table = _CameraTable()
-    frames: list[Frame] = []
-    unregistered: list[str] = []
-    for pose_file in layout.pose_files:
-        for line_no, name, K, R, t in read_par_file(pose_file):
-            path = resolve_inside(layout.capture, name, pose_file)
-            record = photos.record(path)
-            if record is None:
-                unregistered.append(photos.name(path))
-                continue
-            fx, fy, cx, cy = (float(v) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
-            camera = Camera.pinhole(fx, fy, cx, cy, record["source_width"], record["source_height"])
-            camera_id = table.add(to_ingested_size(camera, record, pose_file, f"line {line_no}"))
-            frames.append(Frame(record["name"], camera_id, invert_pose(pose_from_rt(R, t))))
-    return CameraSet(table.cameras, frames, None, "middlebury", sorted(unregistered),
-                     {"pose_files": _rel(layout, layout.pose_files)})
-
-
-def read_par_file(pose_file: Path) -> list[tuple[int, str, np.ndarray, np.ndarray, np.ndarray]]:
-    """(line number, image name, K, R, t) per image of a Middlebury ``*_par.txt``, with ``x_cam = R X + t``."""
-    lines = pose_file.read_text(encoding="utf-8", errors="replace").splitlines()
-    advice = "line 1 is the image count, then one line per image: name k11..k33 r11..r33 t1 t2 t3"
-    if not lines or not lines[0].strip():
-        raise InputError(pose_file, "is empty or does not start with the image count", advice)
-    try:
-        count = int(lines[0].split()[0])
-    except ValueError:
-        raise InputError(pose_file, f"line 1 should be the image count, not {lines[0].strip()!r}", advice) from None
-    entries = [(i + 1, line.split()) for i, line in enumerate(lines) if i > 0 and line.strip()]
-    if count != len(entries):
-        raise InputError(pose_file, f"says {count} images on line 1 but lists {len(entries)}", advice)
-    out = []
-    for line_no, fields in entries:
-        if len(fields) != PAR_FIELDS:
-            raise InputError(pose_file, f"line {line_no} has {len(fields)} fields, not {PAR_FIELDS}", advice)
-        numbers = parse_numbers(fields[1:], pose_file, line_no)
-        K, R, t = numbers[:9].reshape(3, 3), numbers[9:18].reshape(3, 3), numbers[18:]
-        if np.abs(K[2] - [0.0, 0.0, 1.0]).max() > 1e-9 or abs(K[1, 0]) > 1e-9 or abs(K[0, 1]) > 1e-6 * abs(K[0, 0]):
-            raise InputError(pose_file, f"line {line_no}: K is not a pinhole calibration matrix [fx 0 cx; 0 fy cy; 0 0 1]",
-                             "nerfpipe cannot represent skew or an unnormalised K")
-        if K[0, 0] <= 0 or K[1, 1] <= 0:
-            raise InputError(pose_file, f"line {line_no}: the focal lengths must be positive", advice)
-        out.append((line_no, fields[0], K, checked_rotation(R, pose_file, f"line {line_no}"), t))
-    return out
-
-
-IMPORTERS: dict[str, Callable[[CaptureLayout, _Photos], CameraSet]] = {
+IMPORTERS: dict[str, Callable[[CaptureLayout, Photos], CameraSet]] = {
     "colmap": import_colmap,
     "transforms": import_transforms,
     "llff": import_llff,

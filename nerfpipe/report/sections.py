@@ -138,7 +138,7 @@ def mesh_and_points(run: RunData) -> str | None:
     shown = [(stage, artifact, label) for stage, artifact, label in GEOMETRY if stage in run.results]
     if not shown:
         return None
-    from nerfpipe.export.screenshot import cameras_of
+    from nerfpipe.export.views import cameras_of
 
     cameras = cameras_of(run.sfm_cameras) if run.sfm_cameras is not None else []
     shots = [geometry_shot(run, stage, artifact, label, cameras) for stage, artifact, label in shown]
@@ -148,7 +148,8 @@ def mesh_and_points(run: RunData) -> str | None:
 
 def geometry_shot(run: RunData, stage: str, artifact: str, label: str, cameras: list[Any]) -> str:
     """Write ``img/{artifact}.png``, a screenshot of a mesh or point cloud artifact; return its figure."""
-    from nerfpipe.export.screenshot import auto_view, load_mesh, load_points, photo_view, screenshot
+    from nerfpipe.export.screenshot import load_mesh, load_points, screenshot
+    from nerfpipe.export.views import auto_view, photo_view
 
     path = run.artifact(stage, artifact)
     geometry = {"mesh": load_mesh(path)} if artifact == "mesh" else {"points": load_points(path)}

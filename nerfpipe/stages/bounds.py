@@ -25,15 +25,13 @@ from nerfpipe.geometry.cameras import CameraSet, Points
 from nerfpipe.geometry.normalize import (
     Similarity,
     in_view,
-    look_at_center,
     near_far_from_points,
     near_far_from_rig,
     normalization,
-    rig_kind,
-    rig_radius,
     robust_box,
     up_direction,
 )
+from nerfpipe.geometry.rig import look_at_center, rig_kind, rig_radius
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 

@@ -18,129 +18,97 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from nerfpipe.artifacts import ViewSplit
+from nerfpipe.nerf.config import FieldParams, OptimParams, PerImageParams, SamplerParams, SpaceParams
+from nerfpipe.pipeline.params import param
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
 
-param = field  # TrainParams has a parameter named ``field``, which shadows dataclasses.field in its body
+_SWITCH = {"true": "on", "false": "off", "yes": "on", "no": "off", "1": "on", "0": "off"}
+_SAMPLER = {"true": "marching", "on": "marching", "false": "hierarchical", "off": "hierarchical", "auto": "auto",
+            "yes": "marching", "no": "hierarchical"}
 
 
 @dataclass(frozen=True)
 class TrainParams:
-    """The defaults are the ``fast`` preset: the grid field with empty-space skipping."""
+    """The defaults are the ``fast`` preset: the grid field with empty-space skipping. The model's parts are
+    configured in groups (``nerfpipe.nerf.config``): ``field``, ``sampler``, ``space``, ``optim``, ``per_image``."""
 
-    steps: int = param(default=0, metadata={"help": "optimization steps (the paper: 100-300k, Section 5.3); 0: as many as fit in train.seconds"})
-    seconds: float = param(default=120.0, metadata={"help": "with steps=0: seconds of training, the learning rate decaying over them (Instant-NGP trains by time too)"})
-    field: Literal["grid", "mlp"] = param(default="grid", metadata={"help": "grid: dense feature grids + a small MLP (fast); mlp: the paper's MLP (Fig. 7)"})
-    batch_rays: int = param(default=4096, metadata={"help": "rays per batch (the paper: 4096); with batch_samples, the starting and largest / 16 batch"})
-    batch_samples: int = param(default=16384, metadata={"help": "while marching, adapt the rays per batch to about this many samples (Instant-NGP), and evaluate at most twice as many a step; 0: fixed batch_rays"})
-    occupancy: Literal["auto", "true", "false"] = param(default="auto", metadata={"help": "empty-space skipping with an occupancy grid; auto: with the grid field"})
-    occupancy_resolution: int = param(default=64, metadata={"help": "cells a side of the occupancy grid"})
-    march_steps: int = param(default=128, metadata={"help": "marching steps along the field box's diagonal (about one per image pixel at 100 px lego)"})
-    early_stop: float = param(default=1e-4, metadata={"help": "stop a marched ray once its transmittance is below this (0: never)"})
-    occupancy_threshold: float = param(default=0.01, metadata={"help": "a cell is occupied when one step through it is this optically thick"})
-    hull: Literal["auto", "off"] = param(default="auto", metadata={"help": "auto: for inward 360 photos with silhouettes (alpha or a backdrop), shrink the scene box to the box of their visual hull, where the grids then spend their cells"})
-    hull_tolerance: float = param(default=0.05, metadata={"help": "carve a cell only when more than this share of the photos seeing it call it backdrop (mask errors)"})
-    grid_levels: int = param(default=3, metadata={"help": "grid field: levels of the multiresolution grid"})
-    grid_min_resolution: int = param(default=32, metadata={"help": "grid field: cells a side of the coarsest level"})
-    grid_max_resolution: int = param(default=128, metadata={"help": "grid field: cells a side of the finest level"})
-    grid_features: int = param(default=4, metadata={"help": "grid field: features per vertex and level"})
-    grid_hidden: int = param(default=64, metadata={"help": "grid field: width of its MLPs"})
-    n_coarse: int = param(default=32, metadata={"help": "N_c stratified samples per ray (the paper: 64); without the occupancy grid"})
-    n_fine: int = param(default=64, metadata={"help": "N_f samples from the coarse weights (the paper: 128; 0: no hierarchical sampling)"})
-    hierarchical: bool = param(default=True, metadata={"help": "hierarchical sampling; false is Table 2's 'No Hierarchical' (N_c samples only)"})
-    fine_network: bool = param(default=False, metadata={"help": "a separate fine network (the paper); false reuses the coarse one"})
-    depth: int = param(default=4, metadata={"help": "mlp: layers of the trunk (the paper: 8)"})
-    width: int = param(default=128, metadata={"help": "mlp: channels per trunk layer (the paper: 256)"})
-    view_width: int = param(default=64, metadata={"help": "mlp: channels of the view-direction layer (the paper: 128)"})
-    skip_after: int = param(default=0, metadata={"help": "mlp: concatenate the encoded input to this layer's activation (the paper: 5; 0: none)"})
-    positional_encoding: bool = param(default=True, metadata={"help": "encode x and d with Eq. 4; false is Table 2's 'No Pos. Encoding'"})
-    pos_freqs: int = param(default=10, metadata={"help": "L for positions (Section 5.1: 10)"})
-    dir_freqs: int = param(default=4, metadata={"help": "L for directions (Section 5.1: 4)"})
-    include_input: bool = param(default=True, metadata={"help": "feed the raw coordinates beside their encoding (the authors' code does)"})
-    view_dependence: bool = param(default=True, metadata={"help": "colour depends on the viewing direction; false is Table 2's 'No View Dependence'"})
-    density_activation: Literal["relu", "softplus"] = param(default="softplus", metadata={"help": "mlp: relu (the paper) or softplus"})
-    lr: float = param(default=2e-2, metadata={"help": "initial Adam learning rate (the paper: 5e-4)"})
-    lr_final: float = param(default=1e-3, metadata={"help": "learning rate at the last step, reached by exponential decay (the paper: 5e-5)"})
-    adam_eps: float = param(default=1e-15, metadata={"help": "Adam epsilon (the paper: 1e-7)"})
-    adam_beta2: float = param(default=0.99, metadata={"help": "Adam beta2 (the paper: 0.999; Instant-NGP: 0.99)"})
-    density_noise: str = param(default="auto", metadata={"help": "std of noise on raw density: auto (1.0 for forward-facing real captures, else 0) or a number"})
-    lindisp: Literal["auto", "true", "false"] = param(default="auto", metadata={"help": "sample linearly in disparity; auto: for unbounded scenes"})
-    clip_to_box: bool = param(default=True, metadata={"help": "inward 360 with a backdrop: clip each ray to the scene box"})
-    contract: Literal["auto", "true", "false"] = param(default="auto", metadata={"help": "contract the space beyond the scene box (mip-NeRF 360); auto: unbounded scenes and inward 360 ones without a backdrop"})
-    appearance: Literal["auto", "on", "off"] = param(default="auto", metadata={"help": "learn each photo's exposure and white balance (3 gains on linear light); auto: when the scene finds exposure varying"})
-    appearance_lr: float = param(default=1e-2, metadata={"help": "learning rate of the per-image exposure gains (decays as lr does)"})
-    refine_poses: Literal["auto", "on", "off"] = param(default="auto", metadata={"help": "refine each training camera's pose with the field; auto: for photos, not for rendered captures with alpha"})
-    pose_lr: float = param(default=3e-3, metadata={"help": "learning rate of the camera corrections (decays as lr does)"})
-    pose_penalty: float = param(default=1e-3, metadata={"help": "weight of the camera corrections' mean squared size in the loss"})
-    train_images: int = param(default=0, metadata={"help": "train on this many images, evenly spaced (Table 2 rows 5-6); 0: all"})
-    holdout_every: int = param(default=8, metadata={"help": "without a val/test split, hold out every n-th image (the paper: 8)"})
-    eval_stride: int = param(default=1, metadata={"help": "evaluate every n-th held-out view"})
-    checkpoint_every: int = param(default=500, metadata={"help": "write a checkpoint every n steps (a killed run resumes from the last)"})
-    keep_checkpoints: int = param(default=2, metadata={"help": "checkpoints kept (0: all)"})
-    seed: int = param(default=0, metadata={"help": "seed of initialization, batches and samples"})
-    device: Literal["auto", "cpu", "cuda"] = param(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
-    tf32: bool = param(default=False, metadata={"help": "CUDA: TF32 matmuls"})
-    autocast: Literal["none", "bf16", "fp16"] = param(default="none", metadata={"help": "mixed precision for the MLP (compositing stays float32)"})
-    chunk: int = param(default=4096, metadata={"help": "rays per chunk when rendering whole views"})
+    steps: int = param(0, "optimization steps (the paper: 100-300k, Section 5.3); 0: as many as fit in train.seconds")
+    seconds: float = param(120.0, "with steps=0: seconds of training, the learning rate decaying over them "
+                                  "(Instant-NGP trains by time too)")
+    field: FieldParams = param(FieldParams(), "the radiance field")
+    sampler: SamplerParams = param(SamplerParams(), "where along each ray the field is evaluated")
+    space: SpaceParams = param(SpaceParams(), "the ray space and the scene box")
+    optim: OptimParams = param(OptimParams(), "batches, optimizer and schedule")
+    per_image: PerImageParams = param(PerImageParams(), "what is learned for each training photo")
+    train_images: int = param(0, "train on this many images, evenly spaced (Table 2 rows 5-6); 0: all")
+    holdout_every: int = param(8, "without a val/test split, hold out every n-th image (the paper: 8)")
+    eval_stride: int = param(1, "evaluate every n-th held-out view")
+    checkpoint_every: int = param(500, "write a checkpoint every n steps (a killed run resumes from the last)")
+    keep_checkpoints: int = param(2, "checkpoints kept (0: all)")
+    seed: int = param(0, "seed of initialization, batches and samples")
+    device: Literal["auto", "cpu", "cuda"] = param("auto", "auto: CUDA when present, else CPU")
+    tf32: bool = param(False, "CUDA: TF32 matmuls")
+    autocast: Literal["none", "bf16", "fp16"] = param("none", "mixed precision for the MLP (compositing stays float32)")
+    chunk: int = param(4096, "rays per chunk when rendering whole views")
+
+    # the flat names before the parameters were grouped: still accepted, with a deprecation message
+    ALIASES: ClassVar[dict[str, Any]] = {
+        "field": "field.kind", **{f"grid_{n}": f"field.{n}" for n in ("levels", "min_resolution", "max_resolution",
+                                                                       "features", "hidden")},
+        **{n: f"field.{n}" for n in ("depth", "width", "view_width", "skip_after", "positional_encoding", "pos_freqs",
+                                     "dir_freqs", "include_input", "view_dependence", "density_activation",
+                                     "fine_network")},
+        "occupancy": ("sampler.kind", _SAMPLER), "march_steps": "sampler.steps", "lindisp": ("sampler.lindisp", _SWITCH),
+        **{n: f"sampler.{n}" for n in ("occupancy_resolution", "early_stop", "occupancy_threshold", "n_coarse",
+                                       "n_fine", "hierarchical")},
+        "contract": ("space.contract", _SWITCH), "clip_to_box": "space.clip_to_box", "hull": "space.hull",
+        "hull_tolerance": "space.hull_tolerance",
+        **{n: f"optim.{n}" for n in ("batch_rays", "batch_samples", "lr", "lr_final", "adam_eps", "adam_beta2",
+                                     "density_noise")},
+        **{n: f"per_image.{n}" for n in ("appearance", "appearance_lr", "refine_poses", "pose_lr", "pose_penalty")},
+    }
 
     def __post_init__(self) -> None:
-        for name in ("batch_rays", "n_coarse", "depth", "width", "view_width", "holdout_every", "eval_stride",
-                     "checkpoint_every", "chunk", "occupancy_resolution", "march_steps", "grid_levels",
-                     "grid_min_resolution", "grid_max_resolution", "grid_features", "grid_hidden"):
+        for name in ("holdout_every", "eval_stride", "checkpoint_every", "chunk"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.steps < 0 or (self.steps == 0 and not self.seconds > 0):
-            raise ValueError(f"need steps >= 1, or steps = 0 and seconds > 0; got steps={self.steps}, seconds={self.seconds}")
-        for name in ("n_fine", "pos_freqs", "dir_freqs", "train_images", "keep_checkpoints", "skip_after", "batch_samples",
-                     "occupancy_threshold", "appearance_lr", "pose_lr", "pose_penalty", "hull_tolerance"):
+        for name in ("train_images", "keep_checkpoints"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        if self.skip_after > self.depth - 1:
-            raise ValueError(f"skip_after must be below depth ({self.depth}), got {self.skip_after}")
-        if not (0 < self.lr_final <= self.lr) or self.adam_eps <= 0 or not (0 < self.adam_beta2 < 1):
-            raise ValueError("need 0 < lr_final <= lr, adam_eps > 0 and 0 < adam_beta2 < 1")
-        if not self.hull_tolerance < 1:
-            raise ValueError(f"hull_tolerance must be below 1 (1 carves nothing), got {self.hull_tolerance}")
-        if not (0 <= self.early_stop < 1):
-            raise ValueError(f"early_stop must be in [0, 1), got {self.early_stop}")
-        if self.grid_min_resolution > self.grid_max_resolution:
-            raise ValueError("grid_min_resolution must not exceed grid_max_resolution")
-        if self.density_noise != "auto":
-            try:
-                noise = float(self.density_noise)
-            except ValueError:
-                raise ValueError(f"density_noise must be auto or a number >= 0, got {self.density_noise!r}") from None
-            if not noise >= 0:
-                raise ValueError(f"density_noise must be >= 0, got {noise}")
+        if self.steps < 0 or (self.steps == 0 and not self.seconds > 0):
+            raise ValueError(f"need steps >= 1, or steps = 0 and seconds > 0; got steps={self.steps}, seconds={self.seconds}")
 
 
 # Section 5.3 and Fig. 7: the model, sampling and optimizer of the paper, without empty-space skipping
 PAPER = {
-    "field": "mlp", "occupancy": "false", "steps": 200_000, "batch_rays": 4096, "batch_samples": 0, "n_coarse": 64,
-    "n_fine": 128, "fine_network": True, "depth": 8, "width": 256, "view_width": 128, "skip_after": 5,
-    "include_input": False, "density_activation": "relu", "lr": 5e-4, "lr_final": 5e-5, "adam_eps": 1e-7,
-    "adam_beta2": 0.999, "checkpoint_every": 10_000,
+    "field.kind": "mlp", "sampler.kind": "hierarchical", "steps": 200_000, "optim.batch_rays": 4096,
+    "optim.batch_samples": 0, "sampler.n_coarse": 64, "sampler.n_fine": 128, "field.fine_network": True,
+    "field.depth": 8, "field.width": 256, "field.view_width": 128, "field.skip_after": 5, "field.include_input": False,
+    "field.density_activation": "relu", "optim.lr": 5e-4, "optim.lr_final": 5e-5, "optim.adam_eps": 1e-7,
+    "optim.adam_beta2": 0.999, "checkpoint_every": 10_000,
 }
 # the optimizer of the CPU-scale NeRF (4x128 MLP, softplus density, 512 rays a step, lr 3e-3 over 1500
 # steps); ``nerfpipe bench``'s Table 2 ablations and the ``balanced`` preset start from it
 MLP_CPU = {
-    "field": "mlp", "occupancy": "false", "steps": 1500, "batch_rays": 512, "batch_samples": 0, "lr": 3e-3,
-    "lr_final": 5e-5, "adam_eps": 1e-7, "adam_beta2": 0.999,
+    "field.kind": "mlp", "sampler.kind": "hierarchical", "steps": 1500, "optim.batch_rays": 512,
+    "optim.batch_samples": 0, "optim.lr": 3e-3, "optim.lr_final": 5e-5, "optim.adam_eps": 1e-7,
+    "optim.adam_beta2": 0.999,
 }
 PRESETS = {
     # lego at 100 px on 2 CPU cores (``nerfpipe bench``): 500 steps in under a minute, 22.9 dB
-    "draft": {"steps": 500, "grid_levels": 1, "grid_max_resolution": 64, "occupancy_resolution": 32,
-              "batch_samples": 32768, "lr": 1e-2},
+    "draft": {"steps": 500, "field.levels": 1, "field.max_resolution": 64, "sampler.occupancy_resolution": 32,
+              "optim.batch_samples": 32768, "optim.lr": 1e-2},
     # the default: 32^3, 64^3 and 128^3 grids, trained for train.seconds (120 s) as fast as the machine goes
     "fast": {},
     # the 4x128 MLP (Fig. 7's shape, smaller) marching the occupancy grid: 6000 steps, about half an hour there
-    "balanced": {**MLP_CPU, "occupancy": "true", "steps": 6000, "batch_rays": 1024, "batch_samples": 32768,
-                 "lr_final": 1e-4},
+    "balanced": {**MLP_CPU, "sampler.kind": "marching", "steps": 6000, "optim.batch_rays": 1024,
+                 "optim.batch_samples": 32768, "optim.lr_final": 1e-4},
     # one to two days on a V100 (Section 5.3), out of reach on a CPU
     "paper": PAPER,
 }
@@ -150,7 +118,7 @@ class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
     name = "train"
-    version = 6  # 6: the scene box shrinks to the silhouettes' visual hull
+    version = 7  # 7: parameters in groups (train.field.levels); 6: the visual hull
     Params = TrainParams
     presets = PRESETS
     requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")
@@ -252,7 +220,7 @@ class TrainStage(Stage):
             "samples_per_s": round(trainer.total_samples / max(trainer.elapsed, 1e-9)),
             "samples_per_ray": round(trainer.total_samples / max(trainer.total_rays, 1), 2),
             "field": model.field_kind,
-            "occupancy": None if model.occupancy is None else round(model.occupancy.occupancy(), 4),
+            "occupancy": None if (share := model.sampler.occupied_share()) is None else round(share, 4),
             "device": str(device),
             "train_images": len(views.train),
             "heldout": len(views.heldout),

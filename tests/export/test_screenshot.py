@@ -14,22 +14,24 @@ import numpy as np
 import pytest
 
 from nerfpipe.export.screenshot import (
-    FRUSTUM_LINES,
-    FRUSTUM_POINTS,
-    ViewCamera,
-    auto_view,
-    photo_view,
-    cameras_of,
-    capture_up,
-    default_frustum_size,
     frusta_lineset,
-    frustum_points,
     has_display,
     load_mesh,
     load_points,
     screenshot,
     show,
     sparse_points,
+)
+from nerfpipe.export.views import (
+    FRUSTUM_LINES,
+    FRUSTUM_POINTS,
+    ViewCamera,
+    auto_view,
+    cameras_of,
+    capture_up,
+    default_frustum_size,
+    frustum_points,
+    photo_view,
 )
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, Points
 from nerfpipe.pipeline import InputError

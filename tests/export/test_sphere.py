@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from nerfpipe.nerf.samplers import HierarchicalSampler
 from nerfpipe.export.depth import DepthView, decode_depth_png, read_view, write_view
 from nerfpipe.export.mesh import (
     Grid,
@@ -40,7 +41,7 @@ SIZE, FOCAL = 48, 50.0
 
 def sphere_model(n_fine: int = 0) -> RadianceModel:
     field = SphereField(tuple(CENTER), RADIUS, DENSITY)
-    return RadianceModel(field, None, SamplingConfig(N_COARSE, n_fine), RaySpace(box=BOX), (1.0, 1.0, 1.0))
+    return RadianceModel(field, None, HierarchicalSampler(SamplingConfig(N_COARSE, n_fine)), RaySpace(box=BOX), (1.0, 1.0, 1.0))
 
 
 def ring_cameras(count: int = 8) -> list[np.ndarray]:

@@ -8,17 +8,14 @@ import pytest
 from nerfpipe.geometry import cameras
 from nerfpipe.geometry.normalize import (
     Similarity,
-    azimuth_coverage,
-    look_at_center,
     near_far_from_points,
     near_far_from_rig,
     normalization,
-    rig_kind,
-    rig_radius,
     robust_box,
     rotation_aligning,
     up_direction,
 )
+from nerfpipe.geometry.rig import azimuth_coverage, look_at_center, rig_kind, rig_radius
 
 Z = np.array([0.0, 0.0, 1.0])
 

@@ -24,12 +24,12 @@ from nerfpipe.imaging.decode import (
     RawOptions,
     SizeLimits,
     apply_orientation,
-    check_integrity,
     photo_kind,
     read_header,
     read_photo,
     unsupported_advice,
 )
+from nerfpipe.imaging.integrity import check_integrity
 from nerfpipe.pipeline.errors import BadPhotoError
 from tests.helpers import TEMPLE
 from tests.imaging import photos

@@ -12,7 +12,7 @@ from nerfpipe.nerf.assembly import (
     NDC_NEAR_FACTOR,
     build_background,
     build_model,
-    build_occupancy,
+    build_sampler,
     carve_scene_box,
     density_noise,
     training_config,
@@ -20,6 +20,9 @@ from nerfpipe.nerf.assembly import (
 from nerfpipe.geometry.normalize import robust_box
 from nerfpipe.nerf.field import NerfField
 from nerfpipe.nerf.grid_field import GridField
+from nerfpipe.nerf.model import RaySpace
+from nerfpipe.nerf.samplers import HierarchicalSampler, MarchingSampler
+from nerfpipe.pipeline.params import override
 from nerfpipe.stages.train import TrainParams
 from tests.geometry.sphere_photos import CENTER, RADIUS, sphere_views
 from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
@@ -27,24 +30,29 @@ from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
 CPU = torch.device("cpu")
 
 
+def train_params(values: dict) -> TrainParams:
+    """The default train parameters with ``values`` (by dotted name) replaced."""
+    return override(TrainParams(), values)
+
+
 @pytest.mark.parametrize(
     "overrides, first_in, view_in, n_fine, fine",
     [
         # the view layer sees the 128-d feature and gamma(d) (with d itself, include_input)
         ({}, 3 + 60, 128 + 3 + 24, 64, False),
-        ({"positional_encoding": False}, 3, 128 + 3, 64, False),  # Table 2 row 2: raw x and d
-        ({"view_dependence": False}, 63, 128, 64, False),  # row 3: colour from x alone
-        ({"hierarchical": False, "fine_network": True}, 63, 155, 0, False),  # row 4: N_c samples, one network
-        ({"pos_freqs": 5, "dir_freqs": 2}, 3 + 30, 128 + 3 + 12, 64, False),  # rows 7-8: L
-        ({"fine_network": True}, 63, 155, 64, True),
+        ({"field.positional_encoding": False}, 3, 128 + 3, 64, False),  # Table 2 row 2: raw x and d
+        ({"field.view_dependence": False}, 63, 128, 64, False),  # row 3: colour from x alone
+        ({"sampler.hierarchical": False, "field.fine_network": True}, 63, 155, 0, False),  # row 4: N_c samples, one network
+        ({"field.pos_freqs": 5, "field.dir_freqs": 2}, 3 + 30, 128 + 3 + 12, 64, False),  # rows 7-8: L
+        ({"field.fine_network": True}, 63, 155, 64, True),
     ],
 )
 def test_ablation_switches_build_the_tables_models(overrides, first_in, view_in, n_fine, fine) -> None:
-    params = TrainParams(field="mlp", **overrides)
+    params = train_params({"field.kind": "mlp", **overrides})
     model, _ = build_model(params, scene_of("inward360"), world_of_one_camera(), bounds_of(), CPU)
     assert model.coarse.trunk[0].in_features == first_in
     assert model.coarse.view.in_features == view_in
-    assert model.sampling.n_fine == n_fine
+    assert model.sampler.config.n_fine == n_fine
     assert (model.fine is not None) == fine
 
 
@@ -52,10 +60,10 @@ def test_scene_decisions_choose_the_ray_space_and_background() -> None:
     world, bounds = world_of_one_camera(), bounds_of((2.0, 9.0))
     inward, said = build_model(TrainParams(), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, CPU)
     assert inward.ray_space.box == ((-1, -1, -1), (1, 1, 1)) and not inward.ray_space.ndc
-    assert inward.background == (1.0, 1.0, 1.0) and not inward.sampling.lindisp
+    assert inward.background == (1.0, 1.0, 1.0) and isinstance(inward.sampler, MarchingSampler)
     assert said[0] == "inward 360: world rays, each clipped to the scene box and its image's near/far"
     assert inward.info == {"layout": "inward360", "photometric": "srgb", "to_sfm": np.eye(4).tolist()}
-    forward, said = build_model(TrainParams(field="mlp"), scene_of("forward"), world, bounds, CPU)
+    forward, said = build_model(train_params({"field.kind": "mlp"}), scene_of("forward"), world, bounds, CPU)
     assert forward.ray_space.ndc and forward.ray_space.ndc_near == pytest.approx(NDC_NEAR_FACTOR * 2.0)
     assert forward.ray_space.ndc_focal == 50 and forward.ray_space.ndc_size == (40, 30) and forward.background is None
     assert said == [  # one sentence a choice, in this order: ray space, (field, occupancy,) background, noise
@@ -63,16 +71,16 @@ def test_scene_decisions_choose_the_ray_space_and_background() -> None:
         "no background model: the background is part of the scene (composited onto black)",
         "noise of std 1 on raw density while training",  # the authors' regularizer for real forward scenes
     ]
-    assert forward.occupancy is None  # the paper's sampler unless asked
-    unbounded, said = build_model(TrainParams(field="mlp"), scene_of("unbounded360", photometric="linear_raw"),
+    assert forward.sampler.occupied_share() is None  # the paper's sampler unless asked
+    unbounded, said = build_model(train_params({"field.kind": "mlp"}), scene_of("unbounded360", photometric="linear_raw"),
                                   world, bounds, CPU)
-    assert unbounded.sampling.lindisp and unbounded.ray_space.box is None
+    assert unbounded.sampler.config.lindisp and unbounded.ray_space.box is None
     assert unbounded.ray_space.contraction == ((-1, -1, -1), (1, 1, 1))  # the scene box, kept as it is
     assert said == ["unbounded 360: world rays over each image's near/far; the scene box at full resolution and the "
                     "space beyond it contracted into a shell around it (mip-NeRF 360, Eq. 10), steps growing with distance",
                     "no background model: the background is part of the scene (composited onto black)",
                     "linear RAW: trained on linear values; previews are sRGB-encoded"]
-    clipped, said = build_model(TrainParams(field="mlp", contract="false"), scene_of("unbounded360"), world, bounds, CPU)
+    clipped, said = build_model(train_params({"field.kind": "mlp", "space.contract": "off"}), scene_of("unbounded360"), world, bounds, CPU)
     assert clipped.ray_space.contraction is None and said[0] == (
         "unbounded 360: world rays over each image's near/far, samples linear in disparity")
 
@@ -85,8 +93,8 @@ def test_inward_captures_contract_unless_a_backdrop_or_alpha_bounds_them() -> No
     room, said = build_model(TrainParams(), scene_of("inward360", "none"), world, bounds, CPU)
     assert room.ray_space.box is None and room.ray_space.contraction == ((-1, -1, -1), (1, 1, 1))
     assert said[0].startswith("inward 360 with the background part of the scene: world rays over each image's near/far")
-    assert room.coarse.lo.tolist() == [-2] * 3 and room.occupancy.hi.tolist() == [2] * 3  # the contracted cube
-    forced, _ = build_model(TrainParams(contract="true"), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, CPU)
+    assert room.coarse.lo.tolist() == [-2] * 3 and room.sampler.grid.hi.tolist() == [2] * 3  # the contracted cube
+    forced, _ = build_model(train_params({"space.contract": "on"}), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, CPU)
     assert forced.ray_space.contraction is not None
 
 
@@ -94,30 +102,35 @@ def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:
     world, bounds = world_of_one_camera(), bounds_of((2.0, 9.0))
     inward, said = build_model(TrainParams(), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, CPU)
     assert isinstance(inward.coarse, GridField) and inward.fine is None
-    assert inward.occupancy is not None and inward.occupancy.resolution == 64
-    assert inward.occupancy.lo.tolist() == [-1] * 3 and inward.coarse.hi.tolist() == [1] * 3
+    assert inward.sampler.occupied_share() is not None and inward.sampler.grid.resolution == 64
+    assert inward.sampler.grid.lo.tolist() == [-1] * 3 and inward.coarse.hi.tolist() == [1] * 3
     assert said[1] == "grid field: 3 levels of [32, 64, 128] cells a side, 4 features each, and a 64-wide MLP"
     assert said[2].startswith("empty-space skipping: a 64^3 occupancy grid over the field box")
     forward, said = build_model(TrainParams(), scene_of("forward"), world, bounds, CPU)
     # NDC's [-1, 1]^2 x [-1, 1 - 2 near / far]: the frustum out to the farthest bound
     z_max = 1 - 2 * (0.75 * 2.0) / 9.0
-    assert forward.occupancy.hi.tolist() == pytest.approx([1, 1, z_max]) and forward.occupancy.lo.tolist() == [-1] * 3
+    assert forward.sampler.grid.hi.tolist() == pytest.approx([1, 1, z_max]) and forward.sampler.grid.lo.tolist() == [-1] * 3
     assert not any("noise" in line for line in said)  # a regularizer of the MLP's raw density only
     unbounded, said = build_model(TrainParams(), scene_of("unbounded360"), world, bounds, CPU)
-    assert isinstance(unbounded.coarse, GridField) and unbounded.occupancy is not None  # no MLP fallback
+    assert isinstance(unbounded.coarse, GridField) and unbounded.sampler.occupied_share() is not None  # no MLP fallback
     assert unbounded.coarse.lo.tolist() == [-2] * 3 and unbounded.coarse.hi.tolist() == [2] * 3
-    uncontracted, said = build_model(TrainParams(contract="false"), scene_of("unbounded360"), world, bounds, CPU)
-    assert isinstance(uncontracted.coarse, NerfField) and uncontracted.occupancy is None
+    uncontracted, said = build_model(train_params({"space.contract": "off"}), scene_of("unbounded360"), world, bounds, CPU)
+    assert isinstance(uncontracted.coarse, NerfField) and uncontracted.sampler.occupied_share() is None
     assert "unbounded 360: the grid field needs a bounded box, so the MLP (Fig. 7) is trained" in said
-    mlp_grid, _ = build_model(TrainParams(field="mlp", occupancy="true"), scene_of("inward360"), world, bounds, CPU)
-    assert isinstance(mlp_grid.coarse, NerfField) and mlp_grid.occupancy is not None
+    mlp_grid, _ = build_model(train_params({"field.kind": "mlp", "sampler.kind": "marching"}), scene_of("inward360"),
+                              world, bounds, CPU)
+    assert isinstance(mlp_grid.coarse, NerfField) and isinstance(mlp_grid.sampler, MarchingSampler)
 
 
-def test_occupancy_and_background_builders_say_why_not() -> None:
-    (grid, marching), said = build_occupancy(TrainParams(field="mlp", occupancy="true"), "unbounded360", None, CPU)
-    assert grid is None and marching is None
+def test_sampler_and_background_builders_say_why_not() -> None:
+    mlp = NerfField.from_params(train_params({}).field, None)
+    sampler, said = build_sampler(train_params({"field.kind": "mlp", "sampler.kind": "marching"}), mlp, None,
+                                  "unbounded360", RaySpace(), CPU)
+    assert isinstance(sampler, HierarchicalSampler)
     assert said == "no occupancy grid: an unbounded scene has no box to grid; Section 5.2's sampling instead"
-    assert build_occupancy(TrainParams(field="mlp"), "inward360", ((-1.0,) * 3, (1.0,) * 3), CPU) == ((None, None), None)
+    sampler, said = build_sampler(train_params({"field.kind": "mlp"}), mlp, ((-1.0,) * 3, (1.0,) * 3), "inward360",
+                                  RaySpace(), CPU)
+    assert isinstance(sampler, HierarchicalSampler) and said is None  # auto: the paper's sampling for the MLP
     assert build_background(scene_of("inward360", "color", [0, 0.5, 1])) == (
         (0.0, 0.5, 1.0), "background color: renders composited onto (0.00, 0.50, 1.00)")
     assert build_background(scene_of("inward360", "alpha", None))[0] is None  # no colour decided: none
@@ -127,9 +140,10 @@ def test_occupancy_and_background_builders_say_why_not() -> None:
 
 
 def test_training_config_carries_the_schedule_noise_and_precision() -> None:
-    params = TrainParams(steps=700, batch_rays=512, lr=3e-3, lr_final=1e-4, adam_eps=1e-8, adam_beta2=0.995,
-                         batch_samples=0, seed=4, checkpoint_every=50, keep_checkpoints=3, autocast="bf16", tf32=True,
-                         field="mlp")
+    params = train_params({"steps": 700, "optim.batch_rays": 512, "optim.lr": 3e-3, "optim.lr_final": 1e-4,
+                           "optim.adam_eps": 1e-8, "optim.adam_beta2": 0.995, "optim.batch_samples": 0, "seed": 4,
+                           "checkpoint_every": 50, "keep_checkpoints": 3, "autocast": "bf16", "tf32": True,
+                           "field.kind": "mlp"})
     config = training_config(params, "forward")
     assert (config.steps, config.batch_rays, config.lr, config.lr_final, config.adam_eps, config.adam_beta2) == (
         700, 512, 3e-3, 1e-4, 1e-8, 0.995)
@@ -138,7 +152,7 @@ def test_training_config_carries_the_schedule_noise_and_precision() -> None:
     default = training_config(TrainParams(), "forward")
     assert not default.tf32 and (default.steps, default.seconds) == (0, 120.0)  # trained by time
     assert density_noise(TrainParams(), "forward") == 0.0  # the grid field has no raw-density regularizer
-    assert density_noise(TrainParams(field="mlp", density_noise="0.5"), "inward360") == 0.5
+    assert density_noise(train_params({"field.kind": "mlp", "optim.density_noise": "0.5"}), "inward360") == 0.5
 
 
 def test_per_image_exposure_and_camera_refinement_follow_the_data_unless_set() -> None:
@@ -153,10 +167,10 @@ def test_per_image_exposure_and_camera_refinement_follow_the_data_unless_set() -
     rendered, said = build_model(TrainParams(), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, cpu, names)
     assert rendered.appearance is None and rendered.refinement is None  # constant exposure; exact rendered poses
     assert any("exact" in s for s in said) and any("exposure constant" in s for s in said)
-    forced, said = build_model(TrainParams(appearance="on", refine_poses="off"), scene_of("inward360"), world, bounds,
+    forced, said = build_model(train_params({"per_image.appearance": "on", "per_image.refine_poses": "off"}), scene_of("inward360"), world, bounds,
                                cpu, names)
     assert forced.appearance is not None and forced.refinement is None
-    assert "train.appearance=on" in " ".join(said) and "train.refine_poses=off" in " ".join(said)
+    assert "train.per_image.appearance=on" in " ".join(said) and "train.per_image.refine_poses=off" in " ".join(said)
     # poses whose points reproject within a pixel are kept; beyond, refined
     from nerfpipe.geometry.cameras import CameraSet, Points
 
@@ -167,7 +181,7 @@ def test_per_image_exposure_and_camera_refinement_follow_the_data_unless_set() -
         assert (model.refinement is not None) == refined and f"{error:.2f} px" in " ".join(said)
     without_names, _ = build_model(TrainParams(), varying, world, bounds, cpu)  # nothing per image to learn
     assert without_names.appearance is None and without_names.refinement is None
-    assert training_config(TrainParams(pose_lr=0.002), "inward360").pose_lr == 0.002
+    assert training_config(train_params({"per_image.pose_lr": 0.002}), "inward360").pose_lr == 0.002
 
 
 def test_silhouettes_shrink_the_scene_box_and_the_grids_over_it_to_their_visual_hull() -> None:
@@ -179,11 +193,11 @@ def test_silhouettes_shrink_the_scene_box_and_the_grids_over_it_to_their_visual_
     assert np.all(lo <= CENTER - RADIUS - cell + 1e-6) and np.all(hi >= CENTER + RADIUS + cell - 1e-6)
     assert np.all(hi - lo < 2 * RADIUS + 8 * cell)  # the ring looks down at it: a little taller than the sphere
     assert model.coarse.lo.tolist() == pytest.approx(lo.tolist()) and model.coarse.hi.tolist() == pytest.approx(hi.tolist())
-    assert model.occupancy.lo.tolist() == pytest.approx(lo.tolist()) and model.occupancy.hi.tolist() == pytest.approx(hi.tolist())
+    assert model.sampler.grid.lo.tolist() == pytest.approx(lo.tolist()) and model.sampler.grid.hi.tolist() == pytest.approx(hi.tolist())
     assert said[0].startswith("visual hull of 12 silhouettes: the scene box shrinks from 2.00 x 2.00 x 2.00 to ")
     # not asked for, or no box to shrink: the scene box as the bounds stage made it
-    for params, kind in ((TrainParams(hull="off"), scene), (TrainParams(), scene_of("inward360", "none")),
-                         (TrainParams(field="mlp"), scene_of("forward", "alpha", [1, 1, 1]))):
+    for params, kind in ((train_params({"space.hull": "off"}), scene), (TrainParams(), scene_of("inward360", "none")),
+                         (train_params({"field.kind": "mlp"}), scene_of("forward", "alpha", [1, 1, 1]))):
         kept, said = build_model(params, kind, world, bounds, CPU, silhouettes=views)
         assert not said[0].startswith("visual hull")
         assert kept.ray_space.box in (None, ((-1, -1, -1), (1, 1, 1)))

@@ -6,7 +6,8 @@ from __future__ import annotations
 import torch
 
 from nerfpipe.nerf.contraction import Contraction, contract, uncontract
-from nerfpipe.nerf.occupancy import OccupancyGrid, contracted_steps, march
+from nerfpipe.nerf.marching import contracted_steps, march
+from nerfpipe.nerf.occupancy import OccupancyGrid
 
 
 def test_values_by_hand():

@@ -8,11 +8,12 @@ import math
 import pytest
 import torch
 
+from nerfpipe.nerf.samplers import MarchingSampler
 from nerfpipe.nerf.analytic import SphereField
-from nerfpipe.nerf.occupancy import (
-    MarchingConfig, OccupancyGrid, PackedSamples, march, pack_left, rays_within, render_marched, render_marched_segments,
-    transmittance_before, visible,
+from nerfpipe.nerf.marching import (
+    PackedSamples, march, pack_left, rays_within, render_marched, render_marched_segments, transmittance_before, visible,
 )
+from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
 from nerfpipe.nerf.rays import intersect_box
 from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
 
@@ -221,12 +222,12 @@ def test_a_marching_model_saves_and_loads_with_its_grid(tmp_path) -> None:
     field = GridField(*BOX, GridFieldConfig(levels=2, min_resolution=4, max_resolution=8))
     grid = OccupancyGrid(*BOX, resolution=8)
     grid.update(SphereField(radius=0.6).query_density, grid.diagonal / 64, 0.01, all_cells=True)
-    model = RadianceModel(field, None, SamplingConfig(8, 0), RaySpace(box=BOX), (1.0, 1.0, 1.0), {}, grid,
-                          MarchingConfig(steps=64))
+    model = RadianceModel(field, None, MarchingSampler(grid, MarchingConfig(steps=64)), RaySpace(box=BOX),
+                          (1.0, 1.0, 1.0), {})
     model.save(tmp_path)
     loaded = RadianceModel.load(tmp_path)
-    assert isinstance(loaded.coarse, GridField) and loaded.marching == MarchingConfig(steps=64)
-    assert torch.equal(loaded.occupancy.occupied, grid.occupied) and 0 < loaded.occupancy.occupancy() < 1
+    assert isinstance(loaded.coarse, GridField) and loaded.sampler.config == MarchingConfig(steps=64)
+    assert torch.equal(loaded.sampler.grid.occupied, grid.occupied) and 0 < loaded.sampler.grid.occupancy() < 1
     o, d, near, far = camera_rays(64)
     rays = RayBatch(o, d, d, near, far)
     a, b = model.render_batch(rays), loaded.render_batch(rays)

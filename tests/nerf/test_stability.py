@@ -484,7 +484,8 @@ def _box_rays(n: int = 16):
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("density", EXTREME_DENSITIES)
 def test_marching_keeps_bounds_and_gradients_at_extreme_densities(mode: str, density: float) -> None:
-    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid, render_marched, render_marched_segments
+    from nerfpipe.nerf.marching import render_marched, render_marched_segments
+    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
 
     field = _Constant(density)
     grid = OccupancyGrid((-1.0,) * 3, (1.0,) * 3, 8)
@@ -512,7 +513,8 @@ def test_marching_keeps_bounds_and_gradients_at_extreme_densities(mode: str, den
 def test_marching_degenerate_rays_give_the_background() -> None:
     """Zero-length rays (near == far), rays outside the box and an all-empty grid: no samples, the
     background colour, zero opacity, depth at far, and no NaN anywhere, gradients included."""
-    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid, render_marched, render_marched_segments
+    from nerfpipe.nerf.marching import render_marched, render_marched_segments
+    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
 
     field = _Constant(10.0)
     grid = OccupancyGrid((-1.0,) * 3, (1.0,) * 3, 4)
@@ -542,7 +544,8 @@ def test_contracted_marching_keeps_bounds_and_gradients(mode: str, density: floa
     """World rays from outside the scene box to far bounds up to 1e6 through contracted space, at every
     extreme density: a bounded number of steps, sane composites, finite gradients, depth within [near, far]."""
     from nerfpipe.nerf.contraction import Contraction
-    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid, render_marched, render_marched_segments
+    from nerfpipe.nerf.marching import render_marched, render_marched_segments
+    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
 
     field = _Constant(density)
     contraction = Contraction((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))

@@ -7,12 +7,14 @@ import numpy as np
 import pytest
 import torch
 
+from nerfpipe.nerf.samplers import HierarchicalSampler, MarchingSampler
 from nerfpipe.nerf.field import FieldConfig, NerfField
 from nerfpipe.nerf.model import RadianceModel, RaySpace
 from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
 from nerfpipe.nerf.rays import pixel_centers
 from nerfpipe.nerf.renderer import SamplingConfig
-from nerfpipe.nerf.trainer import PixelSet, StallGuard, TrainConfig, Trainer, mean_colour_psnr, set_precision
+from nerfpipe.nerf.stall import StallGuard, mean_colour_psnr
+from nerfpipe.nerf.trainer import PixelSet, TrainConfig, Trainer, set_precision
 from tests.helpers import look_at
 
 BOX = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
@@ -32,8 +34,8 @@ def marching_model() -> RadianceModel:
     field = NerfField(FieldConfig(depth=2, width=32, skips=(), view_width=16, pos_freqs=4, dir_freqs=2,
                                   density_activation="softplus"))
     grid = OccupancyGrid(*BOX, resolution=8)  # fresh: every cell occupied, every ray marched end to end
-    return RadianceModel(field, None, SamplingConfig(8, 0), RaySpace(box=BOX), (1.0, 1.0, 1.0), {}, grid,
-                         MarchingConfig(steps=64, early_stop=1e-4, update_every=1000))
+    return RadianceModel(field, None, MarchingSampler(grid, MarchingConfig(steps=64, early_stop=1e-4, update_every=1000)),
+                         RaySpace(box=BOX), (1.0, 1.0, 1.0), {})
 
 
 def test_a_step_evaluates_at_most_twice_the_samples_it_asks_for_and_the_batch_shrinks_at_once(tmp_path) -> None:
@@ -52,7 +54,7 @@ def test_a_step_evaluates_at_most_twice_the_samples_it_asks_for_and_the_batch_sh
 
 def test_the_batch_grows_smoothly_when_rays_get_shorter(tmp_path) -> None:
     model = marching_model()
-    model.occupancy.occupied.zero_()  # nothing occupied: no samples at all
+    model.sampler.grid.occupied.zero_()  # nothing occupied: no samples at all
     config = TrainConfig(steps=10, batch_rays=1024, batch_samples=100_000, lr=1e-3, lr_final=1e-4)
     trainer = Trainer(model, pixels_of_one_view(), config, tmp_path, torch.device("cpu"))
     trainer.train_step(1)
@@ -113,11 +115,11 @@ def test_a_restart_restores_the_initial_weights_and_grid_at_half_the_learning_ra
                       torch.device("cpu"))
     initial = {k: v.clone() for k, v in model.coarse.state_dict().items()}
     trainer.run()
-    model.occupancy.occupied[:10] = False
+    model.sampler.grid.occupied[:10] = False
     assert any(not torch.equal(initial[k], v) for k, v in model.coarse.state_dict().items())
     trainer.restart()
     assert all(torch.equal(initial[k], v) for k, v in model.coarse.state_dict().items())
-    assert bool(model.occupancy.occupied.all()) and trainer.lr_scale == 0.5 and not trainer.optimizer.state
+    assert bool(model.sampler.grid.occupied.all()) and trainer.lr_scale == 0.5 and not trainer.optimizer.state
 
 
 def masked(pixels: PixelSet, alpha: float) -> PixelSet:
@@ -128,7 +130,7 @@ def masked(pixels: PixelSet, alpha: float) -> PixelSet:
 def test_backdrop_pixels_teach_empty_space_against_a_random_colour_per_ray(tmp_path) -> None:
     config = TrainConfig(steps=10, batch_rays=1024, batch_samples=0, lr=1e-3, lr_final=1e-4)
     empty = marching_model()
-    empty.occupancy.occupied.zero_()  # nothing to hit: every ray shows the colour it is composited onto
+    empty.sampler.grid.occupied.zero_()  # nothing to hit: every ray shows the colour it is composited onto
 
     def loss_of(pixels: PixelSet, step: int = 1) -> float:
         return Trainer(empty, pixels, config, tmp_path, torch.device("cpu")).train_step(step)[0]
@@ -152,7 +154,7 @@ def test_the_random_backdrop_reaches_both_passes_of_section_5_2_sampling(tmp_pat
     with torch.no_grad():  # softplus(-100) ~ 4e-44: an empty field
         field.density.weight.zero_()
         field.density.bias.fill_(-100.0)
-    model = RadianceModel(field, None, SamplingConfig(8, 8), RaySpace(box=BOX), (1.0, 1.0, 1.0), {})
+    model = RadianceModel(field, None, HierarchicalSampler(SamplingConfig(8, 8)), RaySpace(box=BOX), (1.0, 1.0, 1.0), {})
     config = TrainConfig(steps=10, batch_rays=256, lr=1e-3, lr_final=1e-4)
     trainer = Trainer(model, masked(pixels_of_one_view(8), 0.0), config, tmp_path, torch.device("cpu"))
     loss, _ = trainer.train_step(1)

@@ -7,7 +7,7 @@ import pycolmap
 import pytest
 
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
-from nerfpipe.poses.triangulate import known_poses_model, max_pose_change, triangulated_points, write_to_database
+from nerfpipe.poses.colmap.triangulate import known_poses_model, max_pose_change, triangulated_points, write_to_database
 from tests.helpers import look_at
 
 
@@ -22,7 +22,7 @@ def ring(n: int = 3) -> CameraSet:
 
 def test_known_poses_become_a_model_with_fixed_ids_in_the_database(tmp_path):
     cameras = ring()
-    model = known_poses_model(pycolmap, cameras)
+    model = known_poses_model(cameras)
     assert sorted(model.images) == [1, 2, 3] and model.num_reg_images() == 3
     for image_id, frame in zip(sorted(model.images), cameras.frames):
         image = model.images[image_id]
@@ -45,7 +45,7 @@ def test_known_poses_become_a_model_with_fixed_ids_in_the_database(tmp_path):
 
 def test_a_moved_pose_is_measured():
     cameras = ring()
-    model = known_poses_model(pycolmap, cameras)
+    model = known_poses_model(cameras)
     before = cameras.frames[1].w2c
     cameras.frames[1].c2w[:3, 3] += [0.25, 0.0, 0.0]  # the camera centre moves 0.25 along x
     # w2c's translation -R^T c moves by R^T [0.25, 0, 0]: its largest entry is what is reported

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import torch
 
+from nerfpipe.nerf.samplers import HierarchicalSampler
 from nerfpipe.artifacts import Bounds, Decision, FrameBounds, SceneDecisions
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, mean_camera
 from nerfpipe.imaging.png import read_png, srgb_encode
@@ -98,7 +99,7 @@ def write_scene(folder: Path, layout: str, photometric: str = "srgb") -> StageIn
         field = cube_field((0.3, 0.3, 0.3))
         ray_space = RaySpace(box=(tuple(box[0]), tuple(box[1])))
     info = {"layout": layout, "photometric": photometric, "to_sfm": TO_SFM.tolist()}
-    model = RadianceModel(field, None, SamplingConfig(n_coarse=32, n_fine=16), ray_space, None, info)
+    model = RadianceModel(field, None, HierarchicalSampler(SamplingConfig(n_coarse=32, n_fine=16)), ray_space, None, info)
     (folder / "train").mkdir()
     model.save(folder / "train")
     artifacts = {"model": folder / "train" / "model.pt", "model_json": folder / "train" / "model.json",

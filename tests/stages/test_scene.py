@@ -10,14 +10,15 @@ import numpy as np
 import pytest
 
 from nerfpipe import Pipeline
+from nerfpipe.analysis.exposure import decide_exposure, decide_photometric, measure_exposure
+from nerfpipe.analysis.layout import decide_layout
 from nerfpipe.artifacts import Bounds, FrameBounds, SceneDecisions
 from nerfpipe.geometry.cameras import OPENGL_TO_OPENCV, Camera, CameraSet, Frame, Points, invert_pose
 from nerfpipe.geometry.normalize import in_view
 from nerfpipe.pipeline import ParamError, parse_assignments
 from nerfpipe.stages import IngestStage
 from nerfpipe.stages.bounds import BoundsStage
-from nerfpipe.stages.scene import (SceneParams, SceneStage, decide_exposure, decide_layout, decide_photometric,
-                                   measure_exposure)
+from nerfpipe.stages.scene import SceneParams, SceneStage
 from tests.helpers import TEMPLE, SavedCameras, look_at, shared
 
 # README.txt of templeSparseRing: "The (tight) bounding box for the templeSparseRing model"
@@ -209,7 +210,7 @@ def test_undistorted_frames_are_read_from_the_undistort_output(capture, tmp_path
 
 
 def test_lens_evidence_per_camera():
-    from nerfpipe.stages.scene import decide_lens
+    from nerfpipe.analysis.lens import decide_lens
 
     cameras = CameraSet({}, [], extra={"undistortion": {
         "1": {"model": "OPENCV", "max_displacement_px": 0.12, "undistorted": False},
@@ -224,7 +225,7 @@ def test_lens_evidence_per_camera():
 
 def test_lens_evidence_sums_up_one_camera_per_photo():
     """71 phone frames, a camera each: one sentence with the spread and the counts, not 71 clauses."""
-    from nerfpipe.stages.scene import decide_lens
+    from nerfpipe.analysis.lens import decide_lens
 
     record = {str(i): {"model": "SIMPLE_RADIAL", "max_displacement_px": 0.2 + 0.4 * i, "undistorted": True}
               for i in range(1, 72)}

@@ -15,7 +15,8 @@ from nerfpipe import Pipeline
 from nerfpipe.geometry.align import rotation_angle_deg, umeyama
 from nerfpipe.geometry.cameras import CameraSet, invert_pose
 from nerfpipe.stages import IngestStage, SfmStage
-from nerfpipe.stages.sfm import SfmParams, choose_matcher
+from nerfpipe.poses.colmap.matching import choose_matcher
+from nerfpipe.stages.sfm import SfmParams
 from tests.helpers import TEMPLE, run_cli, shared
 from tests.imaging import photos
 
@@ -89,7 +90,8 @@ def test_exif_focal_prior_and_gps_reach_colmap(tmp_path):
     matching pairs the photos by their positions."""
     import pycolmap
 
-    from nerfpipe.stages.sfm import _match, _single_camera, _write_priors
+    from nerfpipe.poses.colmap.mapping import single_camera, write_priors
+    from nerfpipe.poses.colmap.matching import match_features
 
     folder = tmp_path / "photos"
     folder.mkdir()
@@ -101,15 +103,15 @@ def test_exif_focal_prior_and_gps_reach_colmap(tmp_path):
         (folder / f"t{i}.jpg").write_bytes(photos.jpeg(image[:, :, ::-1], exif, quality=95))
     ingest = Pipeline([IngestStage()], folder, tmp_path / "run").run()[0]
     recs = json.loads((ingest.path / "images.json").read_text())["images"]
-    assert _single_camera(recs)
+    assert single_camera(recs)
 
     database = tmp_path / "database.db"
     pycolmap.Database.open(database).close()
     reader = pycolmap.ImageReaderOptions()
     pycolmap.extract_features(database, ingest.path / "images", [r["name"] for r in recs],
                               pycolmap.CameraMode.SINGLE, reader, device=pycolmap.Device.cpu)
-    assert _write_priors(pycolmap, database, recs, single=True) == 4
-    _match(pycolmap, database, "spatial", SfmParams())
+    assert write_priors(database, recs, single=True) == 4
+    match_features(database, "spatial", SfmParams())
     with pycolmap.Database.open(database) as db:
         camera = db.read_all_cameras()[0]
         assert camera.has_prior_focal_length
@@ -281,7 +283,7 @@ def test_too_few_triangulated_points_fall_back_and_spatial_matching_uses_the_kno
 
 
 def test_triangulation_matcher_choice():
-    from nerfpipe.stages.sfm import choose_triangulation_matcher
+    from nerfpipe.poses.colmap.triangulate import choose_triangulation_matcher
 
     params = SfmParams()
     assert choose_triangulation_matcher(records(40), params)[0] == "exhaustive"

@@ -25,9 +25,10 @@ from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
 # a training small enough for a test: lego at 32 px, a 2x32 MLP, 16 + 16 samples
 TINY = {
     "ingest": {"max_size": 32},
-    "train": {"field": "mlp", "steps": 300, "batch_rays": 256, "n_coarse": 16, "n_fine": 16, "depth": 2, "width": 32, "view_width": 16,
-              "checkpoint_every": 100, "eval_stride": 25, "lr": 5e-3, "keep_checkpoints": 0,
-              "density_noise": 0.3},  # noise on, so resuming is shown to redraw the same noise too
+    "train": {"field.kind": "mlp", "steps": 300, "optim.batch_rays": 256, "sampler.n_coarse": 16, "sampler.n_fine": 16,
+              "field.depth": 2, "field.width": 32, "field.view_width": 16, "checkpoint_every": 100, "eval_stride": 25,
+              "optim.lr": 5e-3, "keep_checkpoints": 0,
+              "optim.density_noise": 0.3},  # noise on, so resuming is shown to redraw the same noise too
 }
 
 
@@ -37,16 +38,17 @@ def tiny_cli_args() -> list[str]:
 
 def test_paper_preset_has_the_papers_values() -> None:
     params = build_params("train", TrainParams, TrainStage.presets, "paper", {})
-    assert (params.steps, params.batch_rays, params.n_coarse, params.n_fine) == (200_000, 4096, 64, 128)
-    assert (params.depth, params.width, params.view_width, params.skip_after) == (8, 256, 128, 5)
-    assert (params.pos_freqs, params.dir_freqs, params.lr, params.lr_final, params.adam_eps) == (10, 4, 5e-4, 5e-5, 1e-7)
-    assert params.fine_network and params.density_activation == "relu" and not params.include_input
+    f, s, o = params.field, params.sampler, params.optim
+    assert (params.steps, o.batch_rays, s.n_coarse, s.n_fine, s.kind) == (200_000, 4096, 64, 128, "hierarchical")
+    assert (f.kind, f.depth, f.width, f.view_width, f.skip_after) == ("mlp", 8, 256, 128, 5)
+    assert (f.pos_freqs, f.dir_freqs, o.lr, o.lr_final, o.adam_eps) == (10, 4, 5e-4, 5e-5, 1e-7)
+    assert f.fine_network and f.density_activation == "relu" and not f.include_input
     model, _ = build_model(params, scene_of("inward360"), world_of_one_camera(), bounds_of(), torch.device("cpu"))
     linear = [m for m in model.coarse.modules() if isinstance(m, torch.nn.Linear)]
     assert [(m.in_features, m.out_features) for m in linear] == (
         [(60, 256)] + [(256, 256)] * 4 + [(256 + 60, 256)] + [(256, 256)] * 2 + [(256, 1), (256, 256), (256 + 24, 128), (128, 3)]
     )
-    assert model.fine is not None and model.sampling.n_fine == 128
+    assert model.fine is not None and model.sampler.config.n_fine == 128
 
 
 def test_bad_train_values_are_parameter_errors() -> None:
@@ -55,7 +57,7 @@ def test_bad_train_values_are_parameter_errors() -> None:
                       {"occupancy": "maybe"}, {"field": "hash"}, {"adam_beta2": "1"}, {"march_steps": "0"}):
         with pytest.raises(ParamError):
             build_params("train", TrainParams, TrainStage.presets, None, overrides)
-    assert any(spec.name == "autocast" for spec in param_specs(TrainParams))
+    assert {"autocast", "field.levels", "sampler.steps", "optim.lr"} <= {spec.name for spec in param_specs(TrainParams)}
 
 
 def lego_pipeline(run_dir: Path, extra: dict | None = None, **train: object) -> Pipeline:
@@ -287,7 +289,7 @@ def test_a_phone_capture_with_a_room_behind_trains_in_contracted_space_and_a_cli
     assert guard["batch_psnr_ema"] > guard["mean_colour_psnr"] + 4.0
     assert metrics["psnr"] > guard["mean_colour_psnr"] + 2.0
     # the old ray space, rays clipped to the scene box: half of them miss it and render black; the guard says so
-    clipped = train_beer(tmp_path / "beer", contract="false", steps="220")["stall_guard"]
+    clipped = train_beer(tmp_path / "beer", steps="220", **{"space.contract": "off"})["stall_guard"]
     assert clipped["restarted_at"] == 200 and clipped["stalled"]  # checked at step 200, restarted, still there at 220
     assert clipped["batch_psnr_ema"] < clipped["mean_colour_psnr"] + 1.0
 

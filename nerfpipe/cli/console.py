@@ -1,0 +1,132 @@
+"""What the CLI shows in the terminal: log lines, progress bars, user errors as one line (tracebacks with --debug), and the states of stages."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from typing import Callable, Iterator
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from nerfpipe.pipeline import NerfpipeError
+from nerfpipe.pipeline.errors import os_error_to_user_error
+
+err_console = Console(stderr=True)
+
+STATE_STYLE = {"fresh": "green", "stale": "yellow", "broken": "red", "missing": "red"}
+
+
+class ConsoleHandler(logging.Handler):
+    """Concise terminal logs: plain info lines, labelled warnings; the run's log file has everything."""
+
+    PREFIX = {logging.DEBUG: "[dim]debug:[/] ", logging.WARNING: "[yellow]warning:[/] ", logging.ERROR: "[red]error:[/] "}
+
+    def emit(self, record: logging.LogRecord) -> None:
+        prefix = self.PREFIX.get(record.levelno, "")
+        err_console.print(prefix + escape(self.format(record)), highlight=False, soft_wrap=True)
+
+
+def setup_logging(debug: bool) -> None:
+    handler = ConsoleHandler()
+    handler.setLevel(logging.DEBUG if debug else logging.INFO)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    root = logging.getLogger("nerfpipe")
+    root.handlers[:] = [handler]
+    root.setLevel(logging.DEBUG if debug else logging.INFO)
+    root.propagate = False
+
+
+@contextlib.contextmanager
+def user_errors(debug: bool) -> Iterator[None]:
+    """User errors become one line and a non-zero exit; ``--debug`` shows the traceback as well.
+
+    So does a full disk or a read-only filesystem met outside a stage (writing the report, say).
+    """
+    try:
+        yield
+    except (NerfpipeError, OSError) as err:
+        user_error = err if isinstance(err, NerfpipeError) else os_error_to_user_error(err, err.filename or ".")
+        if user_error is None:
+            raise
+        if debug:
+            err_console.print_exception()
+        err_console.print(f"[bold red]error:[/] {escape(str(user_error))}", highlight=False, soft_wrap=True)
+        raise typer.Exit(user_error.exit_code) from None
+    except KeyboardInterrupt:
+        err_console.print("[bold red]interrupted[/]: the stage that was running was not committed", highlight=False)
+        raise typer.Exit(130) from None
+
+
+def progress_factory() -> Callable:
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    @contextlib.contextmanager
+    def progress(total: int, description: str) -> Iterator[Callable[..., None]]:
+        if not err_console.is_terminal:
+            yield lambda n=1, info=None: None
+            return
+        columns = (
+            TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+            TextColumn("left"), TimeRemainingColumn(), TextColumn("{task.fields[info]}"),
+        )
+        with Progress(*columns, console=err_console, transient=True) as bar:
+            task = bar.add_task(description, total=total, info="")
+
+            def advance(n: int = 1, info: str | None = None) -> None:
+                bar.update(task, advance=n, **({} if info is None else {"info": info}))
+
+            yield advance
+
+    return progress
+
+
+def bench_line(result: dict, with_seed: bool) -> str:
+    seed = f" (seed {result['seed']})" if with_seed else ""
+    return (f"{result['name']}{seed}: {result['points'][-1]['psnr']:.2f} dB after {result['train_seconds']:.0f} s "
+            f"({result['samples_per_ray']:.1f} samples/ray, {result['samples_per_s']:,} samples/s)")
+
+
+@contextlib.contextmanager
+def batch_progress(total: int) -> Iterator[Callable]:
+    """One line per capture (state, current stage, time) and the totals: a live table on a terminal,
+    else a line whenever a capture moves on."""
+    def totals(states) -> str:
+        counts = {k: sum(1 for c in states if c.state == k) for k in ("running", "done", "failed", "queued")}
+        return ", ".join(f"{v} {k}" for k, v in counts.items()) + f" of {total}"
+
+    if not err_console.is_terminal:
+        seen: dict[str, tuple] = {}
+
+        def on_change(states) -> None:
+            for c in states:
+                now = (c.state, c.stage)
+                if seen.get(c.name) != now and c.state != "queued":
+                    seen[c.name] = now
+                    where = c.stage or ""
+                    err_console.print(f"batch: {c.name}: {c.state} {where} ({totals(states)})".replace("  ", " "),
+                                      highlight=False, soft_wrap=True)
+
+        yield on_change
+        return
+    from rich.live import Live
+
+    def render(states) -> Table:
+        table = Table(title=totals(states), title_justify="left", box=None)
+        for column in ("capture", "state", "stage", "time"):
+            table.add_column(column)
+        for c in states:
+            table.add_row(c.name, c.state, c.stage or "", f"{c.seconds:.0f} s" if c.started else "")
+        return table
+
+    with Live(console=err_console, transient=True, refresh_per_second=4) as live:
+        yield lambda states: live.update(render(states))

@@ -1,0 +1,143 @@
+"""The train stage's parameter groups, as ``--set train.GROUP.NAME=VALUE`` names them.
+
+Each group is the user-facing configuration of one part of the model, validated here once:
+``field`` (``nerfpipe.nerf.fields``), ``sampler`` (``nerfpipe.nerf.samplers``), ``space`` (the ray space
+and scene box, ``nerfpipe.nerf.assembly``), ``optim`` (``nerfpipe.nerf.trainer``) and ``per_image``
+(``nerfpipe.nerf.appearance``, ``nerfpipe.nerf.refinement``). This module imports no torch, so listing
+the parameters (``nerfpipe stages``) stays quick and training can set torch's CPU state before torch runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from nerfpipe.nerf.registry import FIELDS, SAMPLERS, check
+from nerfpipe.pipeline.params import Auto, param
+
+
+def _at_least(params: object, minimum: float, *names: str) -> None:
+    for name in names:
+        value = getattr(params, name)
+        if value < minimum:
+            raise ValueError(f"{name} must be >= {minimum:g}, got {value}")
+
+
+@dataclass(frozen=True)
+class FieldParams:
+    """The radiance field: dense grids and a small MLP (fast), or the paper's MLP (Fig. 7)."""
+
+    kind: str = param("grid", "grid: dense feature grids + a small MLP (fast); mlp: the paper's MLP (Fig. 7); any "
+                              "field in nerfpipe.nerf.fields.FIELDS")
+    levels: int = param(3, "grid: levels of the multiresolution grid")
+    min_resolution: int = param(32, "grid: cells a side of the coarsest level")
+    max_resolution: int = param(128, "grid: cells a side of the finest level")
+    features: int = param(4, "grid: features per vertex and level")
+    hidden: int = param(64, "grid: width of its MLPs")
+    depth: int = param(4, "mlp: layers of the trunk (the paper: 8)")
+    width: int = param(128, "mlp: channels per trunk layer (the paper: 256)")
+    view_width: int = param(64, "mlp: channels of the view-direction layer (the paper: 128)")
+    skip_after: int = param(0, "mlp: concatenate the encoded input to this layer's activation (the paper: 5; 0: none)")
+    positional_encoding: bool = param(True, "encode x and d with Eq. 4; false is Table 2's 'No Pos. Encoding'")
+    pos_freqs: int = param(10, "L for positions (Section 5.1: 10)")
+    dir_freqs: int = param(4, "L for directions (Section 5.1: 4)")
+    include_input: bool = param(True, "mlp: feed the raw coordinates beside their encoding (the authors' code does)")
+    view_dependence: bool = param(True, "colour depends on the viewing direction; false is Table 2's 'No View Dependence'")
+    density_activation: Literal["relu", "softplus"] = param("softplus", "mlp: relu (the paper) or softplus")
+    fine_network: bool = param(False, "a separate fine network (the paper); false reuses the coarse one")
+
+    def __post_init__(self) -> None:
+        check(FIELDS, self.kind, "kind")
+        _at_least(self, 1, "levels", "min_resolution", "max_resolution", "features", "hidden", "depth", "width",
+                  "view_width")
+        _at_least(self, 0, "skip_after", "pos_freqs", "dir_freqs")
+        if self.skip_after > self.depth - 1:
+            raise ValueError(f"skip_after must be below depth ({self.depth}), got {self.skip_after}")
+        if self.min_resolution > self.max_resolution:
+            raise ValueError("min_resolution must not exceed max_resolution")
+
+
+@dataclass(frozen=True)
+class SamplerParams:
+    """Where along each ray the field is evaluated: marching an occupancy grid, or Section 5.2's sampling."""
+
+    kind: str = param("auto", "marching: empty-space skipping through an occupancy grid (Instant-NGP); hierarchical: "
+                              "Section 5.2's N_c + N_f samples; auto: marching with the grid field; any sampler in "
+                              "nerfpipe.nerf.registry.SAMPLERS")
+    occupancy_resolution: int = param(64, "cells a side of the occupancy grid")
+    steps: int = param(128, "marching steps along the field box's diagonal (about one per image pixel at 100 px lego)")
+    early_stop: float = param(1e-4, "stop a marched ray once its transmittance is below this (0: never)")
+    occupancy_threshold: float = param(0.01, "a cell is occupied when one step through it is this optically thick")
+    n_coarse: int = param(32, "N_c stratified samples per ray (the paper: 64); without the occupancy grid")
+    n_fine: int = param(64, "N_f samples from the coarse weights (the paper: 128; 0: no hierarchical sampling)")
+    hierarchical: bool = param(True, "hierarchical sampling; false is Table 2's 'No Hierarchical' (N_c samples only)")
+    lindisp: Auto = param("auto", "sample linearly in disparity; auto: for unbounded scenes")
+
+    def __post_init__(self) -> None:
+        check(SAMPLERS, self.kind, "kind", ("auto",))
+        _at_least(self, 1, "occupancy_resolution", "steps", "n_coarse")
+        _at_least(self, 0, "n_fine", "occupancy_threshold")
+        if not (0 <= self.early_stop < 1):
+            raise ValueError(f"early_stop must be in [0, 1), got {self.early_stop}")
+
+
+@dataclass(frozen=True)
+class SpaceParams:
+    """The ray space and the scene box the fields live in."""
+
+    contract: Auto = param("auto", "contract the space beyond the scene box (mip-NeRF 360); auto: unbounded scenes "
+                                   "and inward 360 ones without a backdrop")
+    clip_to_box: bool = param(True, "inward 360 with a backdrop: clip each ray to the scene box")
+    hull: Auto = param("auto", "shrink the scene box to the box of the photos' visual hull, where the grids then "
+                               "spend their cells; auto and on: for inward 360 photos with silhouettes (alpha or a "
+                               "backdrop), on also says why when it cannot")
+    hull_tolerance: float = param(0.05, "carve a cell only when more than this share of the photos seeing it call "
+                                        "it backdrop (mask errors)")
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.hull_tolerance < 1:
+            raise ValueError(f"hull_tolerance must be in [0, 1) (1 carves nothing), got {self.hull_tolerance}")
+
+
+@dataclass(frozen=True)
+class OptimParams:
+    """Batches, the optimizer and its schedule (Section 5.3)."""
+
+    batch_rays: int = param(4096, "rays per batch (the paper: 4096); with batch_samples, the starting and largest / 16 batch")
+    batch_samples: int = param(16384, "while marching, adapt the rays per batch to about this many samples "
+                                      "(Instant-NGP), and evaluate at most twice as many a step; 0: fixed batch_rays")
+    lr: float = param(2e-2, "initial Adam learning rate (the paper: 5e-4)")
+    lr_final: float = param(1e-3, "learning rate at the last step, reached by exponential decay (the paper: 5e-5)")
+    adam_eps: float = param(1e-15, "Adam epsilon (the paper: 1e-7)")
+    adam_beta2: float = param(0.99, "Adam beta2 (the paper: 0.999; Instant-NGP: 0.99)")
+    density_noise: str = param("auto", "std of noise on raw density: auto (1.0 for forward-facing real captures, "
+                                       "else 0) or a number")
+
+    def __post_init__(self) -> None:
+        _at_least(self, 1, "batch_rays")
+        _at_least(self, 0, "batch_samples")
+        if not (0 < self.lr_final <= self.lr) or self.adam_eps <= 0 or not (0 < self.adam_beta2 < 1):
+            raise ValueError("need 0 < lr_final <= lr, adam_eps > 0 and 0 < adam_beta2 < 1")
+        if self.density_noise != "auto":
+            try:
+                noise = float(self.density_noise)
+            except ValueError:
+                raise ValueError(f"density_noise must be auto or a number >= 0, got {self.density_noise!r}") from None
+            if not noise >= 0:
+                raise ValueError(f"density_noise must be >= 0, got {noise}")
+
+
+@dataclass(frozen=True)
+class PerImageParams:
+    """What is learned for each training photo beside the field."""
+
+    appearance: Auto = param("auto", "learn each photo's exposure and white balance (3 gains on linear light); "
+                                     "auto: when the scene finds exposure varying")
+    appearance_lr: float = param(1e-2, "learning rate of the per-image exposure gains (decays as lr does)")
+    refine_poses: Auto = param("auto", "refine each training camera's pose with the field; auto: for photos whose "
+                                       "poses the sparse points cannot vouch for, not for rendered captures")
+    pose_lr: float = param(3e-3, "learning rate of the camera corrections (decays as lr does)")
+    pose_penalty: float = param(1e-3, "weight of the camera corrections' mean squared size in the loss")
+
+    def __post_init__(self) -> None:
+        _at_least(self, 0, "appearance_lr", "pose_lr", "pose_penalty")

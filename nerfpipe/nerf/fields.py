@@ -1,0 +1,69 @@
+"""Fields: (x, d) -> (rgb, sigma), the part of a model that is learned.
+
+Every field answers the same few questions, so that the model, the samplers and the exports never ask
+which kind it is. Two are registered (``nerfpipe.nerf.registry.FIELDS``): the grid field
+(``nerfpipe.nerf.grid_field``) and the paper's MLP (``nerfpipe.nerf.field``). A new field is a class
+with these members and a line in the registry.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, Protocol
+
+from torch import Tensor
+
+from nerfpipe.nerf.registry import FIELDS, resolve
+
+Box = tuple[tuple[float, ...], tuple[float, ...]]
+
+
+class Field(Protocol):
+    """A radiance field as the model uses it (an ``nn.Module``)."""
+
+    kind: ClassVar[str]  # its name in the registry
+    needs_box: ClassVar[bool]  # whether it spans a bounded box (an unbounded scene must then be contracted)
+    training: bool
+
+    def __call__(self, x: Tensor, d: Tensor | None = None, density_noise: float = 0.0) -> tuple[Tensor, Tensor]:
+        """x: (M, 3) field coordinates, d: (M, 3) unit view directions -> rgb (M, 3) in [0, 1], sigma (M,) >= 0."""
+
+    def query_density(self, x: Tensor) -> Tensor:
+        """sigma (M,) at x (M, 3), without colour."""
+
+    @classmethod
+    def from_params(cls, params: Any, box: Box | None) -> "Field":
+        """From ``nerfpipe.nerf.config.FieldParams`` over ``box`` (field coordinates; None: unbounded)."""
+
+    @classmethod
+    def from_spec(cls, spec: dict[str, Any]) -> "Field":
+        """Rebuilt from ``spec()`` (model.json), before its weights are loaded."""
+
+    def spec(self) -> dict[str, Any]: ...
+
+    def describe(self) -> str | None:
+        """A sentence for the train log, or None for the paper's own field."""
+
+    def parameters(self) -> Any: ...
+
+    def state_dict(self) -> dict[str, Any]: ...
+
+    def load_state_dict(self, state: dict[str, Any]) -> Any: ...
+
+    def train(self, mode: bool = True) -> Any: ...
+
+    def eval(self) -> Any: ...
+
+    def to(self, device: Any) -> Any: ...
+
+
+def field_class(kind: str) -> type:
+    return resolve(FIELDS, kind)
+
+
+def load_field(spec: dict[str, Any]) -> Field:
+    """The field ``spec`` (with its registry ``kind``) describes, untrained."""
+    return field_class(spec["kind"]).from_spec(spec)
+
+
+def field_spec(field: Field) -> dict[str, Any]:
+    return {"kind": field.kind, **field.spec()}

@@ -1,0 +1,93 @@
+"""What the runner plans and reports: each stage's parameters, inputs and cache key (PlannedStage), its state and why (StageStatus, stale_reasons), and what a run did with it (StageOutcome)."""
+
+from __future__ import annotations
+
+import importlib.metadata
+import platform
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Mapping, Sequence
+
+from nerfpipe.pipeline.fingerprint import Fingerprint, diff_inputs
+from nerfpipe.pipeline.params import describe_changes
+from nerfpipe.pipeline.stage import Stage
+from nerfpipe.pipeline.store import Committed, Damage
+
+
+@dataclass(frozen=True)
+class PlannedStage:
+    """A stage with its resolved parameters, fingerprinted inputs and cache key."""
+
+    stage: Stage
+    params: Any
+    files: tuple[Fingerprint, ...]
+    material: dict[str, Any]
+    key: str
+
+    @property
+    def name(self) -> str:
+        return self.stage.name
+
+
+@dataclass(frozen=True)
+class StageStatus:
+    """``fresh``: its result for the current settings is intact and built on its upstream's current results.
+    ``stale``: settings, inputs or an upstream result changed. ``broken``: its result is damaged (``damage``
+    says which file and how) and will be computed again. ``missing``: never run with these settings."""
+
+    name: str
+    state: Literal["fresh", "stale", "broken", "missing"]
+    reasons: tuple[str, ...]
+    key: str
+    result: Committed | None  # the result for ``key`` when fresh, else the latest one, if any
+    damage: Damage | None = None
+
+
+@dataclass(frozen=True)
+class StageOutcome:
+    name: str
+    action: Literal["cached", "restored", "ran"]
+    key: str
+    path: Path
+    seconds: float
+    reasons: tuple[str, ...] = ()
+    summary: Mapping[str, Any] = field(default_factory=dict)
+
+
+def stale_reasons(planned: PlannedStage, previous: Mapping[str, Any], inputs_label: str) -> list[str]:
+    """Why ``planned`` differs from the ``previous`` manifest, e.g. ``params changed: ingest.max_size 1600 -> 800``."""
+    reasons = []
+    if previous.get("version") != planned.material["version"]:
+        reasons.append(f"code changed: {planned.name} version {previous.get('version')} -> {planned.material['version']}")
+    changes = describe_changes(planned.name, previous.get("params", {}), planned.material["params"])
+    if changes:
+        reasons.append("params changed: " + ", ".join(changes))
+    old_up, new_up = previous.get("upstream", {}), planned.material["upstream"]
+    for up in sorted(set(old_up) | set(new_up)):
+        if old_up.get(up) != new_up.get(up):
+            reasons.append(f"upstream {up} changed")
+    old_inputs = {rel: meta["sha256"] for rel, meta in previous.get("inputs", {}).items()}
+    added, removed, modified = diff_inputs(old_inputs, planned.material["inputs"])
+    if added or removed or modified:
+        parts = [f"{len(v)} {word}" for v, word in ((added, "added"), (modified, "modified"), (removed, "removed")) if v]
+        reasons.append(f"{inputs_label} changed: " + ", ".join(parts))
+    return reasons or ["cache key changed"]
+
+
+def running_because(reasons: Sequence[str]) -> str:
+    """The log line that starts a stage: ``running for the first time``, ``running again: params changed: ...``."""
+    if list(reasons) == ["not run yet"]:
+        return "running for the first time"
+    if list(reasons) == ["forced"]:
+        return "running again, as --force asked"
+    return "running again: " + "; ".join(reasons)
+
+
+def library_versions(names: Sequence[str]) -> dict[str, str]:
+    versions = {"python": platform.python_version()}
+    for name in ("nerfpipe", *names):
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            versions[name] = "not installed"
+    return versions

@@ -1,0 +1,170 @@
+"""Sparse points for known poses: the pieces between a ``CameraSet`` and COLMAP's point triangulator.
+
+Pose files without points (LLFF, ``transforms.json``, Middlebury) still describe photos whose features
+can be matched and triangulated with the poses held fixed, which gives the bounds stage the same
+evidence SfM gives it. This module turns the known cameras into a
+``pycolmap.Reconstruction`` (``known_poses_model``) and writes it into the COLMAP database the sfm stage
+then extracts and matches features into (``write_to_database``), and turns COLMAP's triangulated points
+back into ``Points`` indexed by the ``CameraSet``'s frames (``triangulated_points``).
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pycolmap
+
+from nerfpipe.geometry.cameras import CameraSet, Points
+from nerfpipe.pipeline.stage import StageContext
+from nerfpipe.poses.colmap.log import colmap_log
+from nerfpipe.poses.colmap.matching import choose_matcher, looks_like_video, match_features
+from nerfpipe.poses.importers import colmap_points
+
+
+def known_poses_model(cameras: CameraSet) -> Any:
+    """A reconstruction of ``cameras``: image ``i + 1`` is frame ``i`` registered at its known pose, with a
+    camera (and trivial rig and frame) of its own holding the frame's known intrinsics; no points.
+
+    Every camera is marked as a focal-length prior, so two-view verification of the matches uses the
+    calibration rather than a guess.
+    """
+    model = pycolmap.Reconstruction()
+    for index, frame in enumerate(cameras.frames, start=1):
+        known = cameras.camera_of(frame)
+        camera = pycolmap.Camera(model=known.model, width=known.width, height=known.height,
+                                 params=list(known.params), camera_id=index)
+        camera.has_prior_focal_length = True
+        model.add_camera_with_trivial_rig(camera)
+        w2c = frame.w2c
+        model.add_image_with_trivial_frame(pycolmap.Image(name=frame.name, camera_id=index, image_id=index),
+                                           pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3]))
+    return model
+
+
+def write_to_database(model: Any, db: Any) -> None:
+    """The cameras, rigs, frames and images of ``model`` into the empty open database ``db``, keeping their ids.
+
+    Feature extraction then adds keypoints to these images instead of creating its own, whose ids would
+    follow the order in which parallel workers happen to finish; fixed ids keep the matching, and with it
+    the triangulated points, the same from run to run.
+    """
+    for camera_id in sorted(model.cameras):
+        db.write_camera(model.cameras[camera_id], use_camera_id=True)
+    for rig_id in sorted(model.rigs):
+        db.write_rig(model.rigs[rig_id], use_rig_id=True)
+    for frame_id in sorted(model.frames):
+        db.write_frame(model.frames[frame_id], use_frame_id=True)
+    for image_id in sorted(model.images):
+        db.write_image(model.images[image_id], use_image_id=True)
+
+
+def triangulated_points(model: Any, cameras: CameraSet) -> Points | None:
+    """The points of ``model`` (a triangulated ``known_poses_model``), each frame's visibility by name."""
+    index = {frame.name: i for i, frame in enumerate(cameras.frames)}
+    frame_of_image = {int(image_id): index[image.name] for image_id, image in model.images.items()
+                      if image.name in index}
+    return colmap_points(model, frame_of_image, len(cameras.frames))
+
+
+def max_pose_change(model: Any, cameras: CameraSet) -> float:
+    """Largest difference between a frame's known w2c (4x4) and the triangulated model's, over all entries:
+    0 when the poses were held fixed, as they must be."""
+    by_name = {frame.name: frame for frame in cameras.frames}
+    change = 0.0
+    for image in model.images.values():
+        if image.name in by_name and image.has_pose:
+            w2c = np.asarray(image.cam_from_world().matrix(), dtype=np.float64)
+            change = max(change, float(np.abs(w2c - by_name[image.name].w2c[:3]).max()))
+    return change
+
+
+def choose_triangulation_matcher(records: list[dict], params: Any) -> tuple[str, str]:
+    """As ``choose_matcher``, but known poses give every photo a position: a large capture that is not a
+    video is matched with its nearest cameras (spatial) instead of exhaustively."""
+    n = len(records)
+    if params.matcher == "spatial":
+        return "spatial", "set by sfm.matcher: neighbours by the known camera positions"
+    if params.matcher != "auto" or n <= params.exhaustive_max:
+        return choose_matcher(records, params)
+    if looks_like_video(records):
+        return "sequential", f"{n} photos named as numbered frames"
+    return "spatial", f"{n} photos > sfm.exhaustive_max {params.exhaustive_max}: neighbours by the known camera positions"
+
+
+def triangulate_known_poses(
+    image_dir: Path, cameras: CameraSet, records: list[dict], out: Path, params: Any, ctx: StageContext
+) -> tuple[Points | None, dict[str, Any]]:
+    """Triangulate in a scratch folder, so the stage's result holds only what is the same on every run (COLMAP's
+    database and its log, which has timestamps, stay out; a failure's reason is in the summary)."""
+    with tempfile.TemporaryDirectory(prefix="nerfpipe-triangulate-") as scratch:
+        return triangulate_in(Path(scratch), image_dir, cameras, records, params, ctx)
+
+
+def triangulate_in(
+    work: Path, image_dir: Path, cameras: CameraSet, records: list[dict], params: Any, ctx: StageContext
+) -> tuple[Points | None, dict[str, Any]]:
+    """The pycolmap script: SIFT on the posed photos, matching, then COLMAP's point triangulator with the
+    known poses and intrinsics held fixed, its files in ``work``. Returns the points, or None (with the
+    reason) when COLMAP fails or keeps fewer than ``min_triangulated_points``; and what happened."""
+
+
+    start = time.monotonic()
+    names = [f.name for f in cameras.frames]
+    by_name = {r["name"]: r for r in records}
+    matcher, why = choose_triangulation_matcher([by_name[n] for n in names], params)
+    info: dict[str, Any] = {"photos": len(names), "matcher": matcher, "matcher_reason": why}
+    if len(names) < 2:
+        return None, {**info, "status": "failed", "reason": f"triangulation needs 2 posed photos, the pose file has {len(names)}"}
+    colmap_dir = work / "colmap"
+    colmap_dir.mkdir()
+    database, log_path = colmap_dir / "database.db", work / "colmap.log"
+    pycolmap.set_random_seed(params.seed)
+    pycolmap.Database.open(database).close()
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.max_image_size = params.max_image_size
+    extraction.sift.max_num_features = params.max_features
+    options = pycolmap.IncrementalPipelineOptions()
+    options.random_seed = params.seed
+    options.mapper.random_seed = params.seed
+    ctx.log.info("sfm: triangulating points for the %d known poses: SIFT, %s matching (%s)", len(names), matcher, why)
+    model = known_poses_model(cameras)
+    try:
+        with colmap_log(log_path):
+            with pycolmap.Database.open(database) as db:
+                write_to_database(model, db)
+            pycolmap.extract_features(database, image_dir, names, pycolmap.CameraMode.PER_IMAGE,
+                                      pycolmap.ImageReaderOptions(), extraction, device=pycolmap.Device.auto)
+            if matcher == "spatial":
+                write_known_positions(database, cameras)
+            match_features(database, matcher, params, known_positions=matcher == "spatial")
+            (colmap_dir / "triangulated").mkdir()
+            model = pycolmap.triangulate_points(model, database, image_dir, colmap_dir / "triangulated", options=options)
+    except Exception as err:  # COLMAP raises ValueError / RuntimeError when there is too little to work with
+        info.update(status="failed", seconds=round(time.monotonic() - start, 1))
+        return None, {**info, "reason": f"triangulation failed ({type(err).__name__}: {str(err).strip()[:200]})"}
+    points = triangulated_points(model, cameras)
+    count = 0 if points is None else len(points.xyz)
+    info.update(points=count, seconds=round(time.monotonic() - start, 1),
+                max_pose_change=float(f"{max_pose_change(model, cameras):.3g}"),
+                mean_reprojection_error_px=round(float(model.compute_mean_reprojection_error()), 4) if count else None,
+                mean_track_length=round(float(model.compute_mean_track_length()), 3) if count else None)
+    if count < params.min_triangulated_points:
+        return None, {**info, "status": "too_few", "reason": f"triangulation kept only {count} points "
+                      f"(< sfm.min_triangulated_points {params.min_triangulated_points})"}
+    ctx.log.info("sfm: triangulated %d points in %.0f s, mean reprojection error %.3f px, mean track length %.2f",
+                 count, info["seconds"], info["mean_reprojection_error_px"], info["mean_track_length"])
+    return points, {**info, "status": "ok"}
+
+
+def write_known_positions(database: Path, cameras: CameraSet) -> None:
+    """Each photo's known camera centre as a Cartesian position prior, which spatial matching pairs by."""
+    centers = {f.name: f.center for f in cameras.frames}
+    with pycolmap.Database.open(database) as db:
+        for image in db.read_all_images():
+            db.write_pose_prior(pycolmap.PosePrior(
+                corr_data_id=image.data_id, position=np.asarray(centers[image.name], dtype=np.float64),
+                coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN))
