@@ -52,7 +52,7 @@ def output_names(relpaths: list[str]) -> dict[str, str]:
 
 
 def frame_image_path(frame_name: str, image_root: str, ingest_images: Path, undistort_images: Path) -> Path:
-    """The image of frame ``frame_name``, given its ``extra["image_roots"]`` entry in the pinhole camera set.
+    """The image of frame ``frame_name``, given its ``hints.image_roots`` entry in the pinhole camera set.
 
     ``ingest_images`` and ``undistort_images`` are the ``images`` artifact of ingest and the
     ``undistorted_images`` artifact of undistort.

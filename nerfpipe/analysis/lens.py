@@ -13,7 +13,7 @@ LENS_PER_CAMERA_MAX = 3  # up to this many cameras the lens evidence names each 
 def decide_lens(pinhole: CameraSet) -> tuple[str, str, dict[str, Any]]:
     """``undistorted`` when the undistort stage resampled any camera's images, else ``pinhole``; the evidence
     names each camera when there are at most ``LENS_PER_CAMERA_MAX``, else summarises them all."""
-    record = pinhole.extra.get("undistortion") or {}
+    record = pinhole.hints.undistortion or {}
     if not record:
         return "pinhole", "no undistortion record: the cameras were pinhole as given", {"cameras": {}}
     cameras = sorted(record.items(), key=lambda kv: str(kv[0]))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Callable, List, Optional
+from typing import List, Optional
 
 import typer
 from rich.console import Console
@@ -102,9 +102,8 @@ def status(
         table.add_row(s.name, f"[{STATE_STYLE[s.state]}]{s.state}[/]", "; ".join(s.reasons), s.key[:12])
     out_console.print(table)
     for s in statuses:
-        if s.result is not None:
-            for line in pipe.dag.stages[s.name].describe(s.result.path, s.result.manifest):
-                out_console.print(f"{s.name}: {escape(line)}", highlight=False, soft_wrap=True)
+        for line in pipe.describe(s):
+            out_console.print(f"{s.name}: {escape(line)}", highlight=False, soft_wrap=True)
     if verify:
         checked = sum(len(s.result.manifest["outputs"]) for s in statuses if s.state == "fresh")
         out_console.print(f"verified: {checked} files of the fresh results match their sha256; "
@@ -135,7 +134,7 @@ def view(
     setup_logging(debug)
     import difflib
 
-    from nerfpipe.pipeline import Committed, InputError, ParamError
+    from nerfpipe.pipeline import ParamError
 
     with user_errors(debug):
         if kind not in VIEW_KINDS:
@@ -143,54 +142,40 @@ def view(
             hint = f"did you mean {close[0]}?" if close else f"choose one of {', '.join(VIEW_KINDS)}"
             raise ParamError(f"unknown view {kind!r}; {hint}")
         pipe = Pipeline.from_run_dir(default_stages(), run_dir)
-
-        def result_of(stage: str, what: str) -> Committed:
-            # export stages may be missing from this nerfpipe (older version): say so rather than "unknown stage"
-            result = pipe.result(stage) if stage in pipe.dag.stages else None
-            if result is None:
-                raise InputError(
-                    run_dir, f"has no {what} for its current settings",
-                    f"run `nerfpipe run {pipe.source} --out {run_dir} --until {stage}` first",
-                )
-            return result
-
         if web:
-            _serve_web(pipe, result_of, port)
+            _serve_web(pipe, port)
             return
         from nerfpipe.export import screenshot as shot
+        from nerfpipe.export.views import cameras_of
         from nerfpipe.geometry.cameras import CameraSet
 
-        sfm = CameraSet.load(result_of("sfm", "SfM cameras").path / "model")
+        sfm = CameraSet.load(pipe.artifact("sfm_model", "SfM cameras"))
         mesh = points = None
         if kind == "mesh":
-            found = result_of("export_mesh", "exported mesh")
-            mesh = shot.load_mesh(found.path / pipe.dag.stages["export_mesh"].provides["mesh"])
+            mesh = shot.load_mesh(pipe.artifact("mesh", "exported mesh"))
         elif kind == "points":
-            found = result_of("export_points", "exported point cloud")
-            points = shot.load_points(found.path / pipe.dag.stages["export_points"].provides["points"])
+            points = shot.load_points(pipe.artifact("points", "exported point cloud"))
         else:
             points = shot.sparse_points(sfm)
-        path = shot.show(mesh, points, shot.cameras_of(sfm), screenshot_path=run_dir / f"view_{kind}.png",
+        path = shot.show(mesh, points, cameras_of(sfm), screenshot_path=run_dir / f"view_{kind}.png",
                          title=f"nerfpipe {kind}: {run_dir}")
     if path is not None:
         out_console.print(f"no display: wrote a screenshot to {escape(str(path))}", highlight=False, soft_wrap=True)
 
 
-def _serve_web(pipe: Pipeline, result_of: Callable, port: int) -> None:
+def _serve_web(pipe: Pipeline, port: int) -> None:
     """`view --web`: gather the run's results, serve them until Ctrl-C."""
     import time
 
     from nerfpipe.export.web import serve, web_scene
 
-    train = result_of("train", "trained model")
-    stages = pipe.dag.stages
     scene = web_scene(
-        model_dir=train.path,
-        cameras_dir=train.path / stages["train"].provides["cameras"],
-        images_dir=result_of("ingest", "photos").path / stages["ingest"].provides["images"],
-        bounds_json=result_of("bounds", "bounds").path / stages["bounds"].provides["bounds"],
-        mesh_ply=_optional(pipe, "export_mesh", "mesh"),
-        points_ply=_optional(pipe, "export_points", "points"),
+        model_dir=pipe.artifact("model", "trained model").parent,
+        cameras_dir=pipe.artifact("cameras", "trained model"),
+        images_dir=pipe.artifact("images", "photos"),
+        bounds_json=pipe.artifact("bounds", "bounds"),
+        mesh_ply=pipe.optional_artifact("mesh"),
+        points_ply=pipe.optional_artifact("points"),
     )
     viewer = serve(scene, port=port)
     held = [f"{len(scene.frames)} cameras with their photos"]
@@ -204,11 +189,6 @@ def _serve_web(pipe: Pipeline, result_of: Callable, port: int) -> None:
     except KeyboardInterrupt:
         viewer.stop()
         out_console.print("web viewer stopped", highlight=False)
-
-
-def _optional(pipe: Pipeline, stage: str, artifact: str) -> Path | None:
-    result = pipe.result(stage) if stage in pipe.dag.stages else None
-    return None if result is None else result.path / pipe.dag.stages[stage].provides[artifact]
 
 
 @app.command()

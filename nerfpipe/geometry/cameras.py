@@ -14,6 +14,7 @@ error, and which points each frame observes, as CSR arrays ``vis_offsets`` / ``v
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -150,6 +151,38 @@ class Points:
 
 
 @dataclass
+class PoseHints:
+    """What a camera set carries beside its cameras, frames and points, for the stages after the one that
+    made it. Saved in cameras.json under ``extra``; only what is set is written.
+
+    pose_files: the capture's pose files the poses came from (relative to the capture).
+    aabb_scale: instant-ngp's scene extent in units of the cameras' cube (transforms.json).
+    llff_bounds: {image name: [near, far]} from LLFF's poses_bounds.npy.
+    sfm: COLMAP's statistics of the model it made; triangulation: what triangulating the given poses found.
+    image_roots: {frame name: "ingest" or "undistort"}, the folder holding each frame's image (undistort).
+    undistortion: {camera id: how far its distortion moved pixels, and whether it was resampled} (undistort).
+    per_image: {frame name: the pose correction and exposure training learned} (train).
+    """
+
+    pose_files: list[str] = field(default_factory=list)
+    aabb_scale: float | None = None
+    llff_bounds: dict[str, list[float]] | None = None
+    sfm: dict[str, Any] | None = None
+    triangulation: dict[str, Any] | None = None
+    image_roots: dict[str, str] = field(default_factory=dict)
+    undistortion: dict[str, Any] | None = None
+    per_image: dict[str, Any] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {k: v for k, v in dataclasses.asdict(self).items() if v not in (None, [], {})}
+
+    @staticmethod
+    def from_json(doc: dict[str, Any]) -> "PoseHints":
+        known = {f.name for f in dataclasses.fields(PoseHints)}
+        return PoseHints(**{k: v for k, v in doc.items() if k in known})
+
+
+@dataclass
 class CameraSet:
     """Everything sfm (or a pose importer) hands on: cameras, registered frames, optional sparse points."""
 
@@ -158,7 +191,7 @@ class CameraSet:
     points: Points | None = None
     source: str = ""  # "colmap_sfm", "colmap_model", "transforms_json", "llff", "middlebury"
     unregistered: list[str] = field(default_factory=list)
-    extra: dict[str, Any] = field(default_factory=dict)  # e.g. LLFF near/far bounds, SfM statistics
+    hints: PoseHints = field(default_factory=PoseHints)
 
     def camera_of(self, frame: Frame) -> Camera:
         return self.cameras[frame.camera_id]
@@ -175,7 +208,7 @@ class CameraSet:
                 {"name": f.name, "camera_id": f.camera_id, "split": f.split, "c2w": f.c2w.tolist()} for f in self.frames
             ],
             "unregistered": self.unregistered,
-            "extra": self.extra,
+            "extra": self.hints.to_json(),
         }
         (folder / "cameras.json").write_text(json.dumps(doc, indent=1))
         if self.points is not None:
@@ -187,7 +220,8 @@ class CameraSet:
         cameras = {int(k): Camera.from_json(v) for k, v in doc["cameras"].items()}
         frames = [Frame(f["name"], int(f["camera_id"]), np.array(f["c2w"], dtype=np.float64), f.get("split")) for f in doc["frames"]]
         points = Points.load(folder / "points3d.npz") if (folder / "points3d.npz").exists() else None
-        return CameraSet(cameras, frames, points, doc.get("source", ""), doc.get("unregistered", []), doc.get("extra", {}))
+        return CameraSet(cameras, frames, points, doc.get("source", ""), doc.get("unregistered", []),
+                         PoseHints.from_json(doc.get("extra", {})))
 
 
 def invert_pose(pose: np.ndarray) -> np.ndarray:

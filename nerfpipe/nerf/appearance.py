@@ -43,6 +43,7 @@ class ExposureGains(nn.Module):
         from the brightness of the same points), where training starts from; else every gain starts at 1."""
         super().__init__()
         self.linear = linear
+        self.start_stops = None if stops is None else [float(v) for v in stops]  # where training started (its spec)
         start = torch.zeros(images, 3) if stops is None else torch.tensor(stops, dtype=torch.float32)[:, None].repeat(1, 3)
         self.log2_gains = nn.Parameter(start)
 

@@ -12,7 +12,7 @@ here are listed in ``TrainSettings``.
 from __future__ import annotations
 
 import dataclasses
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -21,13 +21,12 @@ from nerfpipe.artifacts import Bounds, SceneDecisions
 from nerfpipe.geometry.cameras import CameraSet, mean_camera
 from nerfpipe.geometry.hull import Silhouettes, hull_box
 from nerfpipe.geometry.normalize import robust_box
-from nerfpipe.nerf.appearance import ExposureGains
 from nerfpipe.nerf.config import FieldParams, OptimParams, PerImageParams, SamplerParams, SpaceParams
-from nerfpipe.nerf.fields import Field, field_class
-from nerfpipe.nerf.model import RadianceModel, RaySpace
-from nerfpipe.nerf.refinement import PoseRefinement
+from nerfpipe.nerf.fields import field_class
+from nerfpipe.nerf.model import RadianceModel, build
+from nerfpipe.nerf.ray_space import RaySpace
 from nerfpipe.nerf.registry import SAMPLERS, resolve
-from nerfpipe.nerf.samplers import Sampler
+from nerfpipe.nerf.spec import ModelSpec
 from nerfpipe.nerf.trainer import TrainConfig
 
 HULL_RESOLUTION = 64  # cells a side of the visual hull that bounds the scene box
@@ -129,34 +128,32 @@ def field_box(ray_space: RaySpace, layout: str, bounds: Bounds) -> Box | None:
     return box
 
 
-def build_fields(params: TrainSettings, box: Box | None, device: torch.device) -> tuple[tuple[Field, Field | None], str | None]:
-    """The coarse field and the fine one (None: the coarse one serves both), of the registered kind
-    ``field.kind`` (``nerfpipe.nerf.registry.FIELDS``). A field that spans a box falls back to the MLP of
-    Fig. 7 where the scene has none (unbounded and not contracted)."""
+def field_spec_for(params: TrainSettings, box: Box | None) -> tuple[dict[str, Any], str | None]:
+    """The spec of the registered field ``field.kind`` (``nerfpipe.nerf.registry.FIELDS``) over ``box``, and
+    its sentence. A field that spans a box falls back to the MLP of Fig. 7 where the scene has none
+    (unbounded and not contracted)."""
     kind, said = params.field.kind, None
     if box is None and field_class(kind).needs_box:
         kind, said = "mlp", f"unbounded 360: the {kind} field needs a bounded box, so the MLP (Fig. 7) is trained"
     cls = field_class(kind)
-    coarse = cls.from_params(params.field, box).to(device)
-    s = params.sampler
-    two = params.field.fine_network and s.hierarchical and s.n_fine > 0
-    fine = cls.from_params(params.field, box).to(device) if two else None
-    return (coarse, fine), said or coarse.describe()
+    spec = {"kind": kind, **cls.spec_of(params.field, box)}
+    return spec, said or cls.describe(spec)
 
 
-def build_sampler(params: TrainSettings, coarse: Field, box: Box | None, layout: str, ray_space: RaySpace,
-                  device: torch.device) -> tuple[Sampler, str | None]:
+def sampler_spec_for(params: TrainSettings, field_kind: str, box: Box | None,
+                     layout: str) -> tuple[dict[str, Any], str | None]:
     """Where rays are sampled: the registered sampler ``sampler.kind`` (``nerfpipe.nerf.registry.SAMPLERS``);
     auto marches an occupancy grid (empty-space skipping, Instant-NGP) with a field that spans a box, and
     samples as Section 5.2 does otherwise. Marching needs a box to grid: without one, Section 5.2's sampling."""
     kind = params.sampler.kind
     if kind == "auto":
-        kind = "marching" if coarse.needs_box else "hierarchical"
+        kind = "marching" if field_class(field_kind).needs_box else "hierarchical"
     said = None
     if kind == "marching" and box is None:
         kind, said = "hierarchical", "no occupancy grid: an unbounded scene has no box to grid; Section 5.2's sampling instead"
-    sampler = resolve(SAMPLERS, kind).from_params(params.sampler, box, lindisp(params, layout), ray_space.contracted)
-    return sampler.to(device), said or sampler.describe()
+    cls = resolve(SAMPLERS, kind)
+    spec = {"kind": kind, **cls.spec_of(params.sampler, box, lindisp(params, layout))}
+    return spec, said or cls.describe(spec)
 
 
 def build_background(scene: SceneDecisions) -> tuple[tuple[float, ...] | None, str]:
@@ -251,15 +248,14 @@ def carve_scene_box(params: TrainSettings, bounds: Bounds, silhouettes: Silhouet
                     f"to {size(*tight)} ({100 * volume:.0f}% of its volume{kept}), the grids' cells with it")
 
 
-def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, bounds: Bounds,
-                device: torch.device, train_names: list[str] | None = None,
-                silhouettes: Silhouettes | None = None) -> tuple[RadianceModel, list[str]]:
-    """The fields, sampling, ray space and background this scene calls for, and a sentence per choice.
-    With ``train_names``, the training images in order, also their exposure gains (starting from the
-    exposures the scene measured) and pose corrections where the scene calls for them
+def resolve_spec(params: TrainSettings, scene: SceneDecisions, world: CameraSet, bounds: Bounds,
+                 train_names: list[str] | None = None,
+                 silhouettes: Silhouettes | None = None) -> tuple[ModelSpec, list[str]]:
+    """The model this scene calls for, as a spec, and a sentence per choice: the ray space, field, sampler
+    and background. With ``train_names``, the training images in order, also their exposure gains
+    (starting from the exposures the scene measured) and pose corrections where the scene calls for them
     (``models_appearance``, ``refines_poses``). With the training photos' ``silhouettes``, the scene box
     shrinks to the box of their visual hull (``carves``)."""
-    torch.manual_seed(params.seed)
     layout = scene.layout.value
     hull_said = None
     if carves(params, scene, silhouettes):
@@ -270,8 +266,9 @@ def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, 
                      "silhouettes (alpha or a backdrop) and a scene box that is not contracted")
     ray_space, ray_said = build_ray_space(params, scene, world, bounds)
     box = field_box(ray_space, layout, bounds)
-    (coarse, fine), field_said = build_fields(params, box, device)
-    sampler, sampler_said = build_sampler(params, coarse, box, layout, ray_space, device)
+    field, field_said = field_spec_for(params, box)
+    sampler, sampler_said = sampler_spec_for(params, field["kind"], box, layout)
+    two = params.field.fine_network and params.sampler.hierarchical and params.sampler.n_fine > 0
     background, background_said = build_background(scene)
     noise = density_noise(params, layout)
     decisions = [
@@ -284,11 +281,21 @@ def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, 
         (with_appearance, appearance_said), (with_refinement, refinement_said) = \
             models_appearance(params, scene), refines_poses(params, scene, world)
         decisions += [appearance_said, refinement_said]
-        linear = scene.photometric.value == "linear_raw"
         known = scene.exposure_varies.measured.get("stops") or {}
-        stops = [known.get(name, 0.0) for name in train_names] if known else None
-        appearance = ExposureGains(len(train_names), linear, stops).to(device) if with_appearance else None
-        refinement = PoseRefinement(len(train_names)).to(device) if with_refinement else None
+        stops = [float(known.get(name, 0.0)) for name in train_names] if known else None
+        if with_appearance:
+            appearance = {"images": len(train_names), "linear": scene.photometric.value == "linear_raw", "stops": stops}
+        refinement = {"images": len(train_names)} if with_refinement else None
     info = {"layout": layout, "photometric": scene.photometric.value, "to_sfm": bounds.to_sfm}
-    model = RadianceModel(coarse, fine, sampler, ray_space, background, info, appearance, refinement)
-    return model, [d for d in decisions if d is not None]
+    spec = ModelSpec(field=field, sampler=sampler, ray_space=ray_space, fine_network=two, background=background,
+                     appearance=appearance, refinement=refinement, info=info)
+    return spec, [d for d in decisions if d is not None]
+
+
+def build_model(params: TrainSettings, scene: SceneDecisions, world: CameraSet, bounds: Bounds,
+                device: torch.device, train_names: list[str] | None = None,
+                silhouettes: Silhouettes | None = None) -> tuple[RadianceModel, list[str]]:
+    """``build`` of ``resolve_spec``: the untrained model this scene calls for, seeded, and the sentences."""
+    spec, decisions = resolve_spec(params, scene, world, bounds, train_names, silhouettes)
+    torch.manual_seed(params.seed)
+    return build(spec, device), decisions

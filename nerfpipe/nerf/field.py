@@ -57,15 +57,15 @@ class NerfField(nn.Module):
         self.view = nn.Linear(config.width + dir_dim, config.view_width)
         self.rgb = nn.Linear(config.view_width, 3)
 
-    @classmethod
-    def from_params(cls, params: Any, box: Any = None) -> "NerfField":
-        """From ``nerfpipe.nerf.config.FieldParams``; the MLP needs no box."""
-        return cls(FieldConfig(
+    @staticmethod
+    def spec_of(params: Any, box: Any = None) -> dict[str, Any]:
+        """The spec of the MLP ``nerfpipe.nerf.config.FieldParams`` asks for; it needs no box."""
+        return {"field": asdict(FieldConfig(
             depth=params.depth, width=params.width, skips=(params.skip_after - 1,) if params.skip_after else (),
             view_width=params.view_width, pos_freqs=params.pos_freqs if params.positional_encoding else 0,
             dir_freqs=params.dir_freqs if params.positional_encoding else 0, include_input=params.include_input,
             view_dependent=params.view_dependence, density_activation=params.density_activation,
-        ))
+        ))}
 
     @classmethod
     def from_spec(cls, spec: dict[str, Any]) -> "NerfField":
@@ -74,7 +74,8 @@ class NerfField(nn.Module):
     def spec(self) -> dict[str, Any]:
         return {"field": asdict(self.config)}
 
-    def describe(self) -> None:
+    @staticmethod
+    def describe(spec: dict[str, Any]) -> None:
         """The paper's field needs no sentence in the train log."""
         return None
 

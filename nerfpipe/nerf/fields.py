@@ -30,18 +30,20 @@ class Field(Protocol):
     def query_density(self, x: Tensor) -> Tensor:
         """sigma (M,) at x (M, 3), without colour."""
 
-    @classmethod
-    def from_params(cls, params: Any, box: Box | None) -> "Field":
-        """From ``nerfpipe.nerf.config.FieldParams`` over ``box`` (field coordinates; None: unbounded)."""
+    @staticmethod
+    def spec_of(params: Any, box: Box | None) -> dict[str, Any]:
+        """The spec ``nerfpipe.nerf.config.FieldParams`` asks for over ``box`` (field coordinates; None: unbounded)."""
 
     @classmethod
     def from_spec(cls, spec: dict[str, Any]) -> "Field":
         """Rebuilt from ``spec()`` (model.json), before its weights are loaded."""
 
-    def spec(self) -> dict[str, Any]: ...
+    def spec(self) -> dict[str, Any]:
+        """What ``from_spec`` rebuilds it from; ``spec_of`` gives the same for parameters."""
 
-    def describe(self) -> str | None:
-        """A sentence for the train log, or None for the paper's own field."""
+    @staticmethod
+    def describe(spec: dict[str, Any]) -> str | None:
+        """A sentence for the train log about the field ``spec`` describes, or None for the paper's own."""
 
     def parameters(self) -> Any: ...
 
@@ -58,11 +60,6 @@ class Field(Protocol):
 
 def field_class(kind: str) -> type:
     return resolve(FIELDS, kind)
-
-
-def load_field(spec: dict[str, Any]) -> Field:
-    """The field ``spec`` (with its registry ``kind``) describes, untrained."""
-    return field_class(spec["kind"]).from_spec(spec)
 
 
 def field_spec(field: Field) -> dict[str, Any]:

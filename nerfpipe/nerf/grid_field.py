@@ -114,15 +114,15 @@ class GridField(nn.Module):
     kind = "grid"
     needs_box = True  # its grids span a bounded box
 
-    @classmethod
-    def from_params(cls, params: Any, box: Box | None) -> "GridField":
-        """From ``nerfpipe.nerf.config.FieldParams``."""
+    @staticmethod
+    def spec_of(params: Any, box: Box | None) -> dict[str, Any]:
+        """The spec of the grid field ``nerfpipe.nerf.config.FieldParams`` asks for over ``box``."""
         config = GridFieldConfig(
             levels=params.levels, min_resolution=params.min_resolution, max_resolution=params.max_resolution,
             features=params.features, hidden=params.hidden,
             dir_freqs=params.dir_freqs if params.positional_encoding else 0, view_dependent=params.view_dependence,
         )
-        return cls(*box, config)
+        return {"field": asdict(config), "field_box": [list(box[0]), list(box[1])]}
 
     @classmethod
     def from_spec(cls, spec: dict[str, Any]) -> "GridField":
@@ -132,8 +132,9 @@ class GridField(nn.Module):
     def spec(self) -> dict[str, Any]:
         return {"field": asdict(self.config), "field_box": [self.lo.tolist(), self.hi.tolist()]}
 
-    def describe(self) -> str:
-        c = self.config
+    @staticmethod
+    def describe(spec: dict[str, Any]) -> str:
+        c = GridFieldConfig(**spec["field"])
         return f"grid field: {c.levels} levels of {c.resolutions()} cells a side, {c.features} features each, " \
                f"and a {c.hidden}-wide MLP"
 

@@ -6,6 +6,7 @@ image, as the paper holds out 1/8 of its real scenes (Section 6.1).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -64,7 +65,7 @@ class ImageLoader:
     """Training targets and cameras of frames, from the ingest / undistort images.
 
     ``images`` and ``undistorted_images`` are the image folders of ingest and undistort, ``pinhole`` the
-    folder of undistort's camera set (its ``extra["image_roots"]`` says which folder holds each frame);
+    folder of undistort's camera set (its ``hints.image_roots`` says which folder holds each frame);
     ``world`` the normalized cameras, ``bounds`` their near/far and ``scene`` the background decisions.
     """
 
@@ -74,7 +75,7 @@ class ImageLoader:
         self.world = world
         self.bounds = bounds
         self.scene = scene
-        self.roots = CameraSet.load(Path(pinhole)).extra.get("image_roots", {})
+        self.roots = CameraSet.load(Path(pinhole)).hints.image_roots
         self.near_far = bounds.near_far()
         self.use_alpha = scene.background.value == "alpha"
         color = scene.background_color.value
@@ -178,7 +179,7 @@ def describe_masks(pixels: PixelSet) -> str | None:
 
 def trained_cameras(model: RadianceModel, world: CameraSet, train: list[Frame]) -> tuple[CameraSet, dict]:
     """``world`` with the training frames' refined poses (``model.refinement``; held-out frames as given),
-    each training frame's correction and exposure in ``extra["per_image"]``; and a summary for metrics.json:
+    each training frame's correction and exposure in ``hints.per_image``; and a summary for metrics.json:
     ``pose_refinement`` (how far the cameras moved) and ``appearance`` (the spread of the photos' exposures),
     each present when the model learned it."""
     per_image: dict[str, dict] = {f.name: {} for f in train}
@@ -209,6 +210,6 @@ def trained_cameras(model: RadianceModel, world: CameraSet, train: list[Frame]) 
         mean = stops.mean(axis=1)
         summary["appearance"] = {"images": len(train), "spread_stops": round(float(mean.max() - mean.min()), 4),
                                  "darkest": train[int(np.argmin(mean))].name, "brightest": train[int(np.argmax(mean))].name}
-    extra = {**world.extra, "per_image": {k: v for k, v in per_image.items() if v}}
-    cameras = CameraSet(world.cameras, frames, None, world.source, world.unregistered, extra)
+    hints = dataclasses.replace(world.hints, per_image={k: v for k, v in per_image.items() if v})
+    cameras = CameraSet(world.cameras, frames, None, world.source, world.unregistered, hints)
     return cameras, summary

@@ -1,13 +1,13 @@
 """A trained radiance field with everything needed to render it: fields, a sampler, background and the
 ray space the scene analysis chose (world rays clipped to the scene box, NDC rays, or contracted space).
 Saved as ``model.pt`` (tensors only, loadable with ``torch.load(..., weights_only=True)``) and
-``model.json`` (each part's kind and spec, rebuilt through ``nerfpipe.nerf.registry``)."""
+``model.json`` (its ``ModelSpec``: each part's kind and spec); ``build`` makes a model from a spec."""
 
 from __future__ import annotations
 
 import itertools
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -16,117 +16,14 @@ import torch
 from torch import Tensor
 
 from nerfpipe.nerf.appearance import ExposureGains
-from nerfpipe.nerf.contraction import BOUND, Contraction
-from nerfpipe.nerf.fields import Field, field_spec, load_field
-from nerfpipe.nerf.rays import camera_rays, intersect_box, ndc_points, ndc_points_inverse, ndc_rays, pixel_centers
+from nerfpipe.nerf.fields import Field, field_spec
+from nerfpipe.nerf.ray_space import RaySpace
+from nerfpipe.nerf.rays import camera_rays, pixel_centers
 from nerfpipe.nerf.refinement import PoseRefinement
-from nerfpipe.nerf.registry import SAMPLERS, resolve
+from nerfpipe.nerf.registry import FIELDS, SAMPLERS, resolve
 from nerfpipe.nerf.renderer import RayBatch
 from nerfpipe.nerf.samplers import Sampler
-
-
-@dataclass(frozen=True)
-class RaySpace:
-    """How pixels become rays for this scene.
-
-    ``ndc``: forward-facing; rays go into the frame of ``ndc_c2w`` (the mean camera, OpenCV) and through
-    ``ndc_rays`` with ``ndc_focal``, ``ndc_size`` and ``ndc_near``; sampled over t' in [0, 1].
-    ``box``: bounded (inward 360); each ray's [near, far] is clipped to the box (min, max corners).
-    ``contraction``: the box (min, max corners) kept at full resolution, with everything beyond it
-    contracted (``nerfpipe.nerf.contraction``, mip-NeRF 360 Eq. 10): world rays over each image's near/far,
-    the fields and the occupancy grid in contracted space, [-2, 2]^3.
-    """
-
-    ndc: bool = False
-    ndc_c2w: tuple[tuple[float, ...], ...] | None = None
-    ndc_focal: float = 0.0
-    ndc_size: tuple[int, int] = (0, 0)
-    ndc_near: float = 1.0
-    box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
-    contraction: tuple[tuple[float, ...], tuple[float, ...]] | None = None
-
-    @property
-    def contracted(self) -> Contraction | None:
-        """The map of world points into the fields' contracted space, when this space has one."""
-        return None if self.contraction is None else Contraction(*self.contraction)
-
-    def _reference(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        ref = torch.as_tensor(self.ndc_c2w, dtype=like.dtype, device=like.device)
-        flip = torch.tensor([1.0, -1.0, -1.0], dtype=like.dtype, device=like.device)  # OpenCV -> OpenGL
-        return ref[:3, :3], ref[:3, 3], flip
-
-    def rays(self, uv: Tensor, intrinsics: Tensor, c2w: Tensor, near: Tensor, far: Tensor) -> RayBatch:
-        """Rays for pixel positions ``uv`` (R, 2) of cameras (R, 4) / (R, 4, 4) with depth bounds (R,)."""
-        origins, directions = camera_rays(uv, intrinsics, c2w)
-        viewdirs = torch.nn.functional.normalize(directions, dim=-1)
-        if self.ndc:
-            rotation, center, flip = self._reference(origins)
-            o = ((origins - center) @ rotation) * flip
-            d = (directions @ rotation) * flip
-            o, d = ndc_rays(o, d, self.ndc_focal, self.ndc_size[0], self.ndc_size[1], self.ndc_near)
-            zeros = torch.zeros_like(near)
-            return RayBatch(o, d, viewdirs, zeros, torch.ones_like(near))
-        if self.box is not None:
-            lo = torch.as_tensor(self.box[0], dtype=origins.dtype, device=origins.device)
-            hi = torch.as_tensor(self.box[1], dtype=origins.dtype, device=origins.device)
-            t_enter, t_exit = intersect_box(origins, directions, lo, hi)
-            near_c, far_c = torch.maximum(near, t_enter), torch.minimum(far, t_exit)
-            miss = near_c >= far_c
-            # a ray that misses the box samples a zero-length interval at far: all weight goes to the background
-            near = torch.where(miss, far, near_c)
-            far = torch.where(miss, far, far_c)
-        return RayBatch(origins, directions, viewdirs, near, far)
-
-    def camera_depth(self, origins: Tensor, directions: Tensor, t: Tensor) -> Tensor:
-        """Depth along the camera axis, in world units, of the point at ray parameter ``t`` of this space.
-
-        World rays (``camera_rays``: unit z component in the camera) already measure it. An NDC ray's t'
-        lies on the reference camera's z = -near / (1 - t') (OpenGL), which the world ray o + s d reaches
-        at s = (z - o_z) / d_z in that frame.
-
-        Args:
-            origins, directions: (R, 3) world rays from ``camera_rays``; t: (R,).
-        Returns:
-            (R,); infinite where an NDC t' reaches 1.
-        """
-        if not self.ndc:
-            return t
-        rotation, center, flip = self._reference(origins)
-        o_z = (((origins - center) @ rotation) * flip)[..., 2]
-        d_z = ((directions @ rotation) * flip)[..., 2]
-        z = -self.ndc_near / (1.0 - t)
-        return (z - o_z) / d_z
-
-    def to_field(self, points: Tensor) -> Tensor:
-        """World points (..., 3) where the field is queried: themselves, or their NDC or contracted coordinates."""
-        if self.contraction is not None:
-            return self.contracted.to_field(points)
-        if not self.ndc:
-            return points
-        rotation, center, flip = self._reference(points)
-        local = ((points - center) @ rotation) * flip
-        return ndc_points(local, self.ndc_focal, self.ndc_size[0], self.ndc_size[1], self.ndc_near)
-
-    def from_field(self, points: Tensor) -> Tensor:
-        """The inverse of ``to_field``: field coordinates (..., 3) back to world points."""
-        if self.contraction is not None:
-            return self.contracted.from_field(points)
-        if not self.ndc:
-            return points
-        rotation, center, flip = self._reference(points)
-        local = ndc_points_inverse(points, self.ndc_focal, self.ndc_size[0], self.ndc_size[1], self.ndc_near)
-        return (local * flip) @ rotation.T + center
-
-    def field_box(self, far: float | None = None) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
-        """The box of field coordinates that holds the scene: the scene box, or NDC's [-1, 1]^3 cut at the
-        depth ``far`` of the reference camera (z' = 1 - 2 near / far), as z' = 1 lies at infinity; the
-        contracted cube [-2, 2]^3."""
-        if self.contraction is not None:
-            return (-BOUND, -BOUND, -BOUND), (BOUND, BOUND, BOUND)
-        if self.ndc:
-            z_max = 1.0 - 2.0 * self.ndc_near / far if far is not None else 1.0
-            return (-1.0, -1.0, -1.0), (1.0, 1.0, z_max)
-        return self.box
+from nerfpipe.nerf.spec import ModelSpec
 
 
 @dataclass
@@ -241,41 +138,38 @@ class RadianceModel:
             if part.state_dict():
                 part.load_state_dict(weights[name])
 
+    @property
+    def spec(self) -> ModelSpec:
+        """What this model is made of; ``build(model.spec)`` makes its twin, untrained."""
+        appearance = None if self.appearance is None else {
+            "images": len(self.appearance.log2_gains), "linear": self.appearance.linear, "stops": self.appearance.start_stops}
+        return ModelSpec(field=field_spec(self.coarse), sampler={"kind": self.sampler.kind, **self.sampler.spec()},
+                         ray_space=self.ray_space, fine_network=self.fine is not None, background=self.background,
+                         appearance=appearance,
+                         refinement=None if self.refinement is None else {"images": len(self.refinement.tangent)},
+                         info=self.info)
+
     def save(self, folder: Path) -> None:
         torch.save(self.state(), folder / "model.pt")
-        doc = {
-            "field": field_spec(self.coarse),
-            "fine_network": self.fine is not None,
-            "sampler": {"kind": self.sampler.kind, **self.sampler.spec()},
-            "ray_space": asdict(self.ray_space),
-            "background": None if self.background is None else list(self.background),
-            "appearance": None if self.appearance is None else {
-                "images": len(self.appearance.log2_gains), "linear": self.appearance.linear},
-            "refinement": None if self.refinement is None else {"images": len(self.refinement.tangent)},
-            "info": self.info,
-        }
-        (folder / "model.json").write_text(json.dumps(doc, indent=1))
+        (folder / "model.json").write_text(json.dumps(self.spec.to_json(), indent=1))
 
     @staticmethod
     def load(folder: Path, device: torch.device | str = "cpu") -> "RadianceModel":
-        """The model ``save`` wrote: every part rebuilt from model.json through the registry, then its weights."""
-        doc = json.loads((folder / "model.json").read_text())
-        weights = torch.load(folder / "model.pt", map_location=device, weights_only=True)
-        coarse = load_field(doc["field"]).to(device)
-        fine = load_field(doc["field"]).to(device) if doc["fine_network"] else None
-        rs = doc["ray_space"]
-        ray_space = RaySpace(
-            ndc=rs["ndc"],
-            ndc_c2w=None if rs["ndc_c2w"] is None else tuple(tuple(r) for r in rs["ndc_c2w"]),
-            ndc_focal=rs["ndc_focal"], ndc_size=tuple(rs["ndc_size"]), ndc_near=rs["ndc_near"],
-            box=None if rs["box"] is None else (tuple(rs["box"][0]), tuple(rs["box"][1])),
-            contraction=None if rs.get("contraction") is None else (tuple(rs["contraction"][0]), tuple(rs["contraction"][1])),
-        )
-        sampler = resolve(SAMPLERS, doc["sampler"]["kind"]).from_spec(doc["sampler"], ray_space.contracted).to(device)
-        background = None if doc["background"] is None else tuple(doc["background"])
-        appearance = None if not doc.get("appearance") else \
-            ExposureGains(doc["appearance"]["images"], doc["appearance"]["linear"]).to(device)
-        refinement = None if not doc.get("refinement") else PoseRefinement(doc["refinement"]["images"]).to(device)
-        model = RadianceModel(coarse, fine, sampler, ray_space, background, doc.get("info", {}), appearance, refinement)
-        model.load_state(weights)
+        """The model ``save`` wrote: built from the spec in model.json, then its weights loaded."""
+        spec = ModelSpec.from_json(json.loads((folder / "model.json").read_text()))
+        model = build(spec, device)
+        model.load_state(torch.load(folder / "model.pt", map_location=device, weights_only=True))
         return model
+
+
+def build(spec: ModelSpec, device: torch.device | str = "cpu") -> RadianceModel:
+    """The model ``spec`` describes, its parts made through the registry (``nerfpipe.nerf.registry``) in a
+    fixed order (coarse field, fine field, sampler, per-image parts), so a seeded build is repeatable."""
+    cls = resolve(FIELDS, spec.field["kind"])
+    coarse = cls.from_spec(spec.field).to(device)
+    fine = cls.from_spec(spec.field).to(device) if spec.fine_network else None
+    sampler = resolve(SAMPLERS, spec.sampler["kind"]).from_spec(spec.sampler, spec.ray_space.contracted).to(device)
+    a, r = spec.appearance, spec.refinement
+    appearance = None if a is None else ExposureGains(a["images"], a["linear"], a.get("stops")).to(device)
+    refinement = None if r is None else PoseRefinement(r["images"]).to(device)
+    return RadianceModel(coarse, fine, sampler, spec.ray_space, spec.background, dict(spec.info), appearance, refinement)

@@ -64,11 +64,20 @@ class Sampler(Protocol):
 
     def to(self, device: torch.device | str) -> Any: ...
 
+    @staticmethod
+    def spec_of(params: Any, box: Box | None, lindisp: bool) -> dict[str, Any]:
+        """The spec ``nerfpipe.nerf.config.SamplerParams`` asks for."""
+
+    @classmethod
+    def from_spec(cls, spec: dict[str, Any], contraction: Contraction | None = None) -> "Sampler":
+        """Built from a spec (model.json), training state fresh."""
+
     def spec(self) -> dict[str, Any]:
         """What ``from_spec`` rebuilds it from (stored in model.json)."""
 
-    def describe(self) -> str | None:
-        """A sentence for the train log, or None for the paper's own choice."""
+    @staticmethod
+    def describe(spec: dict[str, Any]) -> str | None:
+        """A sentence for the train log about the sampler ``spec`` describes, or None for the paper's own."""
 
 
 class HierarchicalSampler:
@@ -81,10 +90,10 @@ class HierarchicalSampler:
     def __init__(self, config: SamplingConfig) -> None:
         self.config = config
 
-    @classmethod
-    def from_params(cls, params: Any, box: Box | None, lindisp: bool,
-                    contraction: Contraction | None = None) -> "HierarchicalSampler":
-        return cls(SamplingConfig(params.n_coarse, params.n_fine if params.hierarchical else 0, lindisp))
+    @staticmethod
+    def spec_of(params: Any, box: Box | None, lindisp: bool) -> dict[str, Any]:
+        """The spec ``nerfpipe.nerf.config.SamplerParams`` asks for."""
+        return {"sampling": asdict(SamplingConfig(params.n_coarse, params.n_fine if params.hierarchical else 0, lindisp))}
 
     @classmethod
     def from_spec(cls, spec: dict[str, Any], contraction: Contraction | None = None) -> "HierarchicalSampler":
@@ -93,7 +102,8 @@ class HierarchicalSampler:
     def spec(self) -> dict[str, Any]:
         return {"sampling": asdict(self.config)}
 
-    def describe(self) -> None:
+    @staticmethod
+    def describe(spec: dict[str, Any]) -> None:
         """The paper's sampling needs no sentence in the train log."""
         return None
 
@@ -147,12 +157,12 @@ class MarchingSampler:
     def __init__(self, grid: OccupancyGrid, config: MarchingConfig, contraction: Contraction | None = None) -> None:
         self.grid, self.config, self.contraction = grid, config, contraction
 
-    @classmethod
-    def from_params(cls, params: Any, box: Box | None, lindisp: bool,
-                    contraction: Contraction | None = None) -> "MarchingSampler":
-        grid = OccupancyGrid(*box, params.occupancy_resolution)
+    @staticmethod
+    def spec_of(params: Any, box: Box | None, lindisp: bool) -> dict[str, Any]:
+        """The spec ``nerfpipe.nerf.config.SamplerParams`` asks for: a grid over ``box`` (needs one)."""
         config = MarchingConfig(steps=params.steps, threshold=params.occupancy_threshold, early_stop=params.early_stop)
-        return cls(grid, config, contraction)
+        return {"occupancy": {"resolution": params.occupancy_resolution, "box": [list(box[0]), list(box[1])],
+                              "marching": asdict(config)}}
 
     @classmethod
     def from_spec(cls, spec: dict[str, Any], contraction: Contraction | None = None) -> "MarchingSampler":
@@ -165,10 +175,12 @@ class MarchingSampler:
         return {"occupancy": {"resolution": grid.resolution, "box": [grid.lo.tolist(), grid.hi.tolist()],
                               "marching": asdict(self.config)}}
 
-    def describe(self) -> str:
-        return (f"empty-space skipping: a {self.grid.resolution}^3 occupancy grid over the field box, "
-                f"{self.config.steps} marching steps along its diagonal, rays stop at transmittance "
-                f"{self.config.early_stop:g} (instead of N_c + N_f samples per ray)")
+    @staticmethod
+    def describe(spec: dict[str, Any]) -> str:
+        occ = spec["occupancy"]
+        return (f"empty-space skipping: a {occ['resolution']}^3 occupancy grid over the field box, "
+                f"{occ['marching']['steps']} marching steps along its diagonal, rays stop at transmittance "
+                f"{occ['marching']['early_stop']:g} (instead of N_c + N_f samples per ray)")
 
     def render_train(self, coarse: FieldFn, fine: FieldFn | None, density: DensityFn, rays: RayBatch,
                      generator: torch.Generator, max_samples: int) -> tuple[dict[str, Composite], int]:

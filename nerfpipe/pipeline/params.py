@@ -115,7 +115,10 @@ def _instantiate(params_cls: type, values: Mapping[str, Any]) -> Any:
             head = f.name + "."
             inner = {name[len(head):]: v for name, v in values.items() if name.startswith(head)}
             if inner:
-                kwargs[f.name] = _instantiate(hints[f.name], inner)
+                try:
+                    kwargs[f.name] = _instantiate(hints[f.name], inner)
+                except ValueError as err:  # name the group: "field.levels must be >= 1"
+                    raise ValueError(f"{f.name}.{err}") from None
         elif f.name in values:
             kwargs[f.name] = values[f.name]
     return params_cls(**kwargs)

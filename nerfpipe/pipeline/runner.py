@@ -186,6 +186,32 @@ class Pipeline:
         """The committed result of ``stage`` for the current settings, if there is one."""
         return self.store.get(stage, self.plan()[self.dag.check_name(stage)].key)
 
+    def artifact(self, name: str, what: str | None = None) -> Path:
+        """The path of artifact ``name`` in the current result of the stage that provides it.
+
+        Raises ``InputError`` naming the run and the command that makes it when that stage has no result
+        for the current settings (``what``: the artifact as the message names it)."""
+        stage = self.dag.provider.get(name)
+        if stage is None:
+            raise ValueError(f"no stage provides an artifact named {name!r}")
+        result = self.result(stage)
+        if result is None:
+            raise InputError(self.run_dir, f"has no {what or name} for its current settings",
+                             f"run `nerfpipe run {self.source} --out {self.run_dir} --until {stage}` first")
+        return result.path / self.dag.stages[stage].provides[name]
+
+    def optional_artifact(self, name: str) -> Path | None:
+        """``artifact``, or None where its stage has no current result (or this pipeline has no such stage)."""
+        stage = self.dag.provider.get(name)
+        result = None if stage is None else self.result(stage)
+        return None if result is None else result.path / self.dag.stages[stage].provides[name]
+
+    def describe(self, status: StageStatus) -> list[str]:
+        """What the stage says about its committed result (``Stage.describe``), for ``nerfpipe status``."""
+        if status.result is None:
+            return []
+        return self.dag.stages[status.name].describe(status.result.path, status.result.manifest)
+
     def stage_inputs(self, name: str) -> StageInputs:
         """What stage ``name`` reads, from its upstream results for the current settings.
 

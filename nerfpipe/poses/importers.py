@@ -8,10 +8,10 @@ frames (OpenCV ``c2w``) and, for COLMAP models, sparse points. Formats:
 - ``transforms``: NeRF / instant-ngp / nerfstudio ``transforms*.json``. ``transform_matrix`` is an
   OpenGL c2w, so ``c2w = transform_matrix @ OPENGL_TO_OPENCV``; ``f = 0.5 w / tan(0.5 camera_angle_x)``.
   instant-ngp's ``aabb_scale`` (how many times the cameras' unit cube the scene extends) goes to
-  ``extra["aabb_scale"]``, a hint for the later stages.
+  ``hints.aabb_scale``, a hint for the later stages.
 - ``llff``: ``poses_bounds.npy`` (N, 17): a 3x5 ``[R | t | hwf]`` c2w whose columns are LLFF's
   [down, right, backwards]; OpenCV's [right, down, forward] is ``[c1, c0, -c2]``. Rows follow the sorted
-  image names. Near/far go to ``extra["llff_bounds"]``.
+  image names. Near/far go to ``hints.llff_bounds``.
 - ``middlebury``: ``*_par.txt``, ``name K(9) R(9) t(3)`` per line with ``P = K [R | t]`` (world to camera,
   OpenCV), so ``c2w = [R^T | -R^T t]``.
 
@@ -39,6 +39,7 @@ from nerfpipe.geometry.cameras import (
     CameraSet,
     Frame,
     Points,
+    PoseHints,
     invert_pose,
     pose_from_rt,
 )
@@ -107,7 +108,7 @@ def import_colmap(layout: CaptureLayout, photos: Photos) -> CameraSet:
     unregistered.update(photos.name(p) for p in layout.photos if photos.relpath(p) not in seen)
 
     return CameraSet(table.cameras, frames, colmap_points(rec, frame_of_image, len(frames)), "colmap_model",
-                     sorted(unregistered), {"pose_files": relative_names(layout, layout.pose_files)})
+                     sorted(unregistered), PoseHints(relative_names(layout, layout.pose_files)))
 
 
 def read_colmap_model(model_dir: Path) -> Any:
@@ -163,11 +164,11 @@ def import_transforms(layout: CaptureLayout, photos: Photos) -> CameraSet:
     frames: list[Frame] = []
     unregistered: list[str] = []
     seen: set[str] = set()
-    extra: dict[str, Any] = {"pose_files": relative_names(layout, layout.pose_files)}
+    hints = PoseHints(relative_names(layout, layout.pose_files))
     for pose_file in layout.pose_files:
         doc = _read_json(pose_file)
         if "aabb_scale" in doc:  # several files (splits) with different scales: the largest box covers all
-            extra["aabb_scale"] = max(aabb_scale(doc["aabb_scale"], pose_file), extra.get("aabb_scale", 0.0))
+            hints.aabb_scale = max(aabb_scale(doc["aabb_scale"], pose_file), hints.aabb_scale or 0.0)
         shared = {k: doc[k] for k in INTRINSIC_KEYS if k in doc}
         for i, entry in enumerate(doc["frames"]):
             path = resolve_inside(layout.capture, entry["file_path"], pose_file, IMAGE_SUFFIXES)
@@ -185,7 +186,7 @@ def import_transforms(layout: CaptureLayout, photos: Photos) -> CameraSet:
             camera = to_ingested_size(transforms_camera(values, record, pose_file, where), record, pose_file, where)
             c2w = c2w_gl @ OPENGL_TO_OPENCV
             frames.append(Frame(record["name"], table.add(camera), c2w, layout.splits.get(relpath)))
-    return CameraSet(table.cameras, frames, None, "transforms_json", sorted(unregistered), extra)
+    return CameraSet(table.cameras, frames, None, "transforms_json", sorted(unregistered), hints)
 
 
 def aabb_scale(value: Any, pose_file: Path) -> float:

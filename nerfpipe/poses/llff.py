@@ -9,6 +9,7 @@ from nerfpipe.geometry.cameras import (
     Camera,
     CameraSet,
     Frame,
+    PoseHints,
     pose_from_rt,
 )
 from nerfpipe.pipeline.errors import InputError
@@ -74,4 +75,4 @@ def import_llff(layout: CaptureLayout, photos: Photos) -> CameraSet:
         frames.append(Frame(record["name"], camera_id, pose_from_rt(R, pose[:, 3])))
         bounds[record["name"]] = [near, far]
     return CameraSet(table.cameras, frames, None, "llff", sorted(unregistered),
-                     {"pose_files": relative_names(layout, layout.pose_files), "llff_bounds": bounds})
+                     PoseHints(relative_names(layout, layout.pose_files), llff_bounds=bounds))

@@ -10,6 +10,7 @@ from nerfpipe.geometry.cameras import (
     Camera,
     CameraSet,
     Frame,
+    PoseHints,
     invert_pose,
     pose_from_rt,
 )
@@ -43,7 +44,7 @@ def import_middlebury(layout: CaptureLayout, photos: Photos) -> CameraSet:
             camera_id = table.add(to_ingested_size(camera, record, pose_file, f"line {line_no}"))
             frames.append(Frame(record["name"], camera_id, invert_pose(pose_from_rt(R, t))))
     return CameraSet(table.cameras, frames, None, "middlebury", sorted(unregistered),
-                     {"pose_files": relative_names(layout, layout.pose_files)})
+                     PoseHints(relative_names(layout, layout.pose_files)))
 
 
 def read_par_file(pose_file: Path) -> list[tuple[int, str, np.ndarray, np.ndarray, np.ndarray]]:

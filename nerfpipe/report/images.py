@@ -91,7 +91,7 @@ def plot_training(path: Path, records: list[dict[str, Any]]) -> None:
 
 def plot_per_image(path: Path, per_image: dict[str, dict[str, Any]]) -> None:
     """Per training photo, in order: how far its camera moved (degrees, and the centre's move in world units)
-    and its learned exposure (stops per channel), from ``extra["per_image"]`` of the train stage's cameras;
+    and its learned exposure (stops per channel), from ``hints.per_image`` of the train stage's cameras;
     a panel for each of the two that the photos have."""
     plt = _pyplot()
     names = list(per_image)

@@ -14,6 +14,7 @@ of ``nerfpipe.geometry.normalize`` and writes:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -114,7 +115,8 @@ def transform_camera_set(cameras: CameraSet, similarity: Similarity) -> CameraSe
     if cameras.points is not None:
         p = cameras.points
         points = Points(similarity.apply_points(p.xyz).reshape(-1, 3), p.rgb, p.error, p.visible)
-    return CameraSet(dict(cameras.cameras), frames, points, cameras.source, list(cameras.unregistered), dict(cameras.extra))
+    return CameraSet(dict(cameras.cameras), frames, points, cameras.source, list(cameras.unregistered),
+                     dataclasses.replace(cameras.hints))
 
 
 class BoundsStage(Stage):
@@ -151,9 +153,9 @@ class BoundsStage(Stage):
         kind = rig_kind(np.array([f.c2w for f in world.frames]))
         if xyz is not None:
             method, (lo, hi), frames = "points", *self._from_points(world, params, ctx)
-        elif sfm.extra.get("llff_bounds"):
+        elif sfm.hints.llff_bounds:
             # LLFF's poses_bounds.npy carries near/far depths from the points COLMAP had: use them, scaled
-            llff = sfm.extra["llff_bounds"]
+            llff = sfm.hints.llff_bounds
             frames = [FrameBounds(f.name, float(llff[f.name][0]) * similarity.scale,
                                   float(llff[f.name][1]) * similarity.scale, "pose_file") for f in world.frames]
             method, (lo, hi) = "pose_file", frustum_box(world, frames)

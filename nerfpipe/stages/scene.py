@@ -139,7 +139,7 @@ class SceneStage(Stage):
             raise StageError("scene: no registered images in the normalized world")
 
         layout, layout_text, layout_numbers = decide_layout(world, bounds, params)
-        roots = pinhole.extra.get("image_roots", {})
+        roots = pinhole.hints.image_roots
         paths = [
             (inputs["undistorted_images"] if roots.get(r["name"]) == "undistort" else inputs["images"]) / r["name"]
             for r in records

@@ -144,7 +144,7 @@ def needs_points(cameras: CameraSet, records: list[dict]) -> bool:
     (LLFF's come from COLMAP's points), and the photos are no alpha renders (a synthetic object inside
     the camera ring, which the bounds stage's rig box holds)."""
     has_alpha = bool(records) and all(r.get("has_alpha") for r in records)
-    return cameras.points is None and not cameras.extra.get("llff_bounds") and not has_alpha
+    return cameras.points is None and not cameras.hints.llff_bounds and not has_alpha
 
 
 def aabb_hint(scale: float) -> str:
@@ -171,21 +171,21 @@ def import_with_points(
         points, triangulation = triangulate_known_poses(image_dir, cameras, records, out, params, ctx)
         summary["triangulation"] = triangulation
         # the model keeps what the run found, not how long it took, so equal runs write equal models
-        cameras.extra["triangulation"] = {k: v for k, v in triangulation.items() if k != "seconds"}
+        cameras.hints.triangulation = {k: v for k, v in triangulation.items() if k != "seconds"}
         if points is not None:
             cameras.points, summary["points_from"] = points, "triangulated"
         else:
             instead = ("the pose file's own points" if own is not None else
-                       "the pose file's near/far" if cameras.extra.get("llff_bounds") else "the rig guess")
+                       "the pose file's near/far" if cameras.hints.llff_bounds else "the rig guess")
             summary["triangulation_fallback"] = f"{triangulation['reason']}; bounds fall back to {instead}"
             summary["points_from"] = "pose file" if own is not None else "none"
             ctx.log.warning("sfm: %s", summary["triangulation_fallback"])
     else:
         summary["points_from"] = "pose file" if own is not None else "none"
     summary["points"] = 0 if cameras.points is None else len(cameras.points.xyz)
-    if "aabb_scale" in cameras.extra:
-        summary["aabb_scale"] = cameras.extra["aabb_scale"]
-        ctx.log.info("sfm: %s", aabb_hint(cameras.extra["aabb_scale"]))
+    if cameras.hints.aabb_scale is not None:
+        summary["aabb_scale"] = cameras.hints.aabb_scale
+        ctx.log.info("sfm: %s", aabb_hint(cameras.hints.aabb_scale))
     return cameras, summary
 
 

@@ -4,12 +4,13 @@ NeRF rays are cast through pinhole cameras, so every camera leaves this stage as
 lens moves some pixel by more than ``threshold_px`` has its images resampled (``geometry.distortion``)
 into ``images/`` here and gets the pinhole camera of the resampled images; a camera within the threshold
 keeps its K, drops its (negligible) distortion, and its images are not touched, not even copied: the
-``pinhole`` camera set says per frame where its image lives (``extra["image_roots"]``), and
+``pinhole`` camera set says per frame where its image lives (``hints.image_roots``), and
 ``frame_image_path`` turns that into a path.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -134,7 +135,7 @@ class UndistortStage(Stage):
         }
         pinhole = CameraSet(
             cameras, model.frames, model.points, model.source, model.unregistered,
-            {**model.extra, "image_roots": image_roots, "undistortion": undistortion},
+            dataclasses.replace(model.hints, image_roots=image_roots, undistortion=undistortion),
         )
         pinhole.save(out / "pinhole")
 

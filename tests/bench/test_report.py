@@ -72,7 +72,9 @@ def test_select_expands_groups_and_refuses_unknown_names() -> None:
         assert len(changed) == 1 or config.name == "no hierarchical", (config.name, changed)
     # row 4 evaluates the field as often a ray as the complete model's N_c + (N_c + N_f), with one network
     no_hierarchical = CONFIGS["no hierarchical"].overrides()
-    assert base["fine_network"] and not no_hierarchical["fine_network"] and not no_hierarchical["hierarchical"]
-    assert no_hierarchical["n_coarse"] == base["n_coarse"] + (base["n_coarse"] + base["n_fine"]) == 64
+    assert base["field.fine_network"] and not no_hierarchical["field.fine_network"]
+    assert not no_hierarchical["sampler.hierarchical"]
+    n_c, n_f = base["sampler.n_coarse"], base["sampler.n_fine"]
+    assert no_hierarchical["sampler.n_coarse"] == n_c + (n_c + n_f) == 64
     with pytest.raises(KeyError, match="turbo"):
         select(["turbo"])

@@ -48,8 +48,8 @@ def test_bench_writes_figures_resumes_and_lets_set_win(tmp_path: Path) -> None:
         psnrs = [p["psnr"] for p in result["points"]]
         assert all(5.0 < p < 60.0 for p in psnrs)
         assert result["points"][-1]["step"] == 12 and result["points"][-1]["seconds"] == result["train_seconds"]
-    assert no_pe["spec"]["overrides"]["train"]["positional_encoding"] is False
-    assert draft["spec"]["overrides"]["train"]["grid_levels"] == 1
+    assert no_pe["spec"]["overrides"]["train"]["field.positional_encoding"] is False
+    assert draft["spec"]["overrides"]["train"]["field.levels"] == 1
     table = (folder / "bench.md").read_text()
     assert "| draft |" in table and "| no PE |" in table
     assert (folder / "psnr_time.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 import torch
 
-from nerfpipe.nerf.samplers import HierarchicalSampler
 from nerfpipe.export.depth import DepthView, decode_depth_png, read_view, write_view
 from nerfpipe.export.mesh import (
     Grid,
@@ -25,9 +24,11 @@ from nerfpipe.export.mesh import (
 from nerfpipe.export.points import clean_cloud, views_to_points
 from nerfpipe.export.points import transformed as cloud_transformed
 from nerfpipe.nerf.analytic import SphereField
-from nerfpipe.nerf.model import RadianceModel, RaySpace
+from nerfpipe.nerf.model import RadianceModel
+from nerfpipe.nerf.ray_space import RaySpace
 from nerfpipe.nerf.rays import camera_rays, pixel_centers
 from nerfpipe.nerf.renderer import SamplingConfig
+from nerfpipe.nerf.samplers import HierarchicalSampler
 from tests.helpers import look_at
 
 CENTER = np.array([0.05, -0.03, 0.02])

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from nerfpipe.artifacts import Bounds, Decision, FrameBounds, SceneDecisions
-from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
+from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, PoseHints
 from nerfpipe.imaging.png import write_png
 from nerfpipe.nerf.images import ImageLoader
 
@@ -51,7 +51,7 @@ def write_image_folders(root: Path) -> dict[str, Path]:
     write_png(images / "a.png", rgba)
     write_png(images / "grey.png", np.full((HEIGHT, WIDTH), 128, np.uint8))
     write_png(undistorted / "b.png", np.full((HEIGHT, WIDTH, 3), 255, np.uint8))
-    CameraSet({}, [], extra={"image_roots": {"a.png": "ingest", "grey.png": "ingest", "b.png": "undistort"}}).save(pinhole)
+    CameraSet({}, [], hints=PoseHints(image_roots={"a.png": "ingest", "grey.png": "ingest", "b.png": "undistort"})).save(pinhole)
     return {"images": images, "undistorted_images": undistorted, "pinhole": pinhole}
 
 

@@ -7,21 +7,20 @@ import numpy as np
 import pytest
 import torch
 
+from nerfpipe.geometry.normalize import robust_box
 from nerfpipe.nerf.assembly import (
     HULL_RESOLUTION,
     NDC_NEAR_FACTOR,
     build_background,
     build_model,
-    build_sampler,
     carve_scene_box,
     density_noise,
+    sampler_spec_for,
     training_config,
 )
-from nerfpipe.geometry.normalize import robust_box
 from nerfpipe.nerf.field import NerfField
 from nerfpipe.nerf.grid_field import GridField
-from nerfpipe.nerf.model import RaySpace
-from nerfpipe.nerf.samplers import HierarchicalSampler, MarchingSampler
+from nerfpipe.nerf.samplers import MarchingSampler
 from nerfpipe.pipeline.params import override
 from nerfpipe.stages.train import TrainParams
 from tests.geometry.sphere_photos import CENTER, RADIUS, sphere_views
@@ -123,14 +122,13 @@ def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:
 
 
 def test_sampler_and_background_builders_say_why_not() -> None:
-    mlp = NerfField.from_params(train_params({}).field, None)
-    sampler, said = build_sampler(train_params({"field.kind": "mlp", "sampler.kind": "marching"}), mlp, None,
-                                  "unbounded360", RaySpace(), CPU)
-    assert isinstance(sampler, HierarchicalSampler)
+    spec, said = sampler_spec_for(train_params({"field.kind": "mlp", "sampler.kind": "marching"}), "mlp", None,
+                                  "unbounded360")
+    assert spec["kind"] == "hierarchical"
     assert said == "no occupancy grid: an unbounded scene has no box to grid; Section 5.2's sampling instead"
-    sampler, said = build_sampler(train_params({"field.kind": "mlp"}), mlp, ((-1.0,) * 3, (1.0,) * 3), "inward360",
-                                  RaySpace(), CPU)
-    assert isinstance(sampler, HierarchicalSampler) and said is None  # auto: the paper's sampling for the MLP
+    spec, said = sampler_spec_for(train_params({"field.kind": "mlp"}), "mlp", ((-1.0,) * 3, (1.0,) * 3), "inward360")
+    assert spec == {"kind": "hierarchical", "sampling": {"n_coarse": 32, "n_fine": 64, "lindisp": False}}
+    assert said is None  # auto: the paper's sampling for the MLP, which needs no sentence
     assert build_background(scene_of("inward360", "color", [0, 0.5, 1])) == (
         (0.0, 0.5, 1.0), "background color: renders composited onto (0.00, 0.50, 1.00)")
     assert build_background(scene_of("inward360", "alpha", None))[0] is None  # no colour decided: none

@@ -8,14 +8,21 @@ import math
 import pytest
 import torch
 
-from nerfpipe.nerf.samplers import MarchingSampler
 from nerfpipe.nerf.analytic import SphereField
 from nerfpipe.nerf.marching import (
-    PackedSamples, march, pack_left, rays_within, render_marched, render_marched_segments, transmittance_before, visible,
+    PackedSamples,
+    march,
+    pack_left,
+    rays_within,
+    render_marched,
+    render_marched_segments,
+    transmittance_before,
+    visible,
 )
 from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
 from nerfpipe.nerf.rays import intersect_box
 from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
+from nerfpipe.nerf.samplers import MarchingSampler
 
 BOX = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
 
@@ -216,7 +223,8 @@ def test_bad_grids_and_settings_are_refused() -> None:
 
 def test_a_marching_model_saves_and_loads_with_its_grid(tmp_path) -> None:
     from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
-    from nerfpipe.nerf.model import RadianceModel, RaySpace
+    from nerfpipe.nerf.model import RadianceModel
+    from nerfpipe.nerf.ray_space import RaySpace
 
     torch.manual_seed(0)
     field = GridField(*BOX, GridFieldConfig(levels=2, min_resolution=4, max_resolution=8))

@@ -15,8 +15,8 @@ from nerfpipe.nerf.rendering import (
     composite,
     compositing_weights,
     optical_depth,
-    termination_depths,
     sample_deltas,
+    termination_depths,
     transmittance,
     transmittance_from_alphas,
 )

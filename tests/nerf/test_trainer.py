@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 import torch
 
-from nerfpipe.nerf.samplers import HierarchicalSampler, MarchingSampler
 from nerfpipe.nerf.field import FieldConfig, NerfField
-from nerfpipe.nerf.model import RadianceModel, RaySpace
+from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
+from nerfpipe.nerf.ray_space import RaySpace
 from nerfpipe.nerf.rays import pixel_centers
 from nerfpipe.nerf.renderer import SamplingConfig
+from nerfpipe.nerf.samplers import HierarchicalSampler, MarchingSampler
 from nerfpipe.nerf.stall import StallGuard, mean_colour_psnr
 from nerfpipe.nerf.trainer import PixelSet, TrainConfig, Trainer, set_precision
 from tests.helpers import look_at

@@ -1,12 +1,23 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Optional
+from typing import ClassVar, Literal, Optional
 
 import pytest
 
 from nerfpipe.pipeline.errors import ParamError
-from nerfpipe.pipeline.params import build_params, coerce, describe_changes, param_specs, parse_assignments
+from nerfpipe.pipeline.params import (
+    Auto,
+    build_params,
+    coerce,
+    describe_changes,
+    flatten,
+    override,
+    param,
+    param_specs,
+    params_to_dict,
+    parse_assignments,
+)
 
 
 @dataclass(frozen=True)
@@ -86,3 +97,58 @@ def test_describe_changes_and_specs():
     assert specs["size"].help == "longest side" and specs["size"].default == 1600
     assert specs["mode"].choices == ("clip", "blend") and specs["mode"].type_name == "clip|blend"
     assert specs["label"].type_name == "str or none"
+
+
+@dataclass(frozen=True)
+class Inner:
+    levels: int = param(3, "levels of the grid")
+    switch: Auto = param("auto", "a switch")
+
+    def __post_init__(self) -> None:
+        if self.levels < 1:
+            raise ValueError(f"levels must be >= 1, got {self.levels}")
+
+
+@dataclass(frozen=True)
+class Outer:
+    steps: int = param(10, "steps")
+    rate: float = param(0.5, "a rate")
+    inner: Inner = param(Inner(), "a group")
+
+    ALIASES: ClassVar[dict] = {"grid_levels": "inner.levels", "old_switch": ("inner.switch", {"true": "on", "false": "off"})}
+
+
+def test_groups_are_named_with_dots_and_built_nested():
+    specs = [s.name for s in param_specs(Outer)]
+    assert specs == ["steps", "rate", "inner.levels", "inner.switch"]
+    built = build_params("s", Outer, {"p": {"inner.levels": 5}}, "p", {"inner.switch": "on", "steps": "4"})
+    assert built == Outer(steps=4, inner=Inner(levels=5, switch="on"))
+    assert params_to_dict(built) == {"steps": 4, "rate": 0.5, "inner": {"levels": 5, "switch": "on"}}
+    assert flatten(params_to_dict(built)) == {"steps": 4, "rate": 0.5, "inner.levels": 5, "inner.switch": "on"}
+    assert override(Outer(), {"inner.levels": 2, "rate": 0.25}) == Outer(rate=0.25, inner=Inner(levels=2))
+    # a group's own check is named with its path
+    with pytest.raises(ParamError, match=r"^s: inner.levels must be >= 1, got 0$"):
+        build_params("s", Outer, {}, None, {"inner.levels": "0"})
+    with pytest.raises(ParamError, match="unknown parameter s.inner.level; did you mean s.inner.levels?"):
+        build_params("s", Outer, {}, None, {"inner.level": "2"})
+    assert describe_changes("s", {"inner": {"levels": 3}}, {"inner": {"levels": 4}}) == ["s.inner.levels 3 -> 4"]
+
+
+def test_retired_names_and_switch_spellings_still_work_and_say_so(caplog):
+    with caplog.at_level("WARNING", logger="nerfpipe"):
+        built = build_params("s", Outer, {}, None, {"grid_levels": "7", "old_switch": "true"})
+    assert built.inner == Inner(levels=7, switch="on")
+    assert "s.grid_levels is now s.inner.levels; the old name still works for now" in caplog.text
+    assert "s.old_switch is now s.inner.switch=on" in caplog.text
+    assert coerce("false", Auto, "s.x") == "off" and coerce("yes", Auto, "s.y") == "on"
+    assert "s.x=false: the switches now read auto, on or off; taken as s.x=off" in caplog.text
+    with pytest.raises(ParamError, match="s.z: 'maybe' is not one of auto, on, off"):
+        coerce("maybe", Auto, "s.z")
+
+
+@pytest.mark.parametrize("text", ["nan", "inf", "-inf", "NaN"])
+def test_numbers_must_be_finite(text):
+    with pytest.raises(ParamError, match=f"s.rate: expected a finite number, got '{text}'"):
+        build_params("s", Outer, {}, None, {"rate": text})
+    with pytest.raises(ParamError, match="expected a finite number"):
+        coerce(float(text), float, "s.rate")

@@ -139,7 +139,7 @@ def test_beer_colmap_and_llff_poses_agree(beer):
         ca, cb = colmap.camera_of(a), llff.camera_of(b)
         assert (ca.width, ca.height) == (cb.width, cb.height) == (720, 1280) and (ca.cx, ca.cy) == (cb.cx, cb.cy)
         assert ca.fx == pytest.approx(cb.fx, rel=0.05)  # per-image focals span 1101.6 to 1155.3
-    bounds = llff.extra["llff_bounds"]
+    bounds = llff.hints.llff_bounds
     assert len(bounds) == 71 and min(b[0] for b in bounds.values()) == pytest.approx(3.124, abs=1e-3)
     assert max(b[1] for b in bounds.values()) == pytest.approx(31.508, abs=1e-3)
 
@@ -221,7 +221,7 @@ def test_cup_llff_with_real_ingest_and_downscale(tmp_path):
     pose = rows[1, :15].reshape(3, 5)
     down, right, back = pose[:, 0], pose[:, 1], pose[:, 2]
     assert np.allclose(cameras.frames[1].c2w[:3], np.c_[right, down, -back, pose[:, 3]], atol=1e-12)
-    bounds = cameras.extra["llff_bounds"]
+    bounds = cameras.hints.llff_bounds
     assert bounds["1.png"] == pytest.approx(rows[0, 15:].tolist()) and bounds["10.png"] == pytest.approx(rows[1, 15:].tolist())
     assert len(bounds) == 77 and all(1.9 < near < far < 21.4 for near, far in bounds.values())
 
@@ -439,19 +439,19 @@ def test_malformed_transforms_frame(tmp_path, frame, message):
 
 def test_instant_ngp_aabb_scale_is_recorded_as_a_hint(tmp_path):
     """instant-ngp's aabb_scale (the scene's extent in units of the cameras' unit cube) lands in
-    ``extra["aabb_scale"]``; across split files the largest wins; a file without it records nothing."""
+    ``hints.aabb_scale``; across split files the largest wins; a file without it records nothing."""
     capture = temple_capture(tmp_path / "cap", 2)
     frame = {"file_path": "templeSR0001.png", "transform_matrix": np.eye(4).tolist()}
     (capture / "transforms_train.json").write_text(json.dumps({"camera_angle_x": 0.7, "aabb_scale": 4, "frames": [frame]}))
     (capture / "transforms_test.json").write_text(json.dumps(
         {"camera_angle_x": 0.7, "aabb_scale": 16, "frames": [{**frame, "file_path": "templeSR0002.png"}]}))
     cameras = _import(capture)
-    assert cameras.extra["aabb_scale"] == 16.0
+    assert cameras.hints.aabb_scale == 16.0
     cameras.save(tmp_path)
-    assert CameraSet.load(tmp_path).extra["aabb_scale"] == 16.0
+    assert CameraSet.load(tmp_path).hints.aabb_scale == 16.0
     (capture / "transforms_test.json").unlink()
     (capture / "transforms_train.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": [frame]}))
-    assert "aabb_scale" not in _import(capture).extra
+    assert _import(capture).hints.aabb_scale is None
 
 
 @pytest.mark.parametrize("value", [0, -2, "16", True, None])

@@ -16,14 +16,15 @@ import numpy as np
 import pytest
 import torch
 
-from nerfpipe.nerf.samplers import HierarchicalSampler
 from nerfpipe.artifacts import Bounds, Decision, FrameBounds, SceneDecisions
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, mean_camera
 from nerfpipe.imaging.png import read_png, srgb_encode
 from nerfpipe.nerf.assembly import NDC_NEAR_FACTOR
 from nerfpipe.nerf.field import FieldConfig, NerfField
-from nerfpipe.nerf.model import RadianceModel, RaySpace
+from nerfpipe.nerf.model import RadianceModel
+from nerfpipe.nerf.ray_space import RaySpace
 from nerfpipe.nerf.renderer import SamplingConfig
+from nerfpipe.nerf.samplers import HierarchicalSampler
 from nerfpipe.pipeline.errors import ParamError, StageError
 from nerfpipe.pipeline.params import build_params
 from nerfpipe.pipeline.stage import StageContext, StageInputs

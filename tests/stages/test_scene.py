@@ -13,7 +13,7 @@ from nerfpipe import Pipeline
 from nerfpipe.analysis.exposure import decide_exposure, decide_photometric, measure_exposure
 from nerfpipe.analysis.layout import decide_layout
 from nerfpipe.artifacts import Bounds, FrameBounds, SceneDecisions
-from nerfpipe.geometry.cameras import OPENGL_TO_OPENCV, Camera, CameraSet, Frame, Points, invert_pose
+from nerfpipe.geometry.cameras import OPENGL_TO_OPENCV, Camera, CameraSet, Frame, Points, PoseHints, invert_pose
 from nerfpipe.geometry.normalize import in_view
 from nerfpipe.pipeline import ParamError, parse_assignments
 from nerfpipe.stages import IngestStage
@@ -31,11 +31,11 @@ def run_scene(capture: Path, cameras: CameraSet, run_dir: Path, undistorted=None
     return json.loads((outcome.path / "scene.json").read_text())
 
 
-def with_extra(cameras: CameraSet, undistorted: bool = False, displacement: float = 0.0, root: str = "ingest") -> CameraSet:
-    cameras.extra["undistortion"] = {
+def with_hints(cameras: CameraSet, undistorted: bool = False, displacement: float = 0.0, root: str = "ingest") -> CameraSet:
+    cameras.hints.undistortion = {
         str(k): {"max_displacement_px": displacement, "undistorted": undistorted} for k in cameras.cameras
     }
-    cameras.extra["image_roots"] = {f.name: root for f in cameras.frames}
+    cameras.hints.image_roots = {f.name: root for f in cameras.frames}
     return cameras
 
 
@@ -60,7 +60,7 @@ def temple_cameras(names: list[str] | None = None, n_points: int = 3000) -> Came
     xyz = rng.uniform(*TEMPLE_BOX, (n_points, 3))
     visible = [np.flatnonzero(in_view(f.c2w, cameras[1].K(), 640, 480, xyz)) for f in frames]
     points = Points(xyz, np.full((n_points, 3), 200, np.uint8), np.full(n_points, 0.5), visible)
-    return with_extra(CameraSet(cameras, frames, points, "middlebury"))
+    return with_hints(CameraSet(cameras, frames, points, "middlebury"))
 
 
 def cup_capture(tmp_path: Path) -> tuple[Path, CameraSet]:
@@ -84,7 +84,7 @@ def cup_capture(tmp_path: Path) -> tuple[Path, CameraSet]:
         c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = pose[:, 1], pose[:, 0], -pose[:, 2], pose[:, 3]
         frames.append(Frame(Path(name).stem + ".png", 1, c2w))
     camera = Camera.pinhole(focal / 4, focal / 4, w / 8, h / 8, int(w) // 4, int(h) // 4)
-    return capture, with_extra(CameraSet({1: camera}, frames, None, "llff"))
+    return capture, with_hints(CameraSet({1: camera}, frames, None, "llff"))
 
 
 def lego_capture(tmp_path: Path, every: int = 8) -> tuple[Path, CameraSet]:
@@ -102,7 +102,7 @@ def lego_capture(tmp_path: Path, every: int = 8) -> tuple[Path, CameraSet]:
         Frame(f["file_path"][2:] + ".png", 1, np.array(f["transform_matrix"]) @ OPENGL_TO_OPENCV, "train") for f in kept
     ]
     camera = Camera.pinhole(focal, focal, 200.0, 200.0, 400, 400)
-    return capture, with_extra(CameraSet({1: camera}, frames, None, "transforms_json"))
+    return capture, with_hints(CameraSet({1: camera}, frames, None, "transforms_json"))
 
 
 # -- real captures ---------------------------------------------------------------------------------------
@@ -200,7 +200,7 @@ def test_lego_is_inward360_with_alpha_composited_on_white(tmp_path):
 
 def test_undistorted_frames_are_read_from_the_undistort_output(capture, tmp_path):
     names = [f"templeSR000{i}.png" for i in range(1, 5)]
-    cameras = with_extra(temple_cameras(names), undistorted=True, displacement=3.25, root="undistort")
+    cameras = with_hints(temple_cameras(names), undistorted=True, displacement=3.25, root="undistort")
     grey = {name: np.full((48, 64, 3), 128, np.uint8) for name in names}
     scene = run_scene(capture, cameras, tmp_path / "run", undistorted=grey)
     assert scene["background"]["value"] == "color"
@@ -212,10 +212,10 @@ def test_undistorted_frames_are_read_from_the_undistort_output(capture, tmp_path
 def test_lens_evidence_per_camera():
     from nerfpipe.analysis.lens import decide_lens
 
-    cameras = CameraSet({}, [], extra={"undistortion": {
+    cameras = CameraSet({}, [], hints=PoseHints(undistortion={
         "1": {"model": "OPENCV", "max_displacement_px": 0.12, "undistorted": False},
         "2": {"model": "OPENCV_FISHEYE", "max_displacement_px": None, "undistorted": True},
-    }})
+    }))
     value, evidence, _ = decide_lens(cameras)
     assert value == "undistorted"
     assert evidence == ("camera 1: distortion moves pixels by up to 0.12 px, left as is; "
@@ -230,7 +230,7 @@ def test_lens_evidence_sums_up_one_camera_per_photo():
     record = {str(i): {"model": "SIMPLE_RADIAL", "max_displacement_px": 0.2 + 0.4 * i, "undistorted": True}
               for i in range(1, 72)}
     record["1"] = {"model": "SIMPLE_RADIAL", "max_displacement_px": 0.2, "undistorted": False}
-    value, evidence, measured = decide_lens(CameraSet({}, [], extra={"undistortion": record}))
+    value, evidence, measured = decide_lens(CameraSet({}, [], hints=PoseHints(undistortion=record)))
     assert value == "undistorted"
     assert evidence == "71 cameras: distortion 0.2-29 px, 70 undistorted, 1 left as is"
     assert measured == {"cameras": record}  # the per-camera numbers stay on record
@@ -238,14 +238,14 @@ def test_lens_evidence_sums_up_one_camera_per_photo():
     record["71"]["max_displacement_px"] = None  # a fisheye beyond 90 degrees
     for info in record.values():
         info["undistorted"] = False
-    value, evidence, _ = decide_lens(CameraSet({}, [], extra={"undistortion": record}))
+    value, evidence, _ = decide_lens(CameraSet({}, [], hints=PoseHints(undistortion=record)))
     assert value == "pinhole"
     assert evidence == "71 cameras: distortion 0.2-28 px, 1 beyond 90° off-axis (fisheye), 0 undistorted, 71 left as is"
 
     four = {str(i): {"max_displacement_px": 3.0, "undistorted": True} for i in range(1, 5)}
-    assert decide_lens(CameraSet({}, [], extra={"undistortion": four}))[1] == "4 cameras: distortion 3 px, 4 undistorted, 0 left as is"
+    assert decide_lens(CameraSet({}, [], hints=PoseHints(undistortion=four)))[1] == "4 cameras: distortion 3 px, 4 undistorted, 0 left as is"
     three = {str(i): {"max_displacement_px": 3.0, "undistorted": True} for i in range(1, 4)}
-    assert decide_lens(CameraSet({}, [], extra={"undistortion": three}))[1].count("camera ") == 3  # named one by one
+    assert decide_lens(CameraSet({}, [], hints=PoseHints(undistortion=three)))[1].count("camera ") == 3  # named one by one
 
 
 # -- layout on synthetic rigs ----------------------------------------------------------------------------

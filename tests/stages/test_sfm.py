@@ -14,8 +14,8 @@ import pytest
 from nerfpipe import Pipeline
 from nerfpipe.geometry.align import rotation_angle_deg, umeyama
 from nerfpipe.geometry.cameras import CameraSet, invert_pose
-from nerfpipe.stages import IngestStage, SfmStage
 from nerfpipe.poses.colmap.matching import choose_matcher
+from nerfpipe.stages import IngestStage, SfmStage
 from nerfpipe.stages.sfm import SfmParams
 from tests.helpers import TEMPLE, run_cli, shared
 from tests.imaging import photos
@@ -243,7 +243,7 @@ def test_a_failed_triangulation_falls_back_to_the_rig_and_says_so(tmp_path, capl
     assert CameraSet.load(outcome.path / "model").points is None
     assert not (outcome.path / "colmap.log").exists()  # COLMAP's log has timestamps: equal runs, equal results
     # instant-ngp's aabb_scale: kept for later stages, and a hint in the summary
-    assert CameraSet.load(outcome.path / "model").extra["aabb_scale"] == 16.0 and s["aabb_scale"] == 16.0
+    assert CameraSet.load(outcome.path / "model").hints.aabb_scale == 16.0 and s["aabb_scale"] == 16.0
     lines = SfmStage().describe(outcome.path, {"summary": s})
     assert lines[0] == "imported transforms: 4/4 photos registered, no sparse points"
     assert lines[1] == f"warning: {s['triangulation_fallback']}"

@@ -212,10 +212,9 @@ def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
 
     from nerfpipe import Pipeline, default_stages
     from nerfpipe.export.depth import DepthIndex
-    from tests.helpers import video_info
     from nerfpipe.export.mesh import read_mesh
     from nerfpipe.export.points import read_ply
-    from tests.helpers import run_cli
+    from tests.helpers import run_cli, video_info
 
     def result_of(stage: str) -> Path:
         return run_dir / "stages" / stage / json.loads((run_dir / "stages" / stage / "latest.json").read_text())["key"]

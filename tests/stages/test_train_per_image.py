@@ -67,7 +67,7 @@ def test_reexposed_photos_train_as_well_as_clean_ones_with_appearance_on(clean, 
     assert on["psnr_mean_appearance"] >= clean_metrics["psnr"] - 1.0, (on["psnr_mean_appearance"], clean_metrics["psnr"])
     assert off["psnr"] <= on["psnr"] - 2.0, (off["psnr"], on["psnr"])
     # and the exposures it learned are the ones the photos were taken with
-    per_image = CameraSet.load(paths["train"] / "cameras").extra["per_image"]
+    per_image = CameraSet.load(paths["train"] / "cameras").hints.per_image
     names = sorted(per_image)
     learned = np.array([np.mean(per_image[n]["exposure_stops"]) for n in names])
     true = np.array([truth[Path(n).name] for n in names])

@@ -14,7 +14,7 @@ import pytest
 
 from nerfpipe import Pipeline
 from nerfpipe.artifacts import frame_image_path
-from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, Points
+from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, Points, PoseHints
 from nerfpipe.geometry.distortion import max_distortion_displacement, undistort_pixels, undistortion_maps
 from nerfpipe.imaging.png import read_png, write_png
 from nerfpipe.pipeline import StageContext, StageError, StageInputs
@@ -116,9 +116,9 @@ def test_real_chessboards_come_out_straight(ximea, tmp_path):
 
     new = pinhole.cameras[1]
     assert new.model == "PINHOLE" and (new.width, new.height) == (640, 512)
-    assert pinhole.extra["image_roots"] == {n: "undistort" for n in names}
-    assert pinhole.extra["undistortion"]["1"]["undistorted"] is True
-    assert pinhole.extra["undistortion"]["1"]["max_displacement_px"] > 1.0
+    assert pinhole.hints.image_roots == {n: "undistort" for n in names}
+    assert pinhole.hints.undistortion["1"]["undistorted"] is True
+    assert pinhole.hints.undistortion["1"]["max_displacement_px"] > 1.0
 
     centre_before = np.array([camera.cx, camera.cy]) - 0.5  # OpenCV convention, like the detected corners
     centre_after = np.array([new.cx, new.cy]) - 0.5
@@ -204,7 +204,7 @@ def temple_camera_set(capture: Path) -> CameraSet:
                     [np.array([0, 1]), np.array([2]), np.array([], np.int64), np.array([3, 4])])
     cameras = {1: Camera("SIMPLE_PINHOLE", 640, 480, (800.0, 320.0, 240.0)),
                2: Camera("PINHOLE", 640, 480, (810.0, 805.0, 321.5, 239.5))}
-    return CameraSet(cameras, frames, points, "test", ["extra.png"], {"bounds": [0.1, 9.0]})
+    return CameraSet(cameras, frames, points, "test", ["extra.png"], PoseHints(["poses.txt"], aabb_scale=2.0))
 
 
 def test_pinhole_cameras_pass_through_with_no_images_written(capture, tmp_path, caplog):
@@ -212,19 +212,20 @@ def test_pinhole_cameras_pass_through_with_no_images_written(capture, tmp_path, 
     with caplog.at_level(logging.INFO, logger="nerfpipe"):
         ingest_images, undistorted, pinhole = run_undistort(capture, tmp_path / "run", model)
     assert undistorted.is_dir() and list(undistorted.rglob("*")) == []
-    assert pinhole.extra["image_roots"] == {f.name: "ingest" for f in model.frames}
-    assert pinhole.extra["undistortion"] == {
+    assert pinhole.hints.image_roots == {f.name: "ingest" for f in model.frames}
+    assert pinhole.hints.undistortion == {
         "1": {"model": "SIMPLE_PINHOLE", "max_displacement_px": 0.0, "undistorted": False},
         "2": {"model": "PINHOLE", "max_displacement_px": 0.0, "undistorted": False},
     }
-    assert pinhole.extra["bounds"] == [0.1, 9.0] and pinhole.unregistered == ["extra.png"]
+    assert pinhole.hints.pose_files == ["poses.txt"] and pinhole.hints.aabb_scale == 2.0  # kept
+    assert pinhole.unregistered == ["extra.png"]
     assert pinhole.cameras == {1: Camera("PINHOLE", 640, 480, (800.0, 800.0, 320.0, 240.0)), 2: model.cameras[2]}
     assert [(f.name, f.camera_id) for f in pinhole.frames] == [(f.name, f.camera_id) for f in model.frames]
     assert all(np.array_equal(a.c2w, b.c2w) for a, b in zip(pinhole.frames, model.frames))
     assert np.array_equal(pinhole.points.xyz, model.points.xyz) and np.array_equal(pinhole.points.rgb, model.points.rgb)
     assert [v.tolist() for v in pinhole.points.visible] == [v.tolist() for v in model.points.visible]
     for frame in pinhole.frames:
-        path = frame_image_path(frame.name, pinhole.extra["image_roots"][frame.name], ingest_images, undistorted)
+        path = frame_image_path(frame.name, pinhole.hints.image_roots[frame.name], ingest_images, undistorted)
         assert path == ingest_images / frame.name and path.is_file()
     assert "undistort: max displacement 0.00 px <= 0.5 px: images pass through untouched" in caplog.messages
 
@@ -239,9 +240,9 @@ def test_a_threshold_above_the_displacement_passes_through(capture, tmp_path, ca
     with caplog.at_level(logging.INFO, logger="nerfpipe"):
         _, undistorted, pinhole = run_undistort(capture, tmp_path / "run", model, threshold_px=2.0)
     assert list(undistorted.rglob("*")) == []
-    assert set(pinhole.extra["image_roots"].values()) == {"ingest"}
+    assert set(pinhole.hints.image_roots.values()) == {"ingest"}
     assert pinhole.cameras[1] == Camera("PINHOLE", 640, 480, (800.0, 800.0, 320.0, 240.0))
-    assert pinhole.extra["undistortion"]["1"] == {
+    assert pinhole.hints.undistortion["1"] == {
         "model": "SIMPLE_RADIAL", "max_displacement_px": round(displacement, 4), "undistorted": False
     }
     assert f"undistort: max displacement {displacement:.2f} px <= 2 px: images pass through untouched" in (
@@ -252,7 +253,7 @@ def test_a_threshold_above_the_displacement_passes_through(capture, tmp_path, ca
     with caplog.at_level(logging.INFO, logger="nerfpipe"):
         _, undistorted, pinhole = run_undistort(capture, tmp_path / "run", model)  # default 0.5 px
     assert sorted(p.name for p in undistorted.iterdir()) == names
-    assert set(pinhole.extra["image_roots"].values()) == {"undistort"}
+    assert set(pinhole.hints.image_roots.values()) == {"undistort"}
     assert pinhole.cameras[1] == undistortion_maps(camera)[2]
     assert f"undistort: undistorted 4 images of camera 1 (max displacement {displacement:.1f} px)" in caplog.messages
     manifest = json.loads((undistorted.parent / "manifest.json").read_text())
@@ -363,7 +364,7 @@ def test_16_bit_rgba_in_sub_folders_with_unicode_names(tmp_path):
     assert np.array_equal(result[..., 3], alpha)  # alpha: linear, a ramp with no ringing
     assert 0 < np.count_nonzero((alpha > 0) & (alpha < 65535))
 
-    assert pinhole.extra["image_roots"] == {"train/ü_0.png": "undistort", "train/b.png": "ingest"}
+    assert pinhole.hints.image_roots == {"train/ü_0.png": "undistort", "train/b.png": "ingest"}
     assert pinhole.cameras[2] == straight and pinhole.cameras[1].model == "PINHOLE"
     assert frame_image_path("train/ü_0.png", "undistort", tmp_path / "ingest" / "images", out / "images").is_file()
     moved = max_distortion_displacement(distorted)

@@ -85,7 +85,7 @@ def run_sfm(
         "focal_priors": priors,
         "relaxed_retry_used": relaxed_used,
     }
-    cameras.extra["sfm"] = summary
+    cameras.hints.sfm = summary
     ctx.log.info(
         "sfm: registered %d/%d photos, mean reprojection error %.3f px, mean track length %.2f, %d points%s",
         registered, len(names), summary["mean_reprojection_error_px"], summary["mean_track_length"],

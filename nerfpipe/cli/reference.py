@@ -1,0 +1,47 @@
+"""The parameter reference, docs/parameters.md, written from the stages' parameter dataclasses and their
+help strings (``python scripts/gen_parameters.py``; a test fails when the file is stale)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from nerfpipe.pipeline import Dag, Stage, param_specs
+
+HEADER = """# Parameters
+
+Every parameter of every stage, with its type, default and meaning. Set one with
+`--set STAGE.NAME=VALUE` (`--set train.field.levels=4`); a preset (`--preset NAME`) sets several at once,
+and `--set` wins over it. Switches are `auto|on|off`: `auto` decides from the data and says why.
+
+Generated from the help strings by `python scripts/gen_parameters.py`; do not edit by hand.
+
+"""
+
+
+def _shown(value: Any) -> str:
+    if value is None:
+        return "none"
+    if isinstance(value, bool):
+        return str(value).lower()
+    return str(value)
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def parameters_markdown(stages: list[Stage]) -> str:
+    """The reference: the stage graph, then a table of parameters and the presets for each stage."""
+    dag = Dag(stages)
+    parts = [HEADER, "Stages in order: " + " -> ".join(f"[{n}](#{n})" for n in dag.order) + ".\n"]
+    for name in dag.order:
+        stage = dag.stages[name]
+        parts.append(f"\n## {name}\n\n{stage.summary()}\n\n| parameter | type | default | meaning |\n|---|---|---|---|\n")
+        for spec in param_specs(stage.Params):
+            parts.append(f"| `{name}.{spec.name}` | {_cell(spec.type_name)} | `{_shown(spec.default)}` | {_cell(spec.help)} |\n")
+        if stage.presets:
+            parts.append("\nPresets:\n\n")
+            for preset, values in stage.presets.items():
+                shown = ", ".join(f"`{k}={_shown(v)}`" for k, v in values.items()) or "the defaults"
+                parts.append(f"- `{preset}`: {shown}\n")
+    return "".join(parts)

@@ -1,0 +1,57 @@
+"""A model's resolved decisions: which field, sampler, ray space and background, and what is learned per
+image. ``nerfpipe.nerf.assembly.resolve`` makes one from the scene's decisions and the train parameters,
+``nerfpipe.nerf.model.build`` makes the model from it, and ``model.json`` stores it, so that training,
+loading, ``nerfpipe bench`` and every export build a model the same way."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from nerfpipe.nerf.ray_space import RaySpace
+
+Box = tuple[tuple[float, ...], tuple[float, ...]]
+
+
+def _box(value: Any) -> Box | None:
+    return None if value is None else (tuple(value[0]), tuple(value[1]))
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """What a model is made of.
+
+    field, sampler: ``{"kind": registry name, **that part's spec}`` (``nerfpipe.nerf.registry``).
+    fine_network: a second field of the same spec for the fine pass.
+    background: the colour renders are composited onto (None: black, the background is part of the scene).
+    appearance: ``{"images", "linear", "stops"}`` for per-image exposure gains starting at ``stops``; None: none.
+    refinement: ``{"images"}`` for per-camera pose corrections; None: none.
+    info: what the exports need to know about the scene (layout, photometric, the similarity to SfM).
+    """
+
+    field: dict[str, Any]
+    sampler: dict[str, Any]
+    ray_space: RaySpace
+    fine_network: bool = False
+    background: tuple[float, ...] | None = None
+    appearance: dict[str, Any] | None = None
+    refinement: dict[str, Any] | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        doc = asdict(self)
+        doc["background"] = None if self.background is None else list(self.background)
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> "ModelSpec":
+        rs = doc["ray_space"]
+        ray_space = RaySpace(
+            ndc=rs["ndc"], ndc_c2w=None if rs["ndc_c2w"] is None else tuple(tuple(r) for r in rs["ndc_c2w"]),
+            ndc_focal=rs["ndc_focal"], ndc_size=tuple(rs["ndc_size"]), ndc_near=rs["ndc_near"],
+            box=_box(rs["box"]), contraction=_box(rs.get("contraction")),
+        )
+        return cls(field=doc["field"], sampler=doc["sampler"], ray_space=ray_space,
+                   fine_network=bool(doc["fine_network"]),
+                   background=None if doc["background"] is None else tuple(doc["background"]),
+                   appearance=doc.get("appearance"), refinement=doc.get("refinement"), info=doc.get("info", {}))
