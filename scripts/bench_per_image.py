@@ -33,7 +33,8 @@ def main() -> None:
     rows = []
     for appearance in ("off", "on"):
         for refine in ("off", "on"):
-            overrides = {**base, "train": {**base.get("train", {}), "appearance": appearance, "refine_poses": refine}}
+            overrides = {**base, "train": {**base.get("train", {}), "per_image.appearance": appearance,
+                                           "per_image.refine_poses": refine}}
             outcomes = Pipeline(default_stages(), args.capture, args.out, args.preset, overrides).run(until="train")
             paths = {o.name: o.path for o in outcomes}
             m = json.loads((paths["train"] / "metrics.json").read_text())

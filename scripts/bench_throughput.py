@@ -4,7 +4,7 @@ Run by hand from the repository root, with ../shared beside it:
 
     python scripts/bench_throughput.py                                   # lego at 100 px, the default preset
     python scripts/bench_throughput.py --capture samples/templeSparseRing --size 640
-    python scripts/bench_throughput.py --set train.grid_max_resolution=128
+    python scripts/bench_throughput.py --set train.field.max_resolution=128
 
 It trains the train stage's model (as ``nerfpipe run`` builds it) for ``--seconds`` of training, then measures,
 on that same model: training for ``--window`` more seconds (rays and samples a second: forward, backward and

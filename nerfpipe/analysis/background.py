@@ -1,4 +1,5 @@
-"""Whether the photos have alpha, a constant backdrop (its colour from the images' border pixels) or a background that is part of the scene."""
+"""Whether the photos have alpha, a constant backdrop (its colour from the images' border pixels) or a
+background that is part of the scene."""
 
 from __future__ import annotations
 

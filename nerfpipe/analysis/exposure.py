@@ -1,4 +1,5 @@
-"""How the photos were exposed: RAW developed linearly or not, and whether the exposure varies across them (EXIF exposure values, else the brightness of the same sparse points in each photo)."""
+"""How the photos were exposed: RAW developed linearly or not, and whether the exposure varies across them
+(EXIF exposure values, else the brightness of the same sparse points in each photo)."""
 
 from __future__ import annotations
 

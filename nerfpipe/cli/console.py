@@ -1,4 +1,5 @@
-"""What the CLI shows in the terminal: log lines, progress bars, user errors as one line (tracebacks with --debug), and the states of stages."""
+"""What the CLI shows in the terminal: log lines, progress bars, user errors as one line (tracebacks with
+--debug), and the states of stages."""
 
 from __future__ import annotations
 

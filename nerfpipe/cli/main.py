@@ -11,14 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from nerfpipe.cli.console import (
-    STATE_STYLE,
-    batch_progress,
-    bench_line,
-    progress_factory,
-    setup_logging,
-    user_errors,
-)
+from nerfpipe.cli.console import STATE_STYLE, batch_progress, bench_line, progress_factory, setup_logging, user_errors
 from nerfpipe.pipeline import Pipeline, param_specs, parse_assignments
 from nerfpipe.pipeline.lock import RunLock
 from nerfpipe.stages import default_stages

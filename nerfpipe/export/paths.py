@@ -18,7 +18,8 @@ import numpy as np
 
 # the mean camera of the train stage, so the spiral circles the very frame a forward model's NDC rays use
 from nerfpipe.geometry.cameras import look_at, mean_camera
-from nerfpipe.geometry.normalize import Similarity
+from nerfpipe.geometry.normalize import WORLD_UP, Similarity
+from nerfpipe.geometry.rig import axis_angles_to, azimuth_coverage, look_at_center
 
 # (``dt = .75`` in its ``load_llff_data``), a depth a little behind the nearest content.
 FOCUS_DISPARITY_WEIGHT = 0.75
@@ -107,16 +108,15 @@ class Orbit:
     start: np.ndarray
 
 
-def orbit_of(c2ws: np.ndarray, target: np.ndarray, elevation: float | None = None) -> Orbit:
-    """The orbit a 360° capture suggests: up = -(mean of the cameras' y axes), the cameras' median distance
-    from ``target``, their mean elevation above it (or ``elevation`` degrees, in (-90, 90)), starting at the
-    first camera's azimuth so the video begins near a photographed view."""
+def orbit_of(c2ws: np.ndarray, target: np.ndarray, elevation: float | None = None,
+             up: np.ndarray = WORLD_UP) -> Orbit:
+    """The orbit a 360° capture suggests around the world's ``up`` (the bounds stage's +z, whatever the
+    photos' roll): the cameras' median distance from ``target``, their mean elevation above it (or
+    ``elevation`` degrees, in (-90, 90)), starting at the first camera's azimuth so the video begins near a
+    photographed view."""
     c2ws = _check_poses(c2ws)
     target = np.asarray(target, dtype=np.float64).reshape(3)
-    up = -c2ws[:, :3, 1].mean(axis=0)
-    if np.linalg.norm(up) < 1e-6:
-        raise ValueError("the cameras' down axes cancel out; no up direction for an orbit")
-    up /= np.linalg.norm(up)
+    up = _unit_up(up)
     offsets = c2ws[:, :3, 3] - target
     distances = np.linalg.norm(offsets, axis=1)
     if np.median(distances) <= 0.0:
@@ -136,7 +136,8 @@ def orbit_of(c2ws: np.ndarray, target: np.ndarray, elevation: float | None = Non
     return Orbit(target, up, float(np.median(distances)), float(elevation), start)
 
 
-def orbit_path(c2ws: np.ndarray, target: np.ndarray, n_frames: int, elevation: float | None = None) -> np.ndarray:
+def orbit_path(c2ws: np.ndarray, target: np.ndarray, n_frames: int, elevation: float | None = None,
+               up: np.ndarray = WORLD_UP) -> np.ndarray:
     """A circle around the up axis through ``target`` (see ``orbit_of``), every pose looking at the target.
 
     Frame k at azimuth phi_k = 2 pi k / n_frames (counter-clockwise seen from above) sits at::
@@ -152,7 +153,7 @@ def orbit_path(c2ws: np.ndarray, target: np.ndarray, n_frames: int, elevation: f
         (N, 4, 4) poses.
     """
     _check_frames(n_frames)
-    orbit = orbit_of(c2ws, target, elevation)
+    orbit = orbit_of(c2ws, target, elevation, up)
     el = np.radians(orbit.elevation)
     side = np.cross(orbit.up, orbit.start)
     poses = []
@@ -163,38 +164,150 @@ def orbit_path(c2ws: np.ndarray, target: np.ndarray, n_frames: int, elevation: f
     return np.stack(poses)
 
 
+def _unit_up(up: np.ndarray) -> np.ndarray:
+    up = np.asarray(up, dtype=np.float64).reshape(3)
+    if np.linalg.norm(up) < 1e-9:
+        raise ValueError("the up direction is the zero vector")
+    return up / np.linalg.norm(up)
+
+
+# -- sweep (360° captures that do not circle their object) ------------------------------------------------
+@dataclass(frozen=True)
+class Sweep:
+    """Where a capture that does not circle its target stands: azimuths ``lo`` .. ``hi`` (radians about
+    ``up`` through ``target``, from the horizontal unit vectors ``e1`` towards ``e2``), and the cameras'
+    horizontal distance and height above the target as quadratics of the azimuth (``radius``, ``height``:
+    ``np.polyfit`` coefficients), each clamped to the range the cameras span."""
+
+    target: np.ndarray
+    up: np.ndarray
+    e1: np.ndarray
+    e2: np.ndarray
+    lo: float
+    hi: float
+    radius: np.ndarray
+    height: np.ndarray
+    radius_range: tuple[float, float]
+    height_range: tuple[float, float]
+
+    def eye(self, azimuth: np.ndarray) -> np.ndarray:
+        """(N, 3) camera centres at ``azimuth`` (N,) radians."""
+        r = np.clip(np.polyval(self.radius, azimuth), *self.radius_range)
+        h = np.clip(np.polyval(self.height, azimuth), *self.height_range)
+        horizontal = np.cos(azimuth)[:, None] * self.e1 + np.sin(azimuth)[:, None] * self.e2
+        return self.target + r[:, None] * horizontal + h[:, None] * self.up
+
+
+def sweep_of(c2ws: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP, spread: float = 5.0) -> Sweep:
+    """The sweep of azimuths a capture covers around ``target``: from the ``spread`` to the 100 - ``spread``
+    percentile of the cameras' azimuths about the circular mean of their directions, so the path stays
+    where photos were taken. Raises ``ValueError`` for cameras all round the target (an orbit suits them)."""
+    c2ws = _check_poses(c2ws)
+    target = np.asarray(target, dtype=np.float64).reshape(3)
+    up = _unit_up(up)
+    offsets = c2ws[:, :3, 3] - target
+    heights = offsets @ up
+    horizontal = offsets - heights[:, None] * up
+    r = np.linalg.norm(horizontal, axis=1)
+    if np.median(r) <= 1e-9:
+        raise ValueError("the cameras stand above the target; no sweep around it")
+    mean = (horizontal / np.maximum(r, 1e-12)[:, None]).mean(axis=0)
+    if np.linalg.norm(mean) < 0.2:
+        raise ValueError("the cameras stand all round the target; an orbit suits them")
+    e1 = mean / np.linalg.norm(mean)
+    e2 = np.cross(up, e1)
+    azimuth = np.arctan2(horizontal @ e2, horizontal @ e1)
+    degree = min(2, len(np.unique(np.round(azimuth, 6))) - 1)
+    radius = np.polyfit(azimuth, r, degree) if degree > 0 else np.array([np.median(r)])
+    height = np.polyfit(azimuth, heights, degree) if degree > 0 else np.array([np.median(heights)])
+    lo, hi = np.percentile(azimuth, [spread, 100.0 - spread])
+    return Sweep(target, up, e1, e2, float(lo), float(hi), radius, height,
+                 (float(r.min()), float(r.max())), (float(heights.min()), float(heights.max())))
+
+
+def sweep_path(c2ws: np.ndarray, target: np.ndarray, n_frames: int, up: np.ndarray = WORLD_UP) -> np.ndarray:
+    """Out and back along the cameras' sweep (``sweep_of``), easing at both ends so the loop is smooth, every
+    pose looking at ``target`` with the horizon level: frame k at azimuth lo + (hi - lo) (1 - cos 2 pi k/N) / 2.
+
+    Returns:
+        (N, 4, 4) poses.
+    """
+    _check_frames(n_frames)
+    sweep = sweep_of(c2ws, target, up)
+    t = np.arange(n_frames) / n_frames
+    azimuth = sweep.lo + (sweep.hi - sweep.lo) * (1.0 - np.cos(2.0 * np.pi * t)) / 2.0
+    return np.stack([look_at(eye, sweep.target, -sweep.up) for eye in sweep.eye(azimuth)])
+
+
 # -- choosing -----------------------------------------------------------------------------------------------
 LAYOUTS = ("forward", "inward360", "unbounded360")
 
 
+ORBIT_MIN_COVERAGE_DEG = 270.0  # a 360° capture whose cameras cover less azimuth than this gets a sweep
+
+
 def path_for_scene(layout: str, c2ws: np.ndarray, near: float, far: float, target: np.ndarray, n_frames: int,
-                   *, kind: str = "auto", n_rotations: float = 2, elevation: float | None = None
-                   ) -> tuple[np.ndarray, str]:
-    """The path that suits the scene's ``layout``: the spiral for "forward", the orbit around ``target``
-    for "inward360" and "unbounded360"; ``kind`` ("spiral" / "orbit") overrides the choice.
+                   *, kind: str = "auto", n_rotations: float = 2, elevation: float | None = None,
+                   up: np.ndarray = WORLD_UP) -> tuple[np.ndarray, str]:
+    """The path that suits the scene: the spiral for a "forward" layout; for "inward360" and "unbounded360",
+    the orbit around ``target`` where the cameras cover at least ``ORBIT_MIN_COVERAGE_DEG`` of azimuth (a
+    turntable or a walk all round), else a sweep out and back along the cameras, looking at the point their
+    optical axes converge on. ``kind`` ("spiral" / "orbit" / "sweep") overrides the choice; ``up`` is the
+    world's up (the bounds stage's +z).
 
     Returns:
         (N, 4, 4) poses and one line saying which path and why, with its size.
     """
     if layout not in LAYOUTS:
         raise ValueError(f"unknown scene layout {layout!r}; expected one of {', '.join(LAYOUTS)}")
-    if kind not in ("auto", "spiral", "orbit"):
-        raise ValueError(f"path kind must be auto, spiral or orbit, got {kind!r}")
-    chosen = kind if kind != "auto" else "spiral" if layout == "forward" else "orbit"
-    why = f"{layout} scene" if kind == "auto" else f"asked for, {layout} scene"
+    if kind not in ("auto", "spiral", "orbit", "sweep"):
+        raise ValueError(f"path kind must be auto, spiral, orbit or sweep, got {kind!r}")
+    c2ws = _check_poses(c2ws)
+    coverage = _coverage(c2ws, np.asarray(target, dtype=np.float64), _unit_up(up))
+    if kind != "auto":
+        chosen, why = kind, f"asked for, {layout} scene"
+    elif layout == "forward":
+        chosen, why = "spiral", "forward scene"
+    elif coverage >= ORBIT_MIN_COVERAGE_DEG:
+        chosen, why = "orbit", f"{layout} scene, cameras all round: {coverage:.0f} deg of azimuth"
+    else:
+        chosen, why = "sweep", f"{layout} scene, cameras on {coverage:.0f} deg of azimuth"
     if chosen == "spiral":
         poses = spiral_path(c2ws, near, far, n_frames, n_rotations)
         radii = spiral_radii(c2ws)
         text = (f"spiral ({why}): {n_rotations:g} turns around the mean camera, radii "
                 f"{radii[0]:.3g} x {radii[1]:.3g} x {radii[2]:.3g}, looking at depth {focus_depth(near, far):.3g}")
-    else:
-        poses = orbit_path(c2ws, target, n_frames, elevation)
-        orbit = orbit_of(c2ws, target, elevation)
-        centre = ", ".join(f"{0.0 if abs(v) < 1e-9 else v:.3g}" for v in orbit.target)  # no "-1.11e-16"
+    elif chosen == "orbit":
+        poses = orbit_path(c2ws, target, n_frames, elevation, up)
+        orbit = orbit_of(c2ws, target, elevation, up)
         source = "given" if elevation is not None else "the cameras' mean"
-        text = (f"orbit ({why}): radius {orbit.radius:.3g} around ({centre}) at "
+        text = (f"orbit ({why}): radius {orbit.radius:.3g} around ({_shown(orbit.target)}) at "
                 f"{orbit.elevation:.1f} deg elevation ({source})")
+    else:
+        focus = look_at_center(c2ws)
+        if axis_angles_to(c2ws, focus).mean() > 45.0 or np.linalg.norm(focus - target) > 2.0 * np.linalg.norm(
+                c2ws[:, :3, 3] - target, axis=1).max():
+            focus = np.asarray(target, dtype=np.float64)  # the axes meet nowhere useful: the scene's centre
+        sweep = sweep_of(c2ws, focus, up)
+        poses = sweep_path(c2ws, focus, n_frames, up)
+        text = (f"sweep ({why}): out and back over {np.degrees(sweep.hi - sweep.lo):.0f} deg of the cameras' "
+                f"azimuths at their distance and height, looking at ({_shown(focus)}), where their axes converge")
     return poses, text
+
+
+def _coverage(c2ws: np.ndarray, target: np.ndarray, up: np.ndarray) -> float:
+    """Degrees of azimuth about ``up`` through ``target`` the cameras cover (``geometry.rig.azimuth_coverage``
+    in the frame whose +z is ``up``)."""
+    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    frame = np.stack([e1, np.cross(up, e1), up])  # rows: the axes of a frame with up along z
+    local = np.array(c2ws, dtype=np.float64)
+    local[:, :3, 3] = (c2ws[:, :3, 3] - target) @ frame.T
+    return azimuth_coverage(local, np.zeros(3))
+
+
+def _shown(point: np.ndarray) -> str:
+    return ", ".join(f"{0.0 if abs(v) < 1e-9 else v:.3g}" for v in point)  # no "-1.11e-16"
 
 
 def transform_poses(c2ws: np.ndarray, similarity: np.ndarray) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""A small software rasterizer for pictures without a display: triangles with a z-buffer and flat shading, points splatted as discs, line segments clipped to the view."""
+"""A small software rasterizer for pictures without a display: triangles with a z-buffer and flat shading,
+points splatted as discs, line segments clipped to the view."""
 
 from __future__ import annotations
 
@@ -6,9 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from nerfpipe.export.views import (
-    ViewCamera,
-)
+from nerfpipe.export.views import ViewCamera
 
 MESH_GREY = 0.72  # meshes without colours
 

@@ -1,4 +1,6 @@
-"""Virtual cameras for pictures of a scene: the capture's cameras as pinhole views, their frusta, the capture's up, and views planned to frame a mesh or point cloud (auto_view) or to stand where a photo was taken (photo_view)."""
+"""Virtual cameras for pictures of a scene: the capture's cameras as pinhole views, their frusta, the capture's
+up, and views planned to frame a mesh or point cloud (auto_view) or to stand where a photo was taken
+(photo_view)."""
 
 from __future__ import annotations
 

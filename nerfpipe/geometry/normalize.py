@@ -32,12 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nerfpipe.geometry.rig import (
-    look_at_center,
-    optical_axes,
-    rig_kind,
-    unit,
-)
+from nerfpipe.geometry.rig import look_at_center, optical_axes, rig_kind, unit
 
 WORLD_UP = np.array([0.0, 0.0, 1.0])
 WORLD_HEADING = np.array([0.0, 1.0, 0.0])

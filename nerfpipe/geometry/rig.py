@@ -1,4 +1,6 @@
-"""What kind of rig took the photos: where the cameras' optical axes converge, how widely they look around, how far they stand from the centre and how much of the circle around it they cover; and from that, whether the capture is forward-facing or looks inward (rig_kind)."""
+"""What kind of rig took the photos: where the cameras' optical axes converge, how widely they look around, how
+far they stand from the centre and how much of the circle around it they cover; and from that, whether the
+capture is forward-facing or looks inward (rig_kind)."""
 
 from __future__ import annotations
 

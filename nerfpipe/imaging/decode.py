@@ -22,16 +22,8 @@ import cv2
 import numpy as np
 
 from nerfpipe.imaging.exif import ExifSummary, read_exif
-from nerfpipe.imaging.integrity import (
-    CONTAINER_NAMES,
-    RECOPY_ADVICE,
-    check_integrity,
-    sniff_container,
-)
-from nerfpipe.imaging.tiff import (
-    open_tiff,
-    read_ifd,
-)
+from nerfpipe.imaging.integrity import CONTAINER_NAMES, RECOPY_ADVICE, check_integrity, sniff_container
+from nerfpipe.imaging.tiff import open_tiff, read_ifd
 from nerfpipe.imaging.video import VIDEO_EXTENSIONS
 from nerfpipe.pipeline.errors import BadPhotoError
 

@@ -1,4 +1,5 @@
-"""Camera RAW developed with rawpy (LibRaw): linear or sRGB, the camera's or a set white balance, highlights clipped or rebuilt, refused when LibRaw cannot read it or it is over the size limits."""
+"""Camera RAW developed with rawpy (LibRaw): linear or sRGB, the camera's or a set white balance, highlights
+clipped or rebuilt, refused when LibRaw cannot read it or it is over the size limits."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Training checkpoints: the model, the optimizer and the trainer's counters at a step, written atomically, the newest ones kept, and loaded back with weights_only."""
+"""Training checkpoints: the model, the optimizer and the trainer's counters at a step, written atomically, the
+newest ones kept, and loaded back with weights_only."""
 
 from __future__ import annotations
 

@@ -1,4 +1,6 @@
-"""How pixels become rays for a scene, and where the field is queried along them: world rays clipped to the scene box (inward 360), NDC rays of the mean camera (forward-facing, the paper's Section 6.1), or world rays into contracted space (mip-NeRF 360)."""
+"""How pixels become rays for a scene, and where the field is queried along them: world rays clipped to the
+scene box (inward 360), NDC rays of the mean camera (forward-facing, the paper's Section 6.1), or world rays
+into contracted space (mip-NeRF 360)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""The stall guard: a training whose batch PSNR stays at the level of a render in the images' mean colour restarts once, then is reported."""
+"""The stall guard: a training whose batch PSNR stays at the level of a render in the images' mean colour
+restarts once, then is reported."""
 
 from __future__ import annotations
 
@@ -6,6 +7,11 @@ import math
 from dataclasses import dataclass
 
 from torch import Tensor
+
+
+def mse_to_psnr(mse: float) -> float:
+    """PSNR in dB of images in [0, 1] from their mean squared error."""
+    return -10.0 * math.log10(max(mse, 1e-12))
 
 
 def mean_colour_psnr(rgb: Tensor) -> float:
@@ -47,8 +53,3 @@ class StallGuard:
     def report(self) -> dict:
         return {"mean_colour_psnr": round(self.floor_db, 3), "batch_psnr_ema": None if self.ema is None else round(self.ema, 3),
                 "restarted_at": self.restarted_at, "stalled": self.stalled}
-
-
-def mse_to_psnr(mse: float) -> float:
-    """PSNR in dB of images in [0, 1] from their mean squared error."""
-    return -10.0 * math.log10(max(mse, 1e-12))

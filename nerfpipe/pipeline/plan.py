@@ -1,4 +1,5 @@
-"""What the runner plans and reports: each stage's parameters, inputs and cache key (PlannedStage), its state and why (StageStatus, stale_reasons), and what a run did with it (StageOutcome)."""
+"""What the runner plans and reports: each stage's parameters, inputs and cache key (PlannedStage), its state
+and why (StageStatus, stale_reasons), and what a run did with it (StageOutcome)."""
 
 from __future__ import annotations
 

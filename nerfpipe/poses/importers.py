@@ -47,13 +47,7 @@ from nerfpipe.pipeline.errors import InputError
 from nerfpipe.poses.layout import IMAGE_SUFFIXES, CaptureLayout, _read_json, resolve_inside
 from nerfpipe.poses.llff import import_llff
 from nerfpipe.poses.middlebury import import_middlebury
-from nerfpipe.poses.photos import (
-    CameraTable,
-    Photos,
-    checked_rotation,
-    relative_names,
-    to_ingested_size,
-)
+from nerfpipe.poses.photos import CameraTable, Photos, checked_rotation, relative_names, to_ingested_size
 
 
 def import_poses(layout: CaptureLayout, records: list[dict[str, Any]]) -> CameraSet:

@@ -1,26 +1,15 @@
-"""LLFF's poses_bounds.npy: a 3x5 pose and height, width, focal per image, and each image's near/far, in LLFF's axes (down, right, backwards)."""
+"""LLFF's poses_bounds.npy: a 3x5 pose and height, width, focal per image, and each image's near/far, in LLFF's
+axes (down, right, backwards)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from nerfpipe.artifacts import PHOTO_SUBFOLDER
-from nerfpipe.geometry.cameras import (
-    Camera,
-    CameraSet,
-    Frame,
-    PoseHints,
-    pose_from_rt,
-)
+from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, PoseHints, pose_from_rt
 from nerfpipe.pipeline.errors import InputError
 from nerfpipe.poses.layout import CaptureLayout
-from nerfpipe.poses.photos import (
-    CameraTable,
-    Photos,
-    checked_rotation,
-    relative_names,
-    to_ingested_size,
-)
+from nerfpipe.poses.photos import CameraTable, Photos, checked_rotation, relative_names, to_ingested_size
 
 # LLFF columns [down, right, backwards] -> OpenCV [right, down, forward] = [c1, c0, -c2].
 LLFF_TO_OPENCV = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])

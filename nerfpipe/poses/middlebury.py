@@ -6,24 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from nerfpipe.geometry.cameras import (
-    Camera,
-    CameraSet,
-    Frame,
-    PoseHints,
-    invert_pose,
-    pose_from_rt,
-)
+from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, PoseHints, invert_pose, pose_from_rt
 from nerfpipe.pipeline.errors import InputError
 from nerfpipe.poses.layout import CaptureLayout, resolve_inside
-from nerfpipe.poses.photos import (
-    CameraTable,
-    Photos,
-    checked_rotation,
-    parse_numbers,
-    relative_names,
-    to_ingested_size,
-)
+from nerfpipe.poses.photos import CameraTable, Photos, checked_rotation, parse_numbers, relative_names, to_ingested_size
 
 PAR_FIELDS = 22  # name, K (9), R (9), t (3)
 

@@ -1,4 +1,6 @@
-"""What every pose importer shares: the ingested photos by name, a table of distinct cameras, and checks of what a pose file says (a rotation that is one, numbers that parse, a camera the size of its photo) that name the file and line."""
+"""What every pose importer shares: the ingested photos by name, a table of distinct cameras, and checks of
+what a pose file says (a rotation that is one, numbers that parse, a camera the size of its photo) that name
+the file and line."""
 
 from __future__ import annotations
 
@@ -10,9 +12,7 @@ from typing import Any
 import numpy as np
 
 from nerfpipe.artifacts import output_names
-from nerfpipe.geometry.cameras import (
-    Camera,
-)
+from nerfpipe.geometry.cameras import Camera
 from nerfpipe.pipeline.errors import InputError
 from nerfpipe.poses.layout import CaptureLayout
 

@@ -1,8 +1,11 @@
 """render: novel views of the trained model along a path that suits the scene, as PNG frames and MP4s.
 
 A forward-facing capture is only seen from the front, so its video follows LLFF's spiral around the mean
-camera (the path of the NeRF paper's forward-facing videos); a 360° capture gets an orbit around the scene
-box centre at the distance and elevation of its photos (``nerfpipe.export.paths``). Each frame is rendered
+camera (the path of the NeRF paper's forward-facing videos); a 360° capture whose cameras go all round
+gets an orbit about the world's up (the bounds stage's +z, whatever the photos' roll) around the scene box
+centre, at the distance and elevation of its photos; one whose cameras cover less of the circle (a phone
+walked part way round) gets a sweep out and back along them, looking where their axes converge, so the
+video never leaves the region the photos saw (``nerfpipe.export.paths``). Each frame is rendered
 with the first training camera's intrinsics, scaled by ``scale``: far from every photo, a new view is still
 seen through the lens the model was trained on.
 
@@ -43,8 +46,10 @@ class RenderParams:
     fps: float = field(default=20.0, metadata={"help": "frames per second of the videos"})
     scale: float = field(default=0.5, metadata={"help": "render size relative to the first training camera (0.5: half width and height)"})
     max_side: int = field(default=320, metadata={"help": "cap on the longest side of the render in pixels, after scale (0: none)"})
-    path: Literal["auto", "spiral", "orbit"] = field(
-        default="auto", metadata={"help": "camera path; auto: spiral for forward-facing scenes, orbit for 360° ones"}
+    path: Literal["auto", "spiral", "orbit", "sweep"] = field(
+        default="auto", metadata={"help": "camera path; auto: spiral for forward-facing scenes, orbit around the "
+                                          "world's up for 360° ones whose cameras go all round (270° or more), "
+                                          "else a sweep out and back along the cameras"}
     )
     n_rotations: float = field(default=2.0, metadata={"help": "spiral: turns around the mean camera (LLFF: 2)"})
     elevation: str = field(default="auto", metadata={"help": "orbit: degrees above the target, or auto (the cameras' mean)"})
@@ -98,7 +103,7 @@ class RenderStage(Stage):
     """Render novel views along a spiral (forward-facing) or an orbit (360°): PNG frames, MP4s, the path."""
 
     name = "render"
-    version = 2  # 2: H.264 videos (browser-playable) instead of MPEG-4 Part 2; 320 px by default
+    version = 3  # 3: orbits about the world's up, sweeps for partial circles; 2: H.264 videos, 320 px
     Params = RenderParams
     presets = {
         "preview": PREVIEW,

@@ -29,11 +29,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from nerfpipe.analysis.background import decide_background
-from nerfpipe.analysis.exposure import (
-    decide_exposure,
-    decide_photometric,
-    measure_exposure,
-)
+from nerfpipe.analysis.exposure import decide_exposure, decide_photometric, measure_exposure
 from nerfpipe.analysis.layout import decide_layout
 from nerfpipe.analysis.lens import decide_lens
 from nerfpipe.artifacts import Bounds, Decision, ImageIndex, SceneDecisions

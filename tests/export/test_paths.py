@@ -13,6 +13,8 @@ from nerfpipe.export.paths import (
     path_for_scene,
     spiral_path,
     spiral_radii,
+    sweep_of,
+    sweep_path,
     transform_poses,
 )
 from nerfpipe.geometry.cameras import mean_camera
@@ -72,7 +74,7 @@ def test_orbit_by_hand_on_a_level_ring() -> None:
 
 @pytest.mark.parametrize("elevation", [None, 35.0, -20.0])
 def test_orbit_invariants_on_a_tilted_rig(elevation) -> None:
-    """Any rigid motion of the rig: up is found from the cameras, not assumed to be z."""
+    """Any rigid motion of the rig, with the world's up moved along: the orbit is about that up."""
     motion = rigid(rotation_about([1.0, -2.0, 0.5], 40.0), [0.3, -1.0, 2.0])
     rng = np.random.default_rng(0)
     # cameras at distances 1.5 .. 2.5 and heights 0.3 .. 1.2: the median distance is the radius
@@ -80,10 +82,9 @@ def test_orbit_invariants_on_a_tilted_rig(elevation) -> None:
             zip(rng.uniform(1.5, 2.5, 15), np.linspace(0, 2 * np.pi, 15, endpoint=False), rng.uniform(0.3, 1.2, 15))]
     c2ws = np.stack([motion @ look_at(e, np.zeros(3)) for e in eyes])
     target = motion[:3, 3]  # the world origin, moved
-    # up is minus the mean down axis: the moved z, tilted a little where the tilts of uneven cameras do not cancel
-    up = orbit_of(c2ws, target).up
-    assert up @ motion[:3, 2] > np.cos(np.radians(5.0))
-    poses = orbit_path(c2ws, target, 24, elevation)
+    up = motion[:3, 2]  # the world's z, moved
+    assert np.allclose(orbit_of(c2ws, target, up=up).up, up)
+    poses = orbit_path(c2ws, target, 24, elevation, up)
 
     assert poses.shape == (24, 4, 4)
     assert_rotations(poses)
@@ -156,8 +157,11 @@ def test_paths_move_with_the_rig() -> None:
 
     assert np.allclose(spiral_path(moved(grid()), 1.0, 10.0, 12), moved(spiral_path(grid(), 1.0, 10.0, 12)))
     target = np.array([0.1, -0.2, 0.3])
-    assert np.allclose(orbit_path(moved(ring()), motion[:3, :3] @ target + motion[:3, 3], 12),
+    assert np.allclose(orbit_path(moved(ring()), motion[:3, :3] @ target + motion[:3, 3], 12, up=motion[:3, 2]),
                        moved(orbit_path(ring(), target, 12)))
+    arc = ring(9)[:4]
+    assert np.allclose(sweep_path(moved(arc), motion[:3, :3] @ target + motion[:3, 3], 12, up=motion[:3, 2]),
+                       moved(sweep_path(arc, target, 12)))
 
 
 # -- choosing and moving ----------------------------------------------------------------------------------
@@ -166,7 +170,11 @@ def test_path_for_scene_picks_per_layout() -> None:
     assert text.startswith("spiral (forward scene)") and np.allclose(poses, spiral_path(grid(), 1.0, 10.0, 6))
     for layout in ("inward360", "unbounded360"):
         poses, text = path_for_scene(layout, ring(), 0.5, 4.0, np.zeros(3), 6)
-        assert text.startswith(f"orbit ({layout} scene)") and np.allclose(poses, orbit_path(ring(), np.zeros(3), 6))
+        assert text.startswith(f"orbit ({layout} scene, cameras all round: 330 deg of azimuth)")
+        assert np.allclose(poses, orbit_path(ring(), np.zeros(3), 6))
+        poses, text = path_for_scene(layout, ring()[:5], 0.5, 4.0, np.zeros(3), 6)  # 120 deg of the circle
+        assert text.startswith(f"sweep ({layout} scene, cameras on 120 deg of azimuth)")
+        assert np.allclose(poses, sweep_path(ring()[:5], np.zeros(3), 6))
     poses, text = path_for_scene("forward", grid(), 1.0, 10.0, np.zeros(3), 6, kind="orbit", elevation=10.0)
     assert text.startswith("orbit (asked for, forward scene)") and "10.0 deg elevation (given)" in text
     assert np.allclose(poses, orbit_path(grid(), np.zeros(3), 6, 10.0))
@@ -185,3 +193,71 @@ def test_transform_poses_keeps_them_rigid() -> None:
     assert np.allclose(out[:, :3, 3], 2.0 * poses[:, :3, 3] @ rotation.T + [1.0, 0.0, -1.0])
     back = rigid(rotation.T / 2.0, -rotation.T @ [1.0, 0.0, -1.0] / 2.0)
     assert np.allclose(transform_poses(out, back), poses)
+
+
+# -- up, whatever the photos' roll ----------------------------------------------------------------------------
+def rolled(c2ws: np.ndarray, degrees: float = 90.0) -> np.ndarray:
+    """The same cameras, each turned about its own optical axis (a portrait photo of a landscape rig)."""
+    roll = np.eye(4)
+    roll[:3, :3] = rotation_about([0.0, 0.0, 1.0], degrees)
+    return c2ws @ roll
+
+
+def test_a_rolled_capture_orbits_the_same_level_circle() -> None:
+    # every photo turned 90 deg (the Middlebury temple's are): the cameras' mean "up" axis is then horizontal,
+    # but the world's up is still z, so the orbit is the same circle at the cameras' height
+    c2ws = ring(16, radius=2.0, height=0.9)
+    poses = orbit_path(rolled(c2ws), np.zeros(3), 20)
+    assert np.allclose(poses, orbit_path(c2ws, np.zeros(3), 20))
+    assert np.allclose(poses[:, 2, 3], 0.9) and np.all(poses[:, :3, 1] @ [0, 0, 1] < 0)  # level and upright
+
+
+def test_a_sweep_stays_where_the_photos_were_and_looks_at_their_focus() -> None:
+    # a phone walked over a third of a circle around an object at (0.2, 0.1, 0), at distances 1.6 .. 2.4 and
+    # heights 0.5 .. 0.9, every photo aimed at the object
+    rng = np.random.default_rng(1)
+    focus = np.array([0.2, 0.1, 0.0])
+    angles = np.radians(np.linspace(-60.0, 60.0, 25))
+    eyes = [focus + np.array([r * np.cos(a), r * np.sin(a), h]) for a, r, h in
+            zip(angles, rng.uniform(1.6, 2.4, 25), rng.uniform(0.5, 0.9, 25))]
+    c2ws = rolled(np.stack([look_at(e, focus) for e in eyes]), 90.0)
+    poses, text = path_for_scene("inward360", c2ws, 0.5, 5.0, np.zeros(3), 40)
+    assert text.startswith("sweep (inward360 scene, cameras on 111 deg of azimuth)")  # about the box centre
+    assert "looking at (0.2, 0.1, " in text  # where the optical axes converge, not the box centre
+    assert_rotations(poses)
+    offsets = poses[:, :3, 3] - focus
+    azimuth = np.degrees(np.arctan2(offsets[:, 1], offsets[:, 0]))
+    assert azimuth.min() >= -60.0 and azimuth.max() <= 60.0  # within the photos' arc ...
+    assert azimuth.max() - azimuth.min() > 90.0  # ... and most of it
+    assert azimuth[0] == pytest.approx(azimuth.min()) and azimuth[20] == pytest.approx(azimuth.max())  # out and back
+    horizontal = np.linalg.norm(offsets[:, :2], axis=1)
+    assert np.all((horizontal >= 1.6 - 1e-9) & (horizontal <= 2.4 + 1e-9))
+    assert np.all((offsets[:, 2] >= 0.5 - 1e-9) & (offsets[:, 2] <= 0.9 + 1e-9))
+    to_focus = -offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
+    assert np.allclose(poses[:, :3, 2], to_focus)  # looking at the focus
+    assert np.all(poses[:, :3, 1] @ [0, 0, 1] < 0) and np.allclose(poses[:, :3, 0] @ [0, 0, 1], 0.0, atol=1e-9)
+    with pytest.raises(ValueError, match="all round"):
+        sweep_of(ring(), np.zeros(3))
+
+
+@pytest.mark.slow
+def test_the_demo_orbit_stays_at_the_height_of_its_cameras(tmp_path) -> None:
+    """The bundled temple through the bounds stage: its photos are rolled 90 deg, and the orbit the render
+    stage builds stays within the training cameras' heights, +- 0.3 ring radii."""
+    from nerfpipe import Pipeline, default_stages
+    from nerfpipe.artifacts import Bounds
+    from nerfpipe.geometry.cameras import CameraSet
+    from tests.helpers import TEMPLE
+
+    pipe = Pipeline(default_stages(), TEMPLE, tmp_path / "run")
+    pipe.run(until="bounds")
+    world = CameraSet.load(pipe.artifact("world"))
+    bounds = Bounds.load(pipe.artifact("bounds"))
+    c2ws = np.array([f.c2w for f in world.frames])
+    lo, hi = bounds.box()
+    poses, text = path_for_scene("inward360", c2ws, bounds.near, bounds.far, (lo + hi) / 2, 40)
+    assert text.startswith("orbit (inward360 scene, cameras all round")
+    heights, ring_radius = c2ws[:, 2, 3], np.median(np.linalg.norm(c2ws[:, :2, 3] - (lo + hi)[:2] / 2, axis=1))
+    assert np.all(poses[:, 2, 3] >= heights.min() - 0.3 * ring_radius)
+    assert np.all(poses[:, 2, 3] <= heights.max() + 0.3 * ring_radius)
+    assert np.all(poses[:, :3, 1] @ [0, 0, 1] < 0)  # upright

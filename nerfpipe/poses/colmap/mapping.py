@@ -1,4 +1,5 @@
-"""Structure from motion with COLMAP: SIFT extraction with the EXIF focal prior, matching, incremental or global mapping (retried once with relaxed options), and the CameraSet of the model it gives."""
+"""Structure from motion with COLMAP: SIFT extraction with the EXIF focal prior, matching, incremental or
+global mapping (retried once with relaxed options), and the CameraSet of the model it gives."""
 
 from __future__ import annotations
 
