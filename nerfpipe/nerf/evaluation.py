@@ -55,15 +55,78 @@ def fit_left_score_right(render: torch.Tensor, acc: torch.Tensor, background: to
 
 
 def _metrics(render: torch.Tensor, target: np.ndarray) -> tuple[float, float]:
-    """PSNR and SSIM (11x11 Gaussian window) of render (H, W, 3) against target (H, W, 3), both in [0, 1]."""
+    """PSNR and SSIM (11x11 Gaussian window, smaller for views under 11 pixels a side) of render (H, W, 3)
+    against target (H, W, 3), both in [0, 1]."""
     gt = torch.from_numpy(np.ascontiguousarray(target, dtype=np.float32))
     psnr = float(kornia.metrics.psnr(render, gt, 1.0))
-    ssim = float(kornia.metrics.ssim(render.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None], 11).mean())
+    side = min(render.shape[0], render.shape[1])
+    window = max(1, min(11, side if side % 2 else side - 1))
+    ssim = float(kornia.metrics.ssim(render.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None], window).mean())
     return psnr, ssim
 
 
+MIN_EVAL_SCALE = 1.0 / 16.0  # never score held-out views below a sixteenth of their size
+PROBE_RAYS = 4096  # rays timed to predict what rendering the held-out views costs
+
+
+def seconds_per_ray(model: RadianceModel, loader: ImageLoader, frame: Frame, chunk: int, rays: int = PROBE_RAYS) -> float:
+    """Seconds ``model`` takes to render one ray of ``frame``, timed on ``rays`` of its pixels spread evenly over
+    the image (empty space and surfaces as the whole view has them)."""
+    from nerfpipe.nerf.rays import pixel_centers
+
+    camera = loader.world.camera_of(frame)
+    uv = pixel_centers(camera.width, camera.height, model.device)
+    uv = uv[torch.linspace(0, len(uv) - 1, min(rays, len(uv)), device=uv.device).long()]
+    n = len(uv)
+    near, far = loader.near_far[frame.name]
+    k = torch.tensor(loader.intrinsics(frame), dtype=torch.float32, device=model.device).expand(n, 4)
+    pose = torch.as_tensor(np.asarray(frame.c2w), dtype=torch.float32, device=model.device)
+    batch = model.ray_space.rays(uv, k, pose, torch.full((n,), near, device=model.device),
+                                 torch.full((n,), far, device=model.device))
+    started = time.perf_counter()
+    model.render_batch(batch, chunk)
+    return (time.perf_counter() - started) / max(n, 1)
+
+
+def evaluation_scale(setting: str, budget: float, train_seconds: float, model: RadianceModel, loader: ImageLoader,
+                     frames: list[Frame], chunk: int) -> tuple[float, float]:
+    """The scale held-out views are rendered and scored at, and the seconds that is predicted to take.
+
+    ``setting``: a number in (0, 1], or "auto": the largest scale whose predicted cost (``seconds_per_ray`` on
+    the first view, times the views' pixels, times scale squared) is at most ``budget`` x ``train_seconds``,
+    never below ``MIN_EVAL_SCALE``, rounded down to hundredths.
+    """
+    if not frames:
+        return 1.0, 0.0
+    pixels = sum(loader.world.camera_of(f).width * loader.world.camera_of(f).height for f in frames)
+    per_ray = seconds_per_ray(model, loader, frames[0], chunk)
+    if setting != "auto":
+        scale = float(setting)
+    else:
+        allowed = budget * train_seconds
+        scale = min(1.0, float(np.sqrt(allowed / max(per_ray * pixels, 1e-12))))
+        scale = max(MIN_EVAL_SCALE, np.floor(scale * 100.0) / 100.0)
+    return scale, per_ray * pixels * scale**2
+
+
+def scaled_size(width: int, height: int, scale: float) -> tuple[int, int]:
+    return max(1, round(width * scale)), max(1, round(height * scale))
+
+
+def _resized(pixels: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """An image (H, W, C) or mask (H, W) at ``size`` (width, height), by area averaging; masks stay boolean."""
+    import cv2
+
+    if pixels.shape[1] == size[0] and pixels.shape[0] == size[1]:
+        return pixels
+    if pixels.dtype == bool:
+        return cv2.resize(pixels.astype(np.float32), size, interpolation=cv2.INTER_AREA) >= 0.5
+    return cv2.resize(np.ascontiguousarray(pixels, dtype=np.float32), size, interpolation=cv2.INTER_AREA)
+
+
 def evaluate(model: RadianceModel, loader: ImageLoader, frames: list[Frame], folder: Path | None, chunk: int,
-             advance: Callable[..., None] | None = None, fit_appearance: bool | None = None) -> dict[str, Any]:
+             advance: Callable[..., None] | None = None, fit_appearance: bool | None = None,
+             scale: float = 1.0) -> dict[str, Any]:
     """Render each view of ``frames``; PSNR and SSIM (kornia.metrics, 11x11 Gaussian window) against its image,
     averaged over views as the paper does. Against a constant backdrop the image is the photo composited onto
     the backdrop colour by its mask (``ImageLoader.foreground``), what the model is trained to render; each
@@ -73,8 +136,11 @@ def evaluate(model: RadianceModel, loader: ImageLoader, frames: list[Frame], fol
 
     With a ``folder``, writes ``<view>.render.png`` beside ``<view>.gt.png`` (sRGB-encoded when the model
     trained on linear RAW values). ``advance(1, info=...)`` is called after each view (a progress bar's).
-    Returns ``psnr``, ``ssim`` (None without views), ``views`` (name, psnr, ssim each), ``seconds`` and
-    ``protocol``, what the renders were compared with (``protocol``); with backdrop masks also ``psnr_photo``.
+    ``scale`` < 1 renders each view at that share of its width and height (the intrinsics scaled alike) and
+    scores it against its image averaged down to that size.
+
+    Returns ``psnr``, ``ssim`` (None without views), ``views`` (name, psnr, ssim, size each), ``seconds``,
+    ``scale`` and ``protocol``, what the renders were compared with; with backdrop masks also ``psnr_photo``.
     """
     if folder is not None:
         folder.mkdir(parents=True, exist_ok=True)
@@ -87,10 +153,14 @@ def evaluate(model: RadianceModel, loader: ImageLoader, frames: list[Frame], fol
         mask = loader.foreground(frame, photo)
         gt = photo if mask is None else np.where(mask[..., None], photo, loader.background)
         camera = loader.world.camera_of(frame)
+        size = scaled_size(camera.width, camera.height, scale)
+        sx, sy = size[0] / camera.width, size[1] / camera.height
+        fx, fy, cx, cy = loader.intrinsics(frame)
+        photo, gt = _resized(photo, size), _resized(gt, size)
         near, far = loader.near_far[frame.name]
-        out = model.render_image(loader.intrinsics(frame), frame.c2w, camera.width, camera.height, near, far, chunk)
+        out = model.render_image((fx * sx, fy * sy, cx * sx, cy * sy), frame.c2w, size[0], size[1], near, far, chunk)
         render = out["rgb"].clamp(0.0, 1.0)
-        view = {"name": frame.name}
+        view = {"name": frame.name, "size": list(size)}
         scored = slice(None)
         if fitted:
             view["psnr_mean_appearance"] = round(_metrics(render, gt)[0], 4)
@@ -108,12 +178,14 @@ def evaluate(model: RadianceModel, loader: ImageLoader, frames: list[Frame], fol
         if advance is not None:
             advance(1, info=f"{frame.name}: {psnr:.2f} dB")
     if not views:
-        return {"psnr": None, "ssim": None, "views": [], "seconds": 0.0, "protocol": protocol(loader, fitted)}
+        return {"psnr": None, "ssim": None, "views": [], "seconds": 0.0, "scale": scale,
+                "protocol": protocol(loader, fitted)}
     result = {
         "psnr": round(float(np.mean([v["psnr"] for v in views])), 4),
         "ssim": round(float(np.mean([v["ssim"] for v in views])), 5),
         "views": views,
         "seconds": round(time.perf_counter() - started, 2),
+        "scale": scale,
         "protocol": protocol(loader, fitted),
     }
     for key in ("psnr_photo", "psnr_mean_appearance"):

@@ -9,7 +9,6 @@ the input files.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import shutil
 import time
@@ -39,12 +38,12 @@ from nerfpipe.pipeline.plan import (
     running_because,
     stale_reasons,
 )
+from nerfpipe.pipeline.run_config import RunConfig
 from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress, capture_root
-from nerfpipe.pipeline.store import ArtifactStore, Committed, Damage, write_json_atomic
+from nerfpipe.pipeline.store import ArtifactStore, Committed, Damage
 
 log = logging.getLogger("nerfpipe")
 
-RUN_CONFIG = "run.json"
 
 
 class Pipeline:
@@ -93,17 +92,11 @@ class Pipeline:
         **kwargs: Any,
     ) -> "Pipeline":
         """The pipeline as the last ``run`` in ``run_dir`` configured it, with optional changes on top."""
-        config_path = Path(run_dir) / RUN_CONFIG
-        try:
-            config = json.loads(config_path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise InputError(run_dir, "is not a nerfpipe run directory (no run.json)", "pass the --out folder of a `nerfpipe run`") from None
-        except ValueError:
-            raise InputError(config_path, "is damaged", "rerun `nerfpipe run PHOTOS_DIR --out` on this folder") from None
-        merged = {k: dict(v) for k, v in config.get("overrides", {}).items()}
+        config = RunConfig.load(run_dir)
+        merged = {k: dict(v) for k, v in config.overrides.items()}
         for stage_name, values in (overrides or {}).items():
             merged.setdefault(stage_name, {}).update(values)
-        return cls(stages, Path(config["source"]), run_dir, preset or config.get("preset"), merged, **kwargs)
+        return cls(stages, Path(config.source), run_dir, preset or config.preset, merged, **kwargs)
 
     # -- planning ------------------------------------------------------------------------------
     def plan(self) -> dict[str, PlannedStage]:
@@ -396,14 +389,7 @@ class Pipeline:
 
     def save_config(self) -> None:
         """Record the capture folder and settings in run.json, for ``status``, ``report`` and ``view``."""
-        config = {"source": str(self.source.resolve()), "preset": self.preset, "overrides": self.overrides}
-        try:
-            if json.loads((self.run_dir / RUN_CONFIG).read_text(encoding="utf-8")) == config:
-                return
-        except (FileNotFoundError, ValueError):
-            pass
-        self.run_dir.mkdir(parents=True, exist_ok=True)
-        write_json_atomic(self.run_dir / RUN_CONFIG, config)
+        RunConfig(str(self.source.resolve()), self.preset, self.overrides).save(self.run_dir)
 
     @contextlib.contextmanager
     def _log_to_file(self, label: str = "run") -> Iterator[Path]:

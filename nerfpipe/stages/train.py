@@ -49,6 +49,10 @@ class TrainParams:
     train_images: int = param(0, "train on this many images, evenly spaced (Table 2 rows 5-6); 0: all")
     holdout_every: int = param(8, "without a val/test split, hold out every n-th image (the paper: 8)")
     eval_stride: int = param(1, "evaluate every n-th held-out view")
+    eval_scale: str = param("auto", "render and score the held-out views at this share of their size (1: full "
+                                    "resolution); auto: the largest share predicted to cost at most eval_budget of "
+                                    "the training time")
+    eval_budget: float = param(0.1, "with eval_scale=auto: the held-out evaluation's share of the training time")
     checkpoint_every: int = param(500, "write a checkpoint every n steps (a killed run resumes from the last)")
     keep_checkpoints: int = param(2, "checkpoints kept (0: all)")
     seed: int = param(0, "seed of initialization, batches and samples")
@@ -81,6 +85,15 @@ class TrainParams:
         for name in ("train_images", "keep_checkpoints"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.eval_scale != "auto":
+            try:
+                scale = float(self.eval_scale)
+            except ValueError:
+                raise ValueError(f"eval_scale must be auto or a number in (0, 1], got {self.eval_scale!r}") from None
+            if not 0 < scale <= 1:
+                raise ValueError(f"eval_scale must be in (0, 1], got {scale}")
+        if not self.eval_budget > 0:
+            raise ValueError(f"eval_budget must be > 0, got {self.eval_budget}")
         if self.steps < 0 or (self.steps == 0 and not self.seconds > 0):
             raise ValueError(f"need steps >= 1, or steps = 0 and seconds > 0; got steps={self.steps}, seconds={self.seconds}")
 
@@ -118,7 +131,7 @@ class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
     name = "train"
-    version = 7  # 7: parameters in groups (train.field.levels); 6: the visual hull
+    version = 8  # 8: held-out views scored at a size within eval_budget; 7: parameter groups; 6: visual hull
     Params = TrainParams
     presets = PRESETS
     requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")
@@ -134,8 +147,9 @@ class TrainStage(Stage):
             return []
         if s.get("psnr") is None:
             return [f"{s['steps']} steps in {s['train_seconds']:.0f} s on {s['device']}; no held-out views to evaluate"]
+        size = f" at {s['eval_size'][0]}x{s['eval_size'][1]}" if s.get("eval_size") else ""
         lines = [f"{s['steps']} steps in {s['train_seconds']:.0f} s on {s['device']} "
-                 f"({s['samples_per_s']:.0f} samples/s); {s['heldout']} held-out views ({s['heldout_rule']}): "
+                 f"({s['samples_per_s']:.0f} samples/s); {s['heldout']} held-out views ({s['heldout_rule']}){size}: "
                  f"PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f}"
                  + (f" against the masked photos ({s['psnr_photo']:.2f} dB against the photos as taken)"
                     if s.get("psnr_photo") is not None else "")]
@@ -179,7 +193,7 @@ class TrainStage(Stage):
 
     def _run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext, device) -> dict[str, Any]:
         from nerfpipe.nerf.assembly import build_model, training_config
-        from nerfpipe.nerf.evaluation import evaluate
+        from nerfpipe.nerf.evaluation import evaluate, evaluation_scale, scaled_size
         from nerfpipe.nerf.images import ImageLoader, describe_masks, split_views, trained_cameras
         from nerfpipe.nerf.trainer import Trainer
 
@@ -211,8 +225,16 @@ class TrainStage(Stage):
             cameras, per_image = trained_cameras(model, loader.world, views.train)
             (out / "cameras").mkdir(exist_ok=True)
             cameras.save(out / "cameras")
+            scale, predicted = evaluation_scale(params.eval_scale, params.eval_budget, trainer.elapsed, model, loader,
+                                                views.heldout, params.chunk)
+            if views.heldout:
+                first = loader.world.camera_of(views.heldout[0])
+                ctx.log.info("train: evaluation: %d views at %dx%d (%s of their size%s), about %.0f s",
+                             len(views.heldout), *scaled_size(first.width, first.height, scale), f"{scale:g}",
+                             "" if params.eval_scale != "auto" else
+                             f", to stay within {params.eval_budget:g} of the training time", predicted)
             with ctx.progress(len(views.heldout), "evaluate") as advance:
-                evaluation = evaluate(model, loader, views.heldout, out / "eval", params.chunk, advance)
+                evaluation = evaluate(model, loader, views.heldout, out / "eval", params.chunk, advance, scale=scale)
         summary = {
             "steps": trainer.step,
             "budget_seconds": params.seconds if params.steps == 0 else None,
@@ -225,6 +247,8 @@ class TrainStage(Stage):
             "train_images": len(views.train),
             "heldout": len(views.heldout),
             "heldout_rule": views.rule,
+            "eval_scale": evaluation["scale"],
+            "eval_size": evaluation["views"][0]["size"] if evaluation["views"] else None,
             "psnr": evaluation["psnr"],
             "ssim": evaluation["ssim"],
             **{key: evaluation[key] for key in ("psnr_photo", "psnr_mean_appearance") if key in evaluation},
@@ -238,8 +262,8 @@ class TrainStage(Stage):
         if evaluation["psnr"] is not None:
             photo = f" (against the photos as taken, backdrop included: {evaluation['psnr_photo']:.2f} dB)" \
                 if "psnr_photo" in evaluation else ""
-            ctx.log.info("train: held-out PSNR %.2f dB, SSIM %.3f over %d views%s", evaluation["psnr"], evaluation["ssim"],
-                         len(views.heldout), photo)
+            ctx.log.info("train: held-out PSNR %.2f dB, SSIM %.3f over %d views at %dx%d%s", evaluation["psnr"],
+                         evaluation["ssim"], len(views.heldout), *evaluation["views"][0]["size"], photo)
         return summary
 
 

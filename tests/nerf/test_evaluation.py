@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from nerfpipe.imaging.png import read_png, srgb_encode, write_png
-from nerfpipe.nerf.evaluation import evaluate, protocol
+from nerfpipe.nerf import evaluation
+from nerfpipe.nerf.evaluation import evaluate, evaluation_scale, protocol
 from tests.nerf.scenes import loader_of
 
 
@@ -50,7 +51,7 @@ def test_linear_raw_previews_are_srgb_encoded_and_no_views_give_no_score(image_f
     expected = np.round(srgb_encode(np.array(0.5)) * 255)
     assert (read_png(tmp_path / "b.render.png") == expected).all()
     assert evaluate(HalfBright(), loader, [], None, 64) == {"psnr": None, "ssim": None, "views": [], "seconds": 0.0,
-                                                            "protocol": protocol(loader)}
+                                                            "scale": 1.0, "protocol": protocol(loader)}
 
 
 def test_the_protocol_says_what_renders_are_compared_with(image_folders) -> None:
@@ -102,3 +103,29 @@ def test_a_held_out_photos_exposure_is_fitted_on_its_left_half_and_scored_on_its
     exposed, scored = fit_left_score_right(render, acc, white, photo.numpy(), linear=False)
     assert scored == slice(w // 2, None)
     torch.testing.assert_close(exposed, photo, atol=2e-4, rtol=0)
+
+
+def test_a_smaller_scale_renders_and_scores_smaller_views(image_folders) -> None:
+    loader = loader_of(image_folders)
+    frames = loader.world.frames[1:]
+    model = HalfBright()
+    full = evaluate(model, loader, frames, None, 64)
+    half = evaluate(model, loader, frames, None, 64, scale=0.5)
+    # each view at 6x4 with the intrinsics halved; the uniform images average down to themselves
+    assert [v["size"] for v in half["views"]] == [[6, 4], [6, 4]] and half["scale"] == 0.5
+    assert [c[0] for c in model.calls[2:]] == [tuple(v / 2 for v in loader.intrinsics(f)) for f in frames]
+    assert [c[1:3] for c in model.calls[2:]] == [(6, 4), (6, 4)]
+    assert [v["psnr"] for v in half["views"]] == pytest.approx([v["psnr"] for v in full["views"]], abs=1e-3)
+
+
+def test_the_automatic_scale_keeps_the_predicted_cost_within_the_budget(image_folders, monkeypatch) -> None:
+    loader = loader_of(image_folders)
+    frames = loader.world.frames[1:]  # two 12x8 views: 192 pixels
+    monkeypatch.setattr(evaluation, "seconds_per_ray", lambda *args, **kwargs: 0.01)  # 1.92 s at full size
+    assert evaluation_scale("auto", 0.1, 100.0, None, loader, frames, 64) == pytest.approx((1.0, 1.92))
+    # 10 % of 4 s is 0.4 s: sqrt(0.4 / 1.92) = 0.456, rounded down to 0.45
+    scale, predicted = evaluation_scale("auto", 0.1, 4.0, None, loader, frames, 64)
+    assert scale == 0.45 and predicted == pytest.approx(1.92 * 0.45**2) and predicted <= 0.4
+    assert evaluation_scale("auto", 0.1, 1e-6, None, loader, frames, 64)[0] == 1 / 16  # never below a sixteenth
+    assert evaluation_scale("0.5", 0.1, 1e-6, None, loader, frames, 64)[0] == 0.5  # a number is taken as it is
+    assert evaluation_scale("auto", 0.1, 4.0, None, loader, [], 64) == (1.0, 0.0)
