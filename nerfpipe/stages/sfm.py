@@ -45,6 +45,8 @@ class SfmParams:
     )
     exhaustive_max: int = field(default=100, metadata={"help": "largest capture matched exhaustively by auto"})
     sequential_overlap: int = field(default=10, metadata={"help": "sequential matching: neighbours per frame"})
+    spatial_neighbors: int = field(default=10, metadata={"help": "spatial matching of known camera positions: the "
+                                                                  "nearest cameras each photo is matched with"})
     mapper: Literal["incremental", "global"] = field(default="incremental", metadata={"help": "COLMAP mapper or GLOMAP"})
     relaxed_retry: bool = field(default=True, metadata={"help": "retry mapping with relaxed options when photos stay unregistered"})
     min_registered: float = field(default=0.5, metadata={"help": "fail when fewer than this fraction of photos register"})
@@ -69,6 +71,8 @@ class SfmParams:
             raise ValueError("max_image_size and max_features must be at least 64")
         if self.min_images < 2:
             raise ValueError(f"min_images must be at least 2, got {self.min_images}")
+        if self.spatial_neighbors < 1:
+            raise ValueError(f"spatial_neighbors must be at least 1, got {self.spatial_neighbors}")
         if self.min_triangulated_points < 1:
             raise ValueError(f"min_triangulated_points must be at least 1, got {self.min_triangulated_points}")
 
@@ -77,7 +81,7 @@ class SfmStage(Stage):
     """Camera poses + sparse points: COLMAP SfM through pycolmap, or the capture's own pose files."""
 
     name = "sfm"
-    version = 3  # 2: seeded two-view RANSAC and mapper; 3: triangulated points for imported poses
+    version = 4  # 4: known poses matched with their nearest cameras; 3: triangulated points for imported poses
     Params = SfmParams
     presets = {
         "draft": {"max_image_size": 800, "max_features": 4096},

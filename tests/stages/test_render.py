@@ -164,7 +164,7 @@ def check_outputs(out: Path, summary: dict, calls: list, expected_rgb: np.ndarra
 
 def test_orbit_of_a_360_scene(tmp_path: Path) -> None:
     out, summary, calls = run_render(tmp_path, "inward360")
-    assert summary["path"].startswith("orbit (inward360 scene): radius 2.15")  # sqrt(2^2 + 0.8^2)
+    assert summary["path"].startswith("orbit (inward360 scene, cameras all round: 315 deg of azimuth): radius 2.15")
     check_outputs(out, summary, calls, COLOUR)
     poses = np.array([f["c2w"] for f in json.loads((out / "camera_path.json").read_text())["frames"]])
     assert np.allclose(np.linalg.norm(poses[:, :3, 3], axis=1), np.sqrt(4.64)) and np.allclose(poses[:, 2, 3], 0.8)

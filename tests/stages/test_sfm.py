@@ -285,14 +285,19 @@ def test_too_few_triangulated_points_fall_back_and_spatial_matching_uses_the_kno
 def test_triangulation_matcher_choice():
     from nerfpipe.poses.colmap.triangulate import choose_triangulation_matcher
 
-    params = SfmParams()
-    assert choose_triangulation_matcher(records(40), params)[0] == "exhaustive"
-    assert choose_triangulation_matcher(records(300), params) == (
-        "spatial", "300 photos > sfm.exhaustive_max 100: neighbours by the known camera positions")
+    params = SfmParams()  # 10 nearest cameras
+    assert choose_triangulation_matcher(records(20), params) == (
+        "exhaustive", "20 photos <= 2 x sfm.spatial_neighbors 10")
+    assert choose_triangulation_matcher(records(77), params) == (
+        "spatial", "77 known poses: each photo with its 10 nearest cameras")
     video = [{"name": f"{i:04d}.jpg", "exif": {}} for i in range(300)]
-    assert choose_triangulation_matcher(video, params) == ("sequential", "300 photos named as numbered frames")
-    assert choose_triangulation_matcher(records(40), SfmParams(matcher="spatial"))[0] == "spatial"
+    assert choose_triangulation_matcher(video, params)[0] == "spatial"  # the poses say more than the frame order
+    assert choose_triangulation_matcher(records(40), SfmParams(matcher="spatial", spatial_neighbors=5)) == (
+        "spatial", "set by sfm.matcher: each photo with its 5 nearest cameras")
     assert choose_triangulation_matcher(video, SfmParams(matcher="exhaustive")) == ("exhaustive", "set by sfm.matcher")
+    assert choose_triangulation_matcher(video, SfmParams(matcher="sequential"))[0] == "sequential"
+    with pytest.raises(ValueError, match="spatial_neighbors"):
+        SfmParams(spatial_neighbors=0)
     with pytest.raises(ValueError, match="min_triangulated_points"):
         SfmParams(min_triangulated_points=0)
 

@@ -200,7 +200,11 @@ def test_nerfpipe_run_on_the_bundled_capture_trains_evaluates_and_exports(tmp_pa
     assert any("no sparse points to check the camera poses by" in d for d in metrics["decisions"])
     assert (next((run_dir / "stages" / "train").glob("*/cameras")) / "cameras.json").is_file()
     status = run_cli("status", run_dir)
-    assert "train: 300 steps in" in status.stdout and "held-out views (every 8th image): PSNR" in status.stdout
+    assert "train: 300 steps in" in status.stdout
+    # scored at the size the evaluation budget allows (80x60 itself, unless the machine renders very slowly)
+    w, h = metrics["eval_size"]
+    assert f"held-out views (every 8th image) at {w}x{h}: PSNR" in " ".join(status.stdout.split())
+    assert metrics["eval_scale"] == pytest.approx(w / 80, abs=0.02) and [v["size"] for v in metrics["views"]] == [[w, h]] * 2
     check_exports_report_and_view(run_dir, result.stdout)
 
 

@@ -58,6 +58,7 @@ def match_features(database: Path, matcher: str, params: Any, known_positions: b
         pairing = pycolmap.SpatialPairingOptions()
         pairing.ignore_z = False
         pairing.max_distance = math.inf
+        pairing.max_num_neighbors = params.spatial_neighbors
         pycolmap.match_spatial(database, pairing_options=pairing, verification_options=verification, device=device)
     else:
         with pycolmap.Database.open(database) as db:
