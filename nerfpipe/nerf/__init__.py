@@ -6,10 +6,13 @@ Eq. 4), ``sampling`` (stratified sampling, Eq. 2, and inverse transform sampling
 fine rendering of a batch of rays, Section 5.2). Section and equation numbers refer to the ECCV 2020 paper,
 "NeRF: Representing Scenes as Neural Radiance Fields for View Synthesis".
 
-Around them: ``grid_field`` and ``occupancy`` (dense grids and empty-space skipping, after Instant-NGP),
-``model`` (the trained model and its files), ``trainer`` (the optimization of Section 5.3), ``assembly``
-(the model and training configuration a scene's decisions call for), ``images`` (held-out splits and
-training pixels), ``evaluation`` (held-out PSNR / SSIM), ``appearance`` (each photo's exposure and white
-balance) and ``refinement`` (each camera's pose correction), learned with the field where the scene calls for
-them, ``contraction`` (unbounded space), ``device`` and ``cpu`` (where and how torch runs).
+A model is parts behind small protocols, named in ``registry``: fields (``fields``: ``grid_field``, dense
+grids after Instant-NGP, and ``field``), samplers (``samplers``: marching an occupancy grid, ``occupancy``
+and ``marching``, or Section 5.2's ``renderer``) and a ray space (``ray_space``: NDC, box, ``contraction``).
+``config`` holds the train stage's parameter groups; ``assembly`` resolves a scene's decisions and those
+parameters into a ``spec.ModelSpec``, and ``model.build`` makes the ``model.RadianceModel`` from it (and
+loads it from its files). Around them: ``trainer`` (the optimization of Section 5.3, with ``checkpoints``
+and the ``stall`` guard), ``images`` (held-out splits and training pixels), ``evaluation`` (held-out PSNR /
+SSIM within a time budget), ``appearance`` (each photo's exposure and white balance) and ``refinement``
+(each camera's pose correction), ``device`` and ``cpu`` (where and how torch runs).
 """

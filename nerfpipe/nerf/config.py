@@ -28,7 +28,7 @@ class FieldParams:
     """The radiance field: dense grids and a small MLP (fast), or the paper's MLP (Fig. 7)."""
 
     kind: str = param("grid", "grid: dense feature grids + a small MLP (fast); mlp: the paper's MLP (Fig. 7); any "
-                              "field in nerfpipe.nerf.fields.FIELDS")
+                              "field in nerfpipe.nerf.registry.FIELDS")
     levels: int = param(3, "grid: levels of the multiresolution grid")
     min_resolution: int = param(32, "grid: cells a side of the coarsest level")
     max_resolution: int = param(128, "grid: cells a side of the finest level")

@@ -273,7 +273,7 @@ def test_too_few_triangulated_points_fall_back_and_spatial_matching_uses_the_kno
     (capture / "t_par.txt").write_text("\n".join(["4", *lines]) + "\n")
     outcomes = to_bounds(capture, tmp_path / "run", sfm={"matcher": "spatial", "min_triangulated_points": 100000})
     t = outcomes[1].summary["triangulation"]
-    assert t["matcher"] == "spatial" and "known camera positions" in t["matcher_reason"]
+    assert t["matcher"] == "spatial" and t["matcher_reason"] == "set by sfm.matcher: each photo with its 10 nearest cameras"
     assert t["status"] == "too_few" and 0 < t["points"] < 100000
     assert outcomes[1].summary["triangulation_fallback"] == (
         f"triangulation kept only {t['points']} points (< sfm.min_triangulated_points 100000); "
