@@ -12,10 +12,11 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from nerfpipe.pipeline import NerfpipeError
+from nerfpipe.pipeline import NerfpipeError, Pipeline
 from nerfpipe.pipeline.errors import os_error_to_user_error
 
 err_console = Console(stderr=True)
+out_console = Console()
 
 STATE_STYLE = {"fresh": "green", "stale": "yellow", "broken": "red", "missing": "red"}
 
@@ -131,3 +132,31 @@ def batch_progress(total: int) -> Iterator[Callable]:
 
     with Live(console=err_console, transient=True, refresh_per_second=4) as live:
         yield lambda states: live.update(render(states))
+
+
+def serve_web(pipe: Pipeline, host: str, port: int) -> None:
+    """`view --web`: gather the run's results, serve them until Ctrl-C."""
+    import time
+
+    from nerfpipe.export.web import serve, web_scene
+
+    scene = web_scene(
+        model_dir=pipe.artifact("model", "trained model").parent,
+        cameras_dir=pipe.artifact("cameras", "trained model"),
+        images_dir=pipe.artifact("images", "photos"),
+        bounds_json=pipe.artifact("bounds", "bounds"),
+        mesh_ply=pipe.optional_artifact("mesh"),
+        points_ply=pipe.optional_artifact("points"),
+    )
+    viewer = serve(scene, host=host, port=port)
+    held = [f"{len(scene.frames)} cameras with their photos"]
+    held += [f"a mesh of {scene.mesh.faces:,} triangles"] if scene.mesh is not None else []
+    held += [f"{len(scene.points.xyz):,} points"] if scene.points is not None else []
+    out_console.print(f"web viewer: {viewer.url} ({', '.join(held)}, and a live render of the field); "
+                      "Ctrl-C stops it", highlight=False, soft_wrap=True)
+    try:
+        while True:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        viewer.stop()
+        out_console.print("web viewer stopped", highlight=False)

@@ -7,12 +7,20 @@ from pathlib import Path
 from typing import List, Optional
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from nerfpipe.cli.console import STATE_STYLE, batch_progress, bench_line, progress_factory, setup_logging, user_errors
-from nerfpipe.pipeline import Pipeline, param_specs, parse_assignments
+from nerfpipe.cli.console import (
+    STATE_STYLE,
+    batch_progress,
+    bench_line,
+    out_console,
+    progress_factory,
+    serve_web,
+    setup_logging,
+    user_errors,
+)
+from nerfpipe.pipeline import Pipeline, parse_assignments
 from nerfpipe.pipeline.lock import RunLock
 from nerfpipe.stages import default_stages
 
@@ -20,21 +28,37 @@ app = typer.Typer(
     name="nerfpipe",
     help="Photos in, a Neural Radiance Field and its exports out. Each stage is cached in the run directory.",
     no_args_is_help=True,
-    add_completion=False,
     pretty_exceptions_enable=False,
 )
-out_console = Console()
+
+
+def _show_version(value: bool) -> None:
+    if value:
+        from importlib.metadata import version
+
+        out_console.print(f"nerfpipe {version('nerfpipe')}", highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: bool = typer.Option(False, "--version", callback=_show_version, is_eager=True,
+                                 help="Print nerfpipe's version and exit."),
+) -> None:
+    """Photos in, a Neural Radiance Field and its exports out. Each stage is cached in the run directory."""
 
 
 DebugOption = typer.Option(False, "--debug", help="Show tracebacks and debug logs.")
 PresetOption = typer.Option(None, "--preset", "-p", help="Named preset applied to every stage that has it.")
 SetOption = typer.Option([], "--set", "-s", help="Override one parameter: STAGE.PARAM=VALUE (repeatable).")
+HostOption = typer.Option("127.0.0.1", "--host", show_default=True, help="The web viewer's address: this machine only by default; "
+                          "0.0.0.0 shows the run's photos to anyone on the network.")
 
 
 @app.command()
 def run(
     photos_dir: Path = typer.Argument(..., help="Folder of photos (or a capture folder with images/), or a video."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Run directory [default: runs/<photos folder name>]."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Run directory \\[default: runs/<photos folder name>]."),
     preset: Optional[str] = PresetOption,
     set_: List[str] = SetOption,
     until: Optional[str] = typer.Option(None, "--until", help="Run the stages up to and including this one."),
@@ -44,18 +68,36 @@ def run(
     view: bool = typer.Option(False, "--view", help="Serve the web viewer while the field trains, to watch it learn "
                               "(stops when training ends)."),
     port: int = typer.Option(8080, "--port", help="--view: the port to serve on."),
+    host: str = HostOption,
+    config: Optional[Path] = typer.Option(None, "--config", help="A YAML file of settings, the same keys as --set "
+                                          "(STAGE: {PARAM: VALUE}, and preset); --set wins. RUN_DIR/config.yaml repeats "
+                                          "a run."),
     debug: bool = DebugOption,
 ) -> None:
     """Run the pipeline on a folder of photos or a video, recomputing only what changed."""
     setup_logging(debug)
+    from nerfpipe.cli.config import merge, read_config, write_config
+
     with user_errors(debug):
         overrides = parse_assignments(set_)
+        if config is not None:
+            from_file, overrides_from_file = read_config(config)
+            preset = preset or from_file
+            overrides = merge(overrides_from_file, overrides)
         if skip_bad:
             overrides.setdefault("ingest", {})["skip_bad"] = "true"
         run_dir = out if out is not None else Path("runs") / photos_dir.resolve().name
+        if view:
+            from nerfpipe.export.web import check_address
+
+            check_address(host, port)
         pipe = Pipeline(default_stages(), photos_dir, run_dir, preset, overrides, progress=progress_factory(), debug=debug,
-                        extra={"watch_port": port} if view else None)
-        outcomes = pipe.run(until=until, only=only, force=force)
+                        extra={"watch_port": port, "watch_host": host} if view else None)
+        try:
+            outcomes = pipe.run(until=until, only=only, force=force)
+        finally:
+            if (run_dir / "run.json").is_file():  # the run got as far as recording its settings
+                write_config(run_dir, pipe.plan())
     table = Table(title=f"nerfpipe run -> {run_dir}", title_justify="left")
     for column in ("stage", "result", "time"):
         table.add_column(column)
@@ -121,6 +163,7 @@ def view(
     web: bool = typer.Option(False, "--web", help="Serve a web viewer (viser): mesh, points, cameras with their "
                              "photos, and a live render of the field from the browser's viewpoint."),
     port: int = typer.Option(8080, "--port", help="--web: the port to serve on."),
+    host: str = HostOption,
     debug: bool = DebugOption,
 ) -> None:
     """Look at a run's mesh, point cloud or cameras; with no display, write RUN_DIR/view_<kind>.png instead."""
@@ -136,7 +179,10 @@ def view(
             raise ParamError(f"unknown view {kind!r}; {hint}")
         pipe = Pipeline.from_run_dir(default_stages(), run_dir)
         if web:
-            _serve_web(pipe, port)
+            from nerfpipe.export.web import check_address
+
+            check_address(host, port)
+            serve_web(pipe, host, port)
             return
         from nerfpipe.export import screenshot as shot
         from nerfpipe.export.views import cameras_of
@@ -154,34 +200,6 @@ def view(
                          title=f"nerfpipe {kind}: {run_dir}")
     if path is not None:
         out_console.print(f"no display: wrote a screenshot to {escape(str(path))}", highlight=False, soft_wrap=True)
-
-
-def _serve_web(pipe: Pipeline, port: int) -> None:
-    """`view --web`: gather the run's results, serve them until Ctrl-C."""
-    import time
-
-    from nerfpipe.export.web import serve, web_scene
-
-    scene = web_scene(
-        model_dir=pipe.artifact("model", "trained model").parent,
-        cameras_dir=pipe.artifact("cameras", "trained model"),
-        images_dir=pipe.artifact("images", "photos"),
-        bounds_json=pipe.artifact("bounds", "bounds"),
-        mesh_ply=pipe.optional_artifact("mesh"),
-        points_ply=pipe.optional_artifact("points"),
-    )
-    viewer = serve(scene, port=port)
-    held = [f"{len(scene.frames)} cameras with their photos"]
-    held += [f"a mesh of {scene.mesh.faces:,} triangles"] if scene.mesh is not None else []
-    held += [f"{len(scene.points.xyz):,} points"] if scene.points is not None else []
-    out_console.print(f"web viewer: {viewer.url} ({', '.join(held)}, and a live render of the field); "
-                      "Ctrl-C stops it", highlight=False, soft_wrap=True)
-    try:
-        while True:
-            time.sleep(0.5)
-    except KeyboardInterrupt:
-        viewer.stop()
-        out_console.print("web viewer stopped", highlight=False)
 
 
 @app.command()
@@ -254,8 +272,8 @@ def batch(
     out: Path = typer.Option(..., "--out", "-o", help="Runs root: one run directory per capture, OUT/<capture>."),
     executor: str = typer.Option("local", "--executor", "-e", help="local (this machine) or ray (a Ray cluster)."),
     address: Optional[str] = typer.Option(None, "--address", help="Ray cluster address, e.g. 10.0.0.1:6379 or auto "
-                                          "[default: start Ray on this machine]."),
-    max_parallel: int = typer.Option(0, "--max-parallel", "-j", help="Captures in progress at once [default: local 1, "
+                                          "\\[default: start Ray on this machine]."),
+    max_parallel: int = typer.Option(0, "--max-parallel", "-j", help="Captures in progress at once \\[default: local 1, "
                                      "ray as many as the cluster's resources run]."),
     max_retries: int = typer.Option(2, "--max-retries", help="Restarts of a stage whose worker or node died."),
     preset: Optional[str] = PresetOption,
@@ -300,25 +318,40 @@ def batch(
 
 
 @app.command()
-def stages() -> None:
+def stages(
+    names: List[str] = typer.Argument(None, metavar="[STAGE]...", help="Only these stages (default: all)."),
+    as_json: bool = typer.Option(False, "--json", help="Machine-readable: one JSON object, stage name -> its "
+                                 "version, summary, inputs, outputs, parameters and presets."),
+) -> None:
     """The stage graph, with each stage's parameters, defaults and presets."""
-    pipe_stages = default_stages()
-    from nerfpipe.pipeline import Dag
+    import json
 
-    dag = Dag(pipe_stages)
-    out_console.print("[bold]" + " -> ".join(dag.order) + "[/]\n")
-    for name in dag.order:
-        stage = dag.stages[name]
-        out_console.print(f"[bold]{name}[/] (version {stage.version}): {stage.summary()}")
-        if dag.upstream[name]:
-            out_console.print(f"  needs: {', '.join(stage.requires)} (from {', '.join(dag.upstream[name])})")
-        out_console.print(f"  provides: {', '.join(f'{a} ({p})' for a, p in stage.provides.items())}")
-        for spec in param_specs(stage.Params):
-            out_console.print(f"  [cyan]{name}.{spec.name}[/] = {spec.default}  [dim]({spec.type_name})[/]  {spec.help}",
-                              highlight=False, soft_wrap=True)
-        for preset_name, values in stage.presets.items():
+    from nerfpipe.cli.reference import stage_reference
+    from nerfpipe.pipeline import Dag, ParamError
+
+    dag = Dag(default_stages())
+    with user_errors(False):
+        for name in names or []:
+            if name not in dag.stages:
+                raise ParamError(f"unknown stage {name!r}; stages are: {', '.join(dag.order)}")
+    chosen = [n for n in dag.order if not names or n in names]
+    reference = stage_reference(dag, chosen)
+    if as_json:
+        print(json.dumps(reference, indent=1))
+        return
+    if not names:
+        out_console.print("[bold]" + " -> ".join(dag.order) + "[/]\n")
+    for name, entry in reference.items():
+        out_console.print(f"[bold]{name}[/] (version {entry['version']}): {escape(entry['summary'])}")
+        if entry["upstream"]:
+            out_console.print(f"  needs: {', '.join(entry['requires'])} (from {', '.join(entry['upstream'])})")
+        out_console.print(f"  provides: {', '.join(f'{a} ({p})' for a, p in entry['provides'].items())}")
+        for spec in entry["parameters"]:
+            out_console.print(f"  [cyan]{name}.{spec['name']}[/] = {escape(str(spec['default']))}  "
+                              f"[dim]({escape(spec['type'])})[/]  {escape(spec['help'])}", highlight=False, soft_wrap=True)
+        for preset_name, values in entry["presets"].items():
             shown = ", ".join(f"{k}={v}" for k, v in values.items())
-            out_console.print(f"  preset [green]{preset_name}[/]: {shown}", highlight=False)
+            out_console.print(f"  preset [green]{preset_name}[/]: {escape(shown)}", highlight=False)
         out_console.print()
 
 

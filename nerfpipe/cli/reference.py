@@ -45,3 +45,19 @@ def parameters_markdown(stages: list[Stage]) -> str:
                 shown = ", ".join(f"`{k}={_shown(v)}`" for k, v in values.items()) or "the defaults"
                 parts.append(f"- `{preset}`: {shown}\n")
     return "".join(parts)
+
+
+def stage_reference(dag: Dag, names: list[str]) -> dict[str, Any]:
+    """Stage name -> version, summary, requires, upstream, provides, parameters (name, type, default, help)
+    and presets, for ``nerfpipe stages [--json]``."""
+    reference = {}
+    for name in names:
+        stage = dag.stages[name]
+        reference[name] = {
+            "version": stage.version, "summary": stage.summary(), "requires": list(stage.requires),
+            "upstream": list(dag.upstream[name]), "provides": dict(stage.provides),
+            "parameters": [{"name": s.name, "type": s.type_name, "default": s.default, "help": s.help,
+                            **({"choices": list(s.choices)} if s.choices else {})} for s in param_specs(stage.Params)],
+            "presets": {k: dict(v) for k, v in stage.presets.items()},
+        }
+    return reference

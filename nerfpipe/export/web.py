@@ -13,6 +13,9 @@ is rendered again every ``refresh_seconds``, smaller, so that watching costs tra
 
 from __future__ import annotations
 
+import errno
+import logging
+import socket
 import threading
 import time
 from dataclasses import dataclass, field
@@ -23,6 +26,9 @@ import numpy as np
 
 from nerfpipe.export.mesh import Mesh
 from nerfpipe.export.points import Cloud
+from nerfpipe.pipeline.errors import ParamError
+
+log = logging.getLogger("nerfpipe")
 
 FAST_WIDTH, SHARP_WIDTH = 96, 320  # pixels across, of the live render while moving and once at rest
 REST_SECONDS = 0.3
@@ -77,16 +83,45 @@ class WebViewer:
 
     @property
     def url(self) -> str:
-        return f"http://localhost:{self.server.get_port()}"
+        host = self.server.get_host()
+        shown = "localhost" if host in LOOPBACK else f"[{host}]" if ":" in host else host
+        return f"http://{shown}:{self.server.get_port()}"
 
     def stop(self) -> None:
         self._stop.set()
         self.server.stop()
 
 
-def serve(scene: WebScene, host: str = "0.0.0.0", port: int = 8080) -> WebViewer:
-    """Start the viewer; it serves until ``stop()``. The live render runs in one thread per browser tab."""
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
+def check_address(host: str, port: int) -> None:
+    """Refuse, with one line, a port outside 1..65535 or one that something on ``host`` already listens on
+    (naming a free one to try); viser would otherwise fail in a thread or quietly move to another port."""
+    if not 1 <= port <= 65535:
+        raise ParamError(f"--port {port}: a port is a number from 1 to 65535, e.g. --port 8080")
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        try:
+            probe.bind((host, port))
+        except OSError as err:
+            if err.errno not in (errno.EADDRINUSE, errno.EACCES):
+                raise ParamError(f"--host {host}: cannot listen there ({err.strerror}); use --host 127.0.0.1") from None
+            with socket.socket(family, socket.SOCK_STREAM) as free:
+                free.bind((host, 0))
+                raise ParamError(f"--port {port}: {'in use' if err.errno == errno.EADDRINUSE else 'not allowed'} on "
+                                 f"{host}; try --port {free.getsockname()[1]}") from None
+
+
+def serve(scene: WebScene, host: str = "127.0.0.1", port: int = 8080) -> WebViewer:
+    """Start the viewer on ``host``:``port`` (this machine only, by default: the page shows the run's photos);
+    it serves until ``stop()``. The live render runs in one thread per browser tab."""
     import viser
+
+    check_address(host, port)
+    if host not in LOOPBACK:
+        log.warning("web viewer: listening on %s: anyone who can reach this machine on port %d sees the run's "
+                    "photos, cameras and model", host, port)
 
     server = viser.ViserServer(host=host, port=port, verbose=False)
     server.scene.set_up_direction("+z")

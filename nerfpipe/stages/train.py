@@ -284,7 +284,7 @@ def _watching(ctx: StageContext, loader: Any, model: Any) -> Iterator[None]:
 
     scene = WebScene(web_frames(loader.world, loader.images), model=model, near=loader.bounds.near,
                      far=loader.bounds.far, sharp_width=WATCH_WIDTH, refresh_seconds=WATCH_REFRESH_SECONDS)
-    viewer = serve(scene, port=port)
+    viewer = serve(scene, host=ctx.extra.get("watch_host", "127.0.0.1"), port=port)
     ctx.log.info("train: watch the field learn at %s (the view at rest is rendered again every %.0f s)",
                  viewer.url, WATCH_REFRESH_SECONDS)
     try:

@@ -247,3 +247,25 @@ def test_14_asking_for_colmap_poses_names_the_missing_images_bin(in_images, tmp_
     (model / "cameras.bin").unlink()
     result = run_cli("run", in_images, "--out", tmp_path / "run", "--until", "sfm", "--set", "sfm.poses=colmap")
     assert_one_clear_error(result, "has no COLMAP model (cameras.bin and images.bin")
+
+
+@pytest.mark.parametrize("port", ["99999", "-5"])
+def test_a_bad_viewer_port_is_one_line_before_anything_runs(tmp_path, port):
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "run.json").write_text(json.dumps({"source": str(TEMPLE), "preset": None, "overrides": {}}))
+    for args in (["view", run_dir, "--web", "--port", port], ["run", TEMPLE, "--out", tmp_path / "r", "--view", "--port", port]):
+        result = run_cli(*args)
+        lines = result.stderr.strip().splitlines()
+        assert result.returncode != 0 and "Traceback" not in result.stderr, result.stderr
+        assert lines == [f"error: --port {port}: a port is a number from 1 to 65535, e.g. --port 8080"], lines
+    assert not (tmp_path / "r").exists()  # refused before any stage ran
+
+
+def test_a_damaged_run_json_is_one_line(tmp_path):
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "run.json").write_text("{}")  # valid JSON of the wrong shape
+    result = run_cli("status", run_dir)
+    assert result.returncode != 0 and "Traceback" not in result.stderr
+    assert "run.json: is damaged" in result.stderr and len(result.stderr.strip().splitlines()) == 1

@@ -81,3 +81,52 @@ def test_ci_script_runs_the_readme_test_command():
     assert len(commands) == 2, "the README gives exactly two set-up commands"
     test_command = next(c for c in commands if "pytest" in c)
     assert test_command in ci
+
+
+def test_version_completion_and_defaults_in_help():
+    version = run_cli("--version")
+    assert version.returncode == 0 and version.stdout.strip() == f"nerfpipe {importlib.metadata.version('nerfpipe')}"
+    completion = run_cli("--show-completion", "bash")
+    assert completion.returncode == 0 and "complete" in completion.stdout and "nerfpipe" in completion.stdout
+    help_text = " ".join(run_cli("run", "--help").stdout.split())
+    assert "[default: runs/<photos folder name>]" in help_text  # not swallowed as markup
+    assert "[default: 127.0.0.1]" in help_text and "[default: 8080]" in help_text
+
+
+def test_stages_filters_by_name_and_speaks_json():
+    import json
+
+    one = run_cli("stages", "train")
+    assert one.returncode == 0 and "train.field.max_resolution" in one.stdout and "ingest.max_size" not in one.stdout
+    doc = json.loads(run_cli("stages", "train", "sfm", "--json").stdout)
+    assert list(doc) == ["sfm", "train"]  # in the graph's order
+    field = next(p for p in doc["train"]["parameters"] if p["name"] == "field.max_resolution")
+    assert field == {"name": "field.max_resolution", "type": "int", "default": 128,
+                     "help": "grid: cells a side of the finest level"}
+    assert doc["train"]["presets"]["draft"]["steps"] == 500 and doc["train"]["upstream"]
+    bad = run_cli("stages", "trian")
+    assert bad.returncode != 0 and bad.stderr.strip().startswith("error: unknown stage 'trian'; stages are: ingest")
+
+
+def test_a_config_file_sets_parameters_set_wins_and_the_run_writes_its_own(capture, tmp_path):
+    import yaml
+
+    settings = tmp_path / "run.yaml"
+    settings.write_text("ingest:\n  max_size: 320\n  skip_bad: false\ntrain:\n  field:\n    levels: 2\n  optim.lr: 0.01\n")
+    run_dir = tmp_path / "run"
+    first = run_cli("run", capture, "--out", run_dir, "--config", settings, "--set", "ingest.max_size=300",
+                    "--until", "ingest")
+    assert first.returncode == 0, first.stderr
+    written = yaml.safe_load((run_dir / "config.yaml").read_text())
+    assert written["ingest"]["max_size"] == 300  # --set won
+    assert written["train"]["field.levels"] == 2 and written["train"]["optim.lr"] == 0.01
+    assert written["render"]["frames"] == 40 and len(written) == 10  # every parameter of every stage
+    again = run_cli("run", capture, "--out", run_dir, "--config", run_dir / "config.yaml", "--until", "ingest")
+    assert again.returncode == 0 and "ingest: up to date, reusing its result" in again.stderr
+    settings.write_text("ingest: [1, 2]\n")
+    bad = run_cli("run", capture, "--out", run_dir, "--config", settings)
+    assert bad.returncode != 0 and "Traceback" not in bad.stderr
+    assert bad.stderr.strip() == f"error: --config {settings}: ingest must map parameter names to values, got [1, 2]"
+    settings.write_text("ingest: {max_size: 320\n")
+    broken = run_cli("run", capture, "--out", run_dir, "--config", settings)
+    assert broken.returncode != 0 and "not a readable YAML file" in broken.stderr and "Traceback" not in broken.stderr

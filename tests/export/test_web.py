@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import torch
 
 from nerfpipe.export import web
@@ -73,3 +74,59 @@ def test_a_field_in_training_is_rendered_again_at_rest() -> None:
     # fast at once, then 160 px at rest and again every 0.3 s although the view never moved
     assert model.widths[0] == FAST_WIDTH and set(model.widths[1:]) == {160}
     assert 4 <= len(model.widths) - 1 <= 7, model.widths
+
+
+def listening_addresses(port: int) -> set[str]:
+    """The local addresses with a socket listening on ``port``, as ``ss -ltn`` lists them (/proc/net/tcp*)."""
+    import socket
+    import struct
+
+    found = set()
+    for table, family in (("/proc/net/tcp", socket.AF_INET), ("/proc/net/tcp6", socket.AF_INET6)):
+        try:
+            rows = open(table).read().splitlines()[1:]
+        except FileNotFoundError:
+            continue
+        for row in rows:
+            local, state = row.split()[1], row.split()[3]
+            address, hex_port = local.split(":")
+            if state == "0A" and int(hex_port, 16) == port:  # LISTEN
+                raw = bytes.fromhex(address)
+                words = b"".join(struct.pack("<I", w) for w in struct.unpack(f">{len(raw) // 4}I", raw))
+                found.add(socket.inet_ntop(family, words))
+    return found
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_the_viewer_listens_on_this_machine_only_and_says_so_in_its_url(caplog) -> None:
+    port = free_port()
+    viewer = web.serve(WebScene(frames=[]), port=port)
+    try:
+        assert listening_addresses(port) == {"127.0.0.1"}
+        assert viewer.url == f"http://localhost:{port}"
+        assert "anyone who can reach this machine" not in caplog.text
+    finally:
+        viewer.stop()
+
+
+def test_a_port_in_use_or_out_of_range_is_one_line_with_one_to_try() -> None:
+    import socket
+
+    from nerfpipe.pipeline.errors import ParamError
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(ParamError, match=rf"^--port {port}: in use on 127.0.0.1; try --port \d+$"):
+            web.check_address("127.0.0.1", port)
+    for bad in (99999, -5, 0):
+        with pytest.raises(ParamError, match=rf"^--port {bad}: a port is a number from 1 to 65535"):
+            web.check_address("127.0.0.1", bad)

@@ -1,0 +1,72 @@
+"""Run settings in a YAML file: ``nerfpipe run ... --config run.yaml`` reads the same keys as ``--set``
+(``--set`` wins), and every run writes what it resolved to ``RUN_DIR/config.yaml``, every parameter of
+every stage, so ``--config RUN_DIR/config.yaml`` repeats it.
+
+The file is a mapping of stage names to their parameters; a group may be nested or written with dots::
+
+    preset: draft          # optional
+    ingest:
+      max_size: 800
+    train:
+      seconds: 300
+      field:
+        max_resolution: 256
+      optim.lr: 0.01
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from nerfpipe.pipeline import ParamError, PlannedStage
+from nerfpipe.pipeline.params import flatten, params_to_dict
+
+CONFIG_FILE = "config.yaml"
+
+
+def read_config(path: Path) -> tuple[str | None, dict[str, dict[str, Any]]]:
+    """The preset and the overrides (stage -> {dotted name: value}) of a settings file; a file that cannot
+    be read or is not such a mapping is a ``ParamError`` naming it."""
+    try:
+        doc = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ParamError(f"--config {path}: no such file") from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+        where = getattr(err, "problem_mark", None)
+        at = f" (line {where.line + 1})" if where is not None else ""
+        raise ParamError(f"--config {path}: not a readable YAML file{at}; write STAGE: {{PARAM: VALUE}} mappings") from None
+    if doc is None:
+        return None, {}
+    if not isinstance(doc, Mapping):
+        raise ParamError(f"--config {path}: expected a mapping of stage names to parameters, got {type(doc).__name__}")
+    preset = doc.get("preset")
+    if preset is not None and not isinstance(preset, str):
+        raise ParamError(f"--config {path}: preset must be a name, got {preset!r}")
+    overrides: dict[str, dict[str, Any]] = {}
+    for stage, values in doc.items():
+        if stage == "preset":
+            continue
+        if not isinstance(values, Mapping):
+            raise ParamError(f"--config {path}: {stage} must map parameter names to values, got {values!r}")
+        overrides[str(stage)] = flatten(values)
+    return preset, overrides
+
+
+def merge(base: Mapping[str, Mapping[str, Any]], top: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """``base`` overrides with ``top``'s on top, stage by stage."""
+    merged = {stage: dict(values) for stage, values in base.items()}
+    for stage, values in top.items():
+        merged.setdefault(stage, {}).update(values)
+    return merged
+
+
+def write_config(run_dir: Path, plan: Mapping[str, PlannedStage]) -> Path:
+    """``RUN_DIR/config.yaml``: every parameter of every stage as this run resolved it."""
+    doc = {name: flatten(params_to_dict(planned.params)) for name, planned in plan.items()}
+    path = Path(run_dir) / CONFIG_FILE
+    header = "# every parameter of this run as resolved; `nerfpipe run PHOTOS --config this-file` repeats it\n"
+    path.write_text(header + yaml.safe_dump(doc, sort_keys=False, allow_unicode=True), encoding="utf-8")
+    return path
