@@ -144,6 +144,8 @@ def coerce(value: Any, tp: Any, qualname: str) -> Any:
             if value == choice or (isinstance(value, str) and value.strip() == str(choice)):
                 return choice
         if {"on", "off"} <= set(choices):  # a switch: the spellings it had before Auto
+            if isinstance(value, bool):  # YAML reads on / off as booleans
+                return "on" if value else "off"
             text = str(value).strip().lower()
             if text in _TRUE | _FALSE:
                 new = "on" if text in _TRUE else "off"

@@ -142,6 +142,8 @@ def test_retired_names_and_switch_spellings_still_work_and_say_so(caplog):
     assert "s.old_switch is now s.inner.switch=on" in caplog.text
     assert coerce("false", Auto, "s.x") == "off" and coerce("yes", Auto, "s.y") == "on"
     assert "s.x=false: the switches now read auto, on or off; taken as s.x=off" in caplog.text
+    assert coerce(True, Auto, "s.yaml") == "on" and coerce(False, Auto, "s.yaml") == "off"  # YAML's on / off
+    assert "s.yaml" not in caplog.text  # nothing to deprecate there
     with pytest.raises(ParamError, match="s.z: 'maybe' is not one of auto, on, off"):
         coerce("maybe", Auto, "s.z")
 
