@@ -19,7 +19,7 @@ import numpy as np
 # the mean camera of the train stage, so the spiral circles the very frame a forward model's NDC rays use
 from nerfpipe.geometry.cameras import look_at, mean_camera
 from nerfpipe.geometry.normalize import WORLD_UP, Similarity
-from nerfpipe.geometry.rig import axis_angles_to, azimuth_coverage, look_at_center
+from nerfpipe.geometry.rig import axis_angles_to, azimuth_coverage, look_at_center, unit
 
 # (``dt = .75`` in its ``load_llff_data``), a depth a little behind the nearest content.
 FOCUS_DISPARITY_WEIGHT = 0.75
@@ -168,7 +168,7 @@ def _unit_up(up: np.ndarray) -> np.ndarray:
     up = np.asarray(up, dtype=np.float64).reshape(3)
     if np.linalg.norm(up) < 1e-9:
         raise ValueError("the up direction is the zero vector")
-    return up / np.linalg.norm(up)
+    return unit(up)
 
 
 # -- sweep (360° captures that do not circle their object) ------------------------------------------------
@@ -189,6 +189,14 @@ class Sweep:
     height: np.ndarray
     radius_range: tuple[float, float]
     height_range: tuple[float, float]
+
+    def poses(self, n_frames: int) -> np.ndarray:
+        """(N, 4, 4) poses out and back along the sweep, easing at both ends so the loop is smooth, looking at
+        the target with the horizon level: frame k at azimuth lo + (hi - lo) (1 - cos 2 pi k/N) / 2."""
+        _check_frames(n_frames)
+        t = np.arange(n_frames) / n_frames
+        azimuth = self.lo + (self.hi - self.lo) * (1.0 - np.cos(2.0 * np.pi * t)) / 2.0
+        return np.stack([look_at(eye, self.target, -self.up) for eye in self.eye(azimuth)])
 
     def eye(self, azimuth: np.ndarray) -> np.ndarray:
         """(N, 3) camera centres at ``azimuth`` (N,) radians."""
@@ -226,17 +234,9 @@ def sweep_of(c2ws: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP, sp
 
 
 def sweep_path(c2ws: np.ndarray, target: np.ndarray, n_frames: int, up: np.ndarray = WORLD_UP) -> np.ndarray:
-    """Out and back along the cameras' sweep (``sweep_of``), easing at both ends so the loop is smooth, every
-    pose looking at ``target`` with the horizon level: frame k at azimuth lo + (hi - lo) (1 - cos 2 pi k/N) / 2.
-
-    Returns:
-        (N, 4, 4) poses.
-    """
+    """Out and back along the cameras' sweep around ``target`` (``sweep_of``, ``Sweep.poses``): (N, 4, 4) poses."""
     _check_frames(n_frames)
-    sweep = sweep_of(c2ws, target, up)
-    t = np.arange(n_frames) / n_frames
-    azimuth = sweep.lo + (sweep.hi - sweep.lo) * (1.0 - np.cos(2.0 * np.pi * t)) / 2.0
-    return np.stack([look_at(eye, sweep.target, -sweep.up) for eye in sweep.eye(azimuth)])
+    return sweep_of(c2ws, target, up).poses(n_frames)
 
 
 # -- choosing -----------------------------------------------------------------------------------------------
@@ -288,8 +288,9 @@ def path_for_scene(layout: str, c2ws: np.ndarray, near: float, far: float, targe
         if axis_angles_to(c2ws, focus).mean() > 45.0 or np.linalg.norm(focus - target) > 2.0 * np.linalg.norm(
                 c2ws[:, :3, 3] - target, axis=1).max():
             focus = np.asarray(target, dtype=np.float64)  # the axes meet nowhere useful: the scene's centre
+        _check_frames(n_frames)
         sweep = sweep_of(c2ws, focus, up)
-        poses = sweep_path(c2ws, focus, n_frames, up)
+        poses = sweep.poses(n_frames)
         text = (f"sweep ({why}): out and back over {np.degrees(sweep.hi - sweep.lo):.0f} deg of the cameras' "
                 f"azimuths at their distance and height, looking at ({_shown(focus)}), where their axes converge")
     return poses, text

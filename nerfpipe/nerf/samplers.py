@@ -80,7 +80,33 @@ class Sampler(Protocol):
         """A sentence for the train log about the sampler ``spec`` describes, or None for the paper's own."""
 
 
-class HierarchicalSampler:
+class StatelessSampler:
+    """What a sampler that keeps nothing beside the fields does between renders: nothing. A sampler with no
+    training state of its own (``HierarchicalSampler``) takes these rather than writing them out again."""
+
+    def before_step(self, step: int, density: DensityFn, generator: torch.Generator) -> None:
+        pass
+
+    def start(self, to_world: Callable[[Tensor], Tensor] | None, intrinsics: Tensor, c2w: Tensor) -> None:
+        pass
+
+    def reset(self) -> None:
+        pass
+
+    def occupied_share(self) -> float | None:
+        return None
+
+    def state_dict(self) -> dict[str, Any]:
+        return {}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        pass
+
+    def to(self, device: torch.device | str) -> "StatelessSampler":
+        return self
+
+
+class HierarchicalSampler(StatelessSampler):
     """Section 5.2: N_c stratified samples, then N_f from the coarse weights (``config.n_fine`` > 0)."""
 
     kind = "hierarchical"
@@ -123,27 +149,6 @@ class HierarchicalSampler:
         final = result.get("fine", result["coarse"])
         return {key: getattr(final, key) for key in ("rgb", "depth", "disparity", "acc")}, \
             len(rays) * self.samples_per_ray()
-
-    def before_step(self, step: int, density: DensityFn, generator: torch.Generator) -> None:
-        pass
-
-    def start(self, to_world: Callable[[Tensor], Tensor] | None, intrinsics: Tensor, c2w: Tensor) -> None:
-        pass
-
-    def reset(self) -> None:
-        pass
-
-    def occupied_share(self) -> float | None:
-        return None
-
-    def state_dict(self) -> dict[str, Any]:
-        return {}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        pass
-
-    def to(self, device: torch.device | str) -> "HierarchicalSampler":
-        return self
 
 
 class MarchingSampler:

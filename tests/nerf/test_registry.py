@@ -16,6 +16,7 @@ from nerfpipe.nerf.assembly import build_model
 from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.renderer import evaluate
 from nerfpipe.nerf.rendering import composite
+from nerfpipe.nerf.samplers import StatelessSampler
 from nerfpipe.nerf.trainer import TrainConfig, Trainer
 from nerfpipe.pipeline import ParamError
 from nerfpipe.pipeline.params import build_params
@@ -65,7 +66,7 @@ class ToyField(nn.Module):
         return nn.functional.softplus(self.density(x)).squeeze(-1) * self.config.scale
 
 
-class EvenSampler:
+class EvenSampler(StatelessSampler):
     """``n`` evenly spaced samples between near and far, composited with Eq. 3."""
 
     kind = "even"
@@ -103,27 +104,6 @@ class EvenSampler:
     def render(self, coarse, fine, rays, background):
         c = self._composite(coarse, rays, background)
         return {"rgb": c.rgb, "depth": c.depth, "disparity": c.disparity, "acc": c.acc}, len(rays) * self.n
-
-    def before_step(self, step, density, generator) -> None:
-        pass
-
-    def start(self, to_world, intrinsics, c2w) -> None:
-        pass
-
-    def reset(self) -> None:
-        pass
-
-    def occupied_share(self) -> None:
-        return None
-
-    def state_dict(self) -> dict[str, Any]:
-        return {}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        pass
-
-    def to(self, device: Any) -> "EvenSampler":
-        return self
 
 
 @pytest.fixture
