@@ -21,8 +21,9 @@ from nerfpipe.cli.console import (
     user_errors,
 )
 from nerfpipe.pipeline import Pipeline, parse_assignments
+from nerfpipe.pipeline.budget import parse_duration
 from nerfpipe.pipeline.lock import RunLock
-from nerfpipe.stages import default_stages
+from nerfpipe.stages import auto_budget, default_stages
 
 app = typer.Typer(
     name="nerfpipe",
@@ -70,8 +71,12 @@ def run(
     port: int = typer.Option(8080, "--port", help="--view: the port to serve on."),
     host: str = HostOption,
     config: Optional[Path] = typer.Option(None, "--config", help="A YAML file of settings, the same keys as --set "
-                                          "(STAGE: {PARAM: VALUE}, and preset); --set wins. RUN_DIR/config.yaml repeats "
-                                          "a run."),
+                                          "(STAGE: {PARAM: VALUE}, preset and budget); --set wins. RUN_DIR/config.yaml "
+                                          "repeats a run."),
+    budget: Optional[str] = typer.Option(None, "--budget", help="Time for the whole job, e.g. 10m, 90s: training takes "
+                                         "what the other stages leave, the exports size themselves to their shares. "
+                                         "auto sizes it from the photos; off: train.seconds and every size as set "
+                                         "\\[default: auto]."),
     debug: bool = DebugOption,
 ) -> None:
     """Run the pipeline on a folder of photos or a video, recomputing only what changed."""
@@ -80,10 +85,12 @@ def run(
 
     with user_errors(debug):
         overrides = parse_assignments(set_)
+        budget_from_file = None
         if config is not None:
-            from_file, overrides_from_file = read_config(config)
+            from_file, overrides_from_file, budget_from_file = read_config(config)
             preset = preset or from_file
             overrides = merge(overrides_from_file, overrides)
+        job_budget = parse_duration(budget if budget is not None else budget_from_file or "auto")
         if skip_bad:
             overrides.setdefault("ingest", {})["skip_bad"] = "true"
         run_dir = out if out is not None else Path("runs") / photos_dir.resolve().name
@@ -92,12 +99,13 @@ def run(
 
             check_address(host, port)
         pipe = Pipeline(default_stages(), photos_dir, run_dir, preset, overrides, progress=progress_factory(), debug=debug,
-                        extra={"watch_port": port, "watch_host": host} if view else None)
+                        extra={"watch_port": port, "watch_host": host} if view else None, budget=job_budget,
+                        budget_rule=auto_budget)
         try:
             outcomes = pipe.run(until=until, only=only, force=force)
         finally:
             if (run_dir / "run.json").is_file():  # the run got as far as recording its settings
-                write_config(run_dir, pipe.plan())
+                write_config(run_dir, pipe.plan(), job_budget)
     table = Table(title=f"nerfpipe run -> {run_dir}", title_justify="left")
     for column in ("stage", "result", "time"):
         table.add_column(column)

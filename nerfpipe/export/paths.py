@@ -206,7 +206,7 @@ class Sweep:
         return self.target + r[:, None] * horizontal + h[:, None] * self.up
 
 
-def sweep_of(c2ws: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP, spread: float = 5.0) -> Sweep:
+def sweep_of(c2ws: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP, spread: float = 10.0) -> Sweep:
     """The sweep of azimuths a capture covers around ``target``: from the ``spread`` to the 100 - ``spread``
     percentile of the cameras' azimuths about the circular mean of their directions, so the path stays
     where photos were taken. Raises ``ValueError`` for cameras all round the target (an orbit suits them)."""

@@ -102,6 +102,11 @@ def up_direction(
     ``level_max_angle_deg`` of u, that normal is returned instead: it is exact for level cameras on a
     sphere, where the mean up vector is biased.
 
+    Photos turned a quarter (a phone held sideways for landscape photos of a standing scene, or the other way):
+    then the cameras' y axes are the level ones and the mean up vector is horizontal. When the right vectors
+    are not level but the y axes are (``level_horizon_up`` with ``axis=1``), their normal is returned, its
+    sign chosen so the cameras look down on average.
+
     Ring rigs (turntables, gantries, orbits) are handled separately, because their cameras may be rolled
     (the Middlebury temple images are shot sideways, and half of a ring may be upside down): when the
     camera centres lie close to a plane (singular values s1 >= s2 >= s3 of the centred positions with
@@ -135,10 +140,11 @@ def up_direction(
     level = level_horizon_up(c2ws)
     if level is not None and float(level @ mean_up) >= np.cos(np.radians(level_max_angle_deg)):
         return level
-    return mean_up
+    turned = level_horizon_up(c2ws, axis=1) if level is None else None
+    return mean_up if turned is None else turned
 
 
-def level_horizon_up(c2ws: np.ndarray, planarity: float = 0.05, spread: float = 0.1) -> np.ndarray | None:
+def level_horizon_up(c2ws: np.ndarray, planarity: float = 0.05, spread: float = 0.1, axis: int = 0) -> np.ndarray | None:
     """Up as the direction perpendicular to every camera's right vector, or ``None`` when that is ill-posed.
 
     A camera held level (no roll) has a horizontal x axis, so up is the eigenvector of
@@ -147,13 +153,18 @@ def level_horizon_up(c2ws: np.ndarray, planarity: float = 0.05, spread: float = 
     not so for forward-facing rigs, whose right vectors are all alike). Unlike the mean up vector, it is
     not biased by where on a sphere the cameras are (the mean up of cameras on an upper hemisphere
     looking at its centre tilts towards the side with more cameras). The sign agrees with the mean up.
+
+    ``axis=1``: the same for the cameras' y axes, level in photos turned a quarter; the mean up vector is
+    then no guide to the sign, which is chosen so the cameras look down on average.
     """
     c2ws = np.asarray(c2ws, dtype=np.float64)
-    right = unit(c2ws[:, :3, 0])
-    values, vectors = np.linalg.eigh(right.T @ right / len(right))
+    level = unit(c2ws[:, :3, axis])
+    values, vectors = np.linalg.eigh(level.T @ level / len(level))
     if not (values[0] < planarity * values[1] and values[1] > spread):
         return None
     up = vectors[:, 0]
+    if axis == 1:
+        return -up if float(optical_axes(c2ws).sum(axis=0) @ up) > 0 else up
     return up if float(up @ up_vectors(c2ws).sum(axis=0)) >= 0 else -up
 
 

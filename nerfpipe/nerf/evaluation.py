@@ -16,6 +16,7 @@ from nerfpipe.imaging.png import srgb_encode, write_png
 from nerfpipe.nerf.appearance import apply_gains, fit_gains
 from nerfpipe.nerf.images import ImageLoader
 from nerfpipe.nerf.model import RadianceModel
+from nerfpipe.nerf.throughput import fitting_scale, seconds_per_ray
 
 APPEARANCE_PROTOCOL = ("each held-out photo's exposure and white balance (3 gains) fitted on its left half, PSNR and "
                        "SSIM on its right half, as NeRF-W does (psnr_mean_appearance: the whole view at the training "
@@ -66,26 +67,6 @@ def _metrics(render: torch.Tensor, target: np.ndarray) -> tuple[float, float]:
 
 
 MIN_EVAL_SCALE = 1.0 / 16.0  # never score held-out views below a sixteenth of their size
-PROBE_RAYS = 4096  # rays timed to predict what rendering the held-out views costs
-
-
-def seconds_per_ray(model: RadianceModel, loader: ImageLoader, frame: Frame, chunk: int, rays: int = PROBE_RAYS) -> float:
-    """Seconds ``model`` takes to render one ray of ``frame``, timed on ``rays`` of its pixels spread evenly over
-    the image (empty space and surfaces as the whole view has them)."""
-    from nerfpipe.nerf.rays import pixel_centers
-
-    camera = loader.world.camera_of(frame)
-    uv = pixel_centers(camera.width, camera.height, model.device)
-    uv = uv[torch.linspace(0, len(uv) - 1, min(rays, len(uv)), device=uv.device).long()]
-    n = len(uv)
-    near, far = loader.near_far[frame.name]
-    k = torch.tensor(loader.intrinsics(frame), dtype=torch.float32, device=model.device).expand(n, 4)
-    pose = torch.as_tensor(np.asarray(frame.c2w), dtype=torch.float32, device=model.device)
-    batch = model.ray_space.rays(uv, k, pose, torch.full((n,), near, device=model.device),
-                                 torch.full((n,), far, device=model.device))
-    started = time.perf_counter()
-    model.render_batch(batch, chunk)
-    return (time.perf_counter() - started) / max(n, 1)
 
 
 def evaluation_scale(setting: str, budget: float, train_seconds: float, model: RadianceModel, loader: ImageLoader,
@@ -99,13 +80,10 @@ def evaluation_scale(setting: str, budget: float, train_seconds: float, model: R
     if not frames:
         return 1.0, 0.0
     pixels = sum(loader.world.camera_of(f).width * loader.world.camera_of(f).height for f in frames)
-    per_ray = seconds_per_ray(model, loader, frames[0], chunk)
-    if setting != "auto":
-        scale = float(setting)
-    else:
-        allowed = budget * train_seconds
-        scale = min(1.0, float(np.sqrt(allowed / max(per_ray * pixels, 1e-12))))
-        scale = max(MIN_EVAL_SCALE, np.floor(scale * 100.0) / 100.0)
+    first, camera = frames[0], loader.world.camera_of(frames[0])
+    per_ray = seconds_per_ray(model, loader.intrinsics(first), first.c2w, camera.width, camera.height,
+                              *loader.near_far[first.name], chunk)
+    scale = float(setting) if setting != "auto" else fitting_scale(per_ray, pixels, budget * train_seconds, MIN_EVAL_SCALE)
     return scale, per_ray * pixels * scale**2
 
 

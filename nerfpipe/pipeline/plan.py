@@ -9,9 +9,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Mapping, Sequence
 
-from nerfpipe.pipeline.fingerprint import Fingerprint, diff_inputs
-from nerfpipe.pipeline.params import describe_changes
-from nerfpipe.pipeline.stage import Stage
+from nerfpipe.pipeline.budget import takes_part
+from nerfpipe.pipeline.dag import Dag
+from nerfpipe.pipeline.fingerprint import Fingerprint, FingerprintCache, diff_inputs
+from nerfpipe.pipeline.hashing import cache_key
+from nerfpipe.pipeline.params import build_params, describe_changes, params_to_dict
+from nerfpipe.pipeline.stage import Stage, capture_root
 from nerfpipe.pipeline.store import Committed, Damage
 
 
@@ -24,10 +27,40 @@ class PlannedStage:
     files: tuple[Fingerprint, ...]
     material: dict[str, Any]
     key: str
+    elastic: bool = False  # whether it takes what the job's budget leaves (``Stage.elastic``)
 
     @property
     def name(self) -> str:
         return self.stage.name
+
+
+def plan_stages(dag: Dag, source: Path, run_dir: Path, preset: str | None,
+                overrides: Mapping[str, Mapping[str, Any]], budget: float | str | None) -> dict[str, PlannedStage]:
+    """Every stage's parameters, fingerprinted capture files and cache key, in the DAG's order. The key hashes
+    the stage's name, version and parameters, its upstream keys, its files' fingerprints and, for a stage that
+    takes part in the job's time ``budget``, the budget as given."""
+    fingerprints = FingerprintCache(run_dir / ".cache" / "fingerprints.json")
+    root = capture_root(source)
+    planned: dict[str, PlannedStage] = {}
+    for name in dag.order:
+        stage = dag.stages[name]
+        params = build_params(name, stage.Params, stage.presets, preset, overrides.get(name, {}))
+        files = tuple(fingerprints.fingerprint(p, root) for p in stage.input_files(source, params))
+        material = {
+            "stage": name,
+            "version": stage.version,
+            "params": params_to_dict(params),
+            "upstream": {up: planned[up].key for up in dag.upstream[name]},
+            "inputs": {fp.relpath: fp.sha256 for fp in files},
+        }
+        chosen = [*overrides.get(name, {}), *stage.presets.get(preset or "", {})]
+        budgeted, elastic = takes_part(stage.budget_share, stage.elastic, chosen)
+        if budget is not None and budgeted:
+            material["budget"] = budget
+        planned[name] = PlannedStage(stage, params, files, material, cache_key(material), elastic and budget is not None)
+    if run_dir.exists():
+        fingerprints.save()
+    return planned
 
 
 @dataclass(frozen=True)
@@ -63,6 +96,8 @@ def stale_reasons(planned: PlannedStage, previous: Mapping[str, Any], inputs_lab
     changes = describe_changes(planned.name, previous.get("params", {}), planned.material["params"])
     if changes:
         reasons.append("params changed: " + ", ".join(changes))
+    if previous.get("budget") != planned.material.get("budget"):
+        reasons.append(f"budget changed: {previous.get('budget', 'none')} -> {planned.material.get('budget', 'none')}")
     old_up, new_up = previous.get("upstream", {}), planned.material["upstream"]
     for up in sorted(set(old_up) | set(new_up)):
         if old_up.get(up) != new_up.get(up):

@@ -16,11 +16,13 @@ RUN_CONFIG = "run.json"
 
 @dataclass(frozen=True)
 class RunConfig:
-    """source: the capture (absolute); preset: the --preset; overrides: stage -> {parameter: value} (--set)."""
+    """source: the capture (absolute); preset: the --preset; overrides: stage -> {parameter: value} (--set);
+    budget: the job's time budget in seconds, ``auto``, or None (``nerfpipe.pipeline.budget``)."""
 
     source: str
     preset: str | None = None
     overrides: dict[str, dict[str, Any]] = field(default_factory=dict)
+    budget: float | str | None = None
 
     @staticmethod
     def load(run_dir: Path) -> "RunConfig":
@@ -28,8 +30,11 @@ class RunConfig:
         path = Path(run_dir) / RUN_CONFIG
         try:
             doc = json.loads(path.read_text(encoding="utf-8"))
+            budget = doc.get("budget")
+            if not (budget is None or budget == "auto" or (isinstance(budget, (int, float)) and budget > 0)):
+                raise ValueError(budget)
             return RunConfig(str(doc["source"]), doc.get("preset"),
-                             {k: dict(v) for k, v in doc.get("overrides", {}).items()})
+                             {k: dict(v) for k, v in doc.get("overrides", {}).items()}, budget)
         except FileNotFoundError:
             raise InputError(run_dir, "is not a nerfpipe run directory (no run.json)",
                              "pass the --out folder of a `nerfpipe run`") from None
@@ -39,7 +44,7 @@ class RunConfig:
     def save(self, run_dir: Path) -> None:
         """Write run.json, unless it already says the same (its time then stays as it was)."""
         path = Path(run_dir) / RUN_CONFIG
-        doc = {"source": self.source, "preset": self.preset, "overrides": self.overrides}
+        doc = {"source": self.source, "preset": self.preset, "overrides": self.overrides, "budget": self.budget}
         try:
             if json.loads(path.read_text(encoding="utf-8")) == doc:
                 return

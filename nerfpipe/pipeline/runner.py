@@ -13,8 +13,9 @@ import logging
 import shutil
 import time
 from pathlib import Path
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
+from nerfpipe.pipeline.budget import Allotment, JobBudget
 from nerfpipe.pipeline.dag import Dag
 from nerfpipe.pipeline.errors import (
     DiskFullError,
@@ -25,21 +26,19 @@ from nerfpipe.pipeline.errors import (
     disk_full,
     os_error_to_user_error,
 )
-from nerfpipe.pipeline.fingerprint import FingerprintCache
-from nerfpipe.pipeline.hashing import cache_key
 from nerfpipe.pipeline.lock import RunLock, StageLock
 from nerfpipe.pipeline.logfile import log_to_file
-from nerfpipe.pipeline.params import build_params, params_to_dict
 from nerfpipe.pipeline.plan import (
     PlannedStage,
     StageOutcome,
     StageStatus,
     library_versions,
+    plan_stages,
     running_because,
     stale_reasons,
 )
 from nerfpipe.pipeline.run_config import RunConfig
-from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress, capture_root
+from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress
 from nerfpipe.pipeline.store import ArtifactStore, Committed, Damage
 
 log = logging.getLogger("nerfpipe")
@@ -62,17 +61,20 @@ class Pipeline:
         progress: ProgressFactory = _no_progress,
         debug: bool = False,
         extra: Mapping[str, Any] | None = None,
+        budget: float | str | None = None,
+        budget_rule: Callable[["Pipeline"], float] | None = None,
     ) -> None:
-        self.dag = Dag(stages)
-        self.source = Path(source)
-        self.run_dir = Path(run_dir)
-        self.preset = preset
+        self.dag, self.source, self.run_dir, self.preset = Dag(stages), Path(source), Path(run_dir), preset
         self.overrides = {k: dict(v) for k, v in (overrides or {}).items()}
-        self.progress = progress
-        self.debug = debug
+        self.progress, self.debug = progress, debug
         # what the caller hands every running stage besides its inputs (``StageContext.extra``); not part of
         # any cache key, so it must not change what a stage writes (e.g. a viewer to watch training in)
         self.extra = dict(extra or {})
+        # the job's time budget (seconds, ``auto`` sized by ``budget_rule``, or None), and the stages still to
+        # run after the current one, which an elastic stage leaves their shares to
+        self.budget, self.budget_rule = budget, budget_rule
+        self._job: JobBudget | None = None
+        self._pending: list[str] = []
         self.log_path: Path | None = None  # the log file of the latest run or run_stage
         self.store = ArtifactStore(self.run_dir)
         for stage_name in self.overrides:
@@ -96,6 +98,7 @@ class Pipeline:
         merged = {k: dict(v) for k, v in config.overrides.items()}
         for stage_name, values in (overrides or {}).items():
             merged.setdefault(stage_name, {}).update(values)
+        kwargs.setdefault("budget", config.budget)
         return cls(stages, Path(config.source), run_dir, preset or config.preset, merged, **kwargs)
 
     # -- planning ------------------------------------------------------------------------------
@@ -104,25 +107,8 @@ class Pipeline:
             return self._plan
         if not self.source.exists():
             raise InputError(self.source, "capture folder does not exist", "pass a folder of photos, or a video")
-        fingerprints = FingerprintCache(self.run_dir / ".cache" / "fingerprints.json")
-        root = capture_root(self.source)
-        planned: dict[str, PlannedStage] = {}
-        for name in self.dag.order:
-            stage = self.dag.stages[name]
-            params = build_params(name, stage.Params, stage.presets, self.preset, self.overrides.get(name, {}))
-            files = tuple(fingerprints.fingerprint(p, root) for p in stage.input_files(self.source, params))
-            material = {
-                "stage": name,
-                "version": stage.version,
-                "params": params_to_dict(params),
-                "upstream": {up: planned[up].key for up in self.dag.upstream[name]},
-                "inputs": {fp.relpath: fp.sha256 for fp in files},
-            }
-            planned[name] = PlannedStage(stage, params, files, material, cache_key(material))
-        if self.run_dir.exists():
-            fingerprints.save()
-        self._plan = planned
-        return planned
+        self._plan = plan_stages(self.dag, self.source, self.run_dir, self.preset, self.overrides, self.budget)
+        return self._plan
 
     def status(self, verify: bool = False) -> list[StageStatus]:
         """Each stage's state, checking every result it would reuse: sizes and times, or ``verify`` sha256."""
@@ -250,8 +236,12 @@ class Pipeline:
         with self._user_os_errors(), RunLock(self.run_dir), self._log_to_file():
             planned = self.plan()
             self.save_config()
+            if self.budget is not None:
+                rule = self.budget_rule
+                self._job = JobBudget(self.budget, (lambda: rule(self)) if rule is not None else None)
             outcomes = []
-            for name in selected:
+            for i, name in enumerate(selected):
+                self._pending = list(selected[i + 1:])
                 outcomes.append(self._run_one(planned[name], forced=name in forced))
             return outcomes
 
@@ -348,7 +338,7 @@ class Pipeline:
         work = self.store.begin(name, key, resume=planned.stage.resumable and not forced)
         started = time.time()
         ctx = StageContext(log=logging.getLogger(f"nerfpipe.stages.{name}"), progress=self.progress, debug=self.debug,
-                           extra=self.extra)
+                           extra=self.extra, allotment=self._allotment(planned))
         try:
             summary = dict(planned.stage.run(inputs, work, planned.params, ctx) or {})
             missing = [rel for rel in planned.stage.provides.values() if not (work / rel).exists()]
@@ -371,13 +361,23 @@ class Pipeline:
             "key": key,
             "upstream_commits": {up: result.commit_id for up, result in upstream.items()},
             "inputs": {fp.relpath: {"size": fp.size, "sha256": fp.sha256} for fp in planned.files},
-            "timings": {"started": started, "finished": finished, "seconds": round(finished - started, 4)},
+            "timings": {"started": started, "finished": finished, "seconds": round(finished - started, 4),
+                        **({"allotted": round(ctx.allotment.seconds, 2), "budget": ctx.allotment.budget} if ctx.allotment else {})},
             "libraries": library_versions(planned.stage.libraries),
             "summary": summary,
         }
         committed = self.store.commit(name, key, work, manifest, replace=replace)
         log.info("%s: done in %.1f s -> %s", name, finished - started, committed.path)
         return StageOutcome(name, "ran", key, committed.path, finished - started, tuple(reasons), summary)
+
+    def _allotment(self, planned: PlannedStage) -> Allotment | None:
+        """The part of the job's budget ``planned`` may take, when the job has one and the stage takes part."""
+        job = self._job
+        if job is None or "budget" not in planned.material:
+            return None
+        if planned.elastic:
+            return Allotment(job.remainder(self.dag.stages[n].budget_share for n in self._pending), job.seconds, True)
+        return Allotment(job.share(planned.stage.budget_share), job.seconds)
 
     def _check_space(self, planned: PlannedStage, inputs: StageInputs) -> None:
         """Refuse to start a stage whose outputs, as it predicts them, do not fit on the disk."""
@@ -389,7 +389,7 @@ class Pipeline:
 
     def save_config(self) -> None:
         """Record the capture folder and settings in run.json, for ``status``, ``report`` and ``view``."""
-        RunConfig(str(self.source.resolve()), self.preset, self.overrides).save(self.run_dir)
+        RunConfig(str(self.source.resolve()), self.preset, self.overrides, self.budget).save(self.run_dir)
 
     @contextlib.contextmanager
     def _log_to_file(self, label: str = "run") -> Iterator[Path]:

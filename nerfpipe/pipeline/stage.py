@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, ClassVar, Iterator, Mapping
 
+from nerfpipe.pipeline.budget import Allotment
 from nerfpipe.pipeline.fingerprint import Fingerprint
 
 
@@ -58,6 +59,7 @@ class StageContext:
     progress: ProgressFactory = _no_progress
     debug: bool = False
     extra: dict[str, Any] = field(default_factory=dict)
+    allotment: Allotment | None = None  # its part of the job's time budget (``nerfpipe.pipeline.budget``), if any
 
 
 class Stage:
@@ -78,6 +80,10 @@ class Stage:
     # stage can use one and the cluster has one (``accelerated``).
     cpus: ClassVar[float] = 1
     accelerated: ClassVar[bool] = False
+    # Its part in a job's time budget (``nerfpipe.pipeline.budget``): a share of it that the stage sizes its
+    # work to fit, or ``elastic``: the parameters that, set by a user or a preset, stop it taking the rest.
+    budget_share: ClassVar[float] = 0.0
+    elastic: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def summary(cls) -> str:

@@ -215,16 +215,30 @@ def benchmark_row(result: dict[str, Any], marks: list[float]) -> tuple[str, ...]
 
 
 def stage_times(run: RunData) -> str:
-    """Every stage in pipeline order: its state, the time its result took, why it is not fresh; and the
-    total time of the fresh stages."""
+    """Every stage in pipeline order: its state, the time its result took, what the job's budget allotted it,
+    its share of the total, why it is not fresh; then the total of the fresh stages, the budget, and the
+    share of it that trained the field."""
+    timings = {name: (s.result.manifest.get("timings", {}) if s.result is not None else {})
+               for name, s in run.statuses.items()}
+    total = sum(r.manifest.get("timings", {}).get("seconds", 0.0) for r in run.results.values())
     rows = []
     for name in run.order:
-        status = run.statuses[name]
-        seconds = status.result.manifest.get("timings", {}).get("seconds") if status.result is not None else None
-        rows.append((name, status.state, "" if seconds is None else f"{seconds:.1f} s", "; ".join(status.reasons)))
-    total = sum(r.manifest.get("timings", {}).get("seconds", 0.0) for r in run.results.values())
-    return section("Time per stage", table(("stage", "state", "time", "note"), rows)
-                   + f"<p>total of fresh stages: {total:.0f} s</p>")
+        status, t = run.statuses[name], timings[name]
+        seconds, allotted = t.get("seconds"), t.get("allotted")
+        rows.append((name, status.state, "" if seconds is None else f"{seconds:.1f} s",
+                     "" if allotted is None else f"{allotted:.0f} s",
+                     f"{seconds / total:.0%}" if name in run.results and seconds is not None and total else "",
+                     "; ".join(status.reasons)))
+    notes = [f"total of fresh stages: {total:.0f} s"]
+    budget = next((t["budget"] for t in timings.values() if "budget" in t), None)
+    if budget is not None:
+        notes.append(f"job budget: {budget:.0f} s (--budget)")
+    if "train" in run.results and total:
+        trained = run.results["train"].manifest.get("summary", {}).get("train_seconds")
+        if trained is not None:
+            notes.append(f"training the field: {trained:.0f} s, {trained / total:.0%} of the total")
+    return section("Time per stage", table(("stage", "state", "time", "allotted", "share", "note"), rows)
+                   + "<p>" + "; ".join(notes) + "</p>")
 
 
 SECTIONS: tuple[Callable[[RunData], str | None], ...] = (

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import logging
+
+from nerfpipe.geometry.cameras import CameraSet
+from nerfpipe.pipeline.budget import format_duration
+from nerfpipe.pipeline.runner import Pipeline
 from nerfpipe.pipeline.stage import Stage
 from nerfpipe.stages.bounds import BoundsParams, BoundsStage
 from nerfpipe.stages.export_depth import ExportDepthParams, ExportDepthStage
@@ -13,6 +18,29 @@ from nerfpipe.stages.scene import SceneParams, SceneStage
 from nerfpipe.stages.sfm import SfmParams, SfmStage
 from nerfpipe.stages.train import TrainParams, TrainStage
 from nerfpipe.stages.undistort import UndistortParams, UndistortStage
+
+log = logging.getLogger("nerfpipe")
+
+
+# ``nerfpipe run``'s default budget for the whole job: a base, and more for each megapixel of photos to fit
+# (after ingest's resizing), within these bounds. The demo (16 photos of 640 x 480) gets about 3.3 minutes,
+# a phone capture of 71 frames of 720 x 1280 about 7.4.
+BUDGET_BASE_SECONDS = 180.0
+BUDGET_SECONDS_PER_MEGAPIXEL = 4.0
+BUDGET_RANGE_SECONDS = (180.0, 600.0)
+
+
+def auto_budget(pipe: Pipeline) -> float:
+    """The job budget ``--budget auto`` gives the capture of ``pipe``, from the pixels of its cameras in the
+    bounds stage's world (which has run by the time a stage asks for its allotment)."""
+    world = CameraSet.load(pipe.artifact("world", "normalized cameras"))
+    megapixels = sum(world.camera_of(f).width * world.camera_of(f).height for f in world.frames) / 1e6
+    lo, hi = BUDGET_RANGE_SECONDS
+    seconds = float(min(max(BUDGET_BASE_SECONDS + BUDGET_SECONDS_PER_MEGAPIXEL * megapixels, lo), hi))
+    log.info("budget: %s for the whole job, for %d photos of %.1f megapixels together (auto: %g min and %g s a "
+             "megapixel, within %g-%g min; --budget sets it)", format_duration(seconds), len(world.frames), megapixels,
+             BUDGET_BASE_SECONDS / 60, BUDGET_SECONDS_PER_MEGAPIXEL, lo / 60, hi / 60)
+    return seconds
 
 
 def default_stages() -> list[Stage]:
@@ -26,5 +54,5 @@ def default_stages() -> list[Stage]:
 __all__ = [
     "BoundsParams", "BoundsStage", "ExportDepthParams", "ExportDepthStage", "ExportMeshParams", "ExportMeshStage",
     "ExportPointsParams", "ExportPointsStage", "RenderParams", "RenderStage", "IngestParams", "IngestStage", "SceneParams", "SceneStage", "SfmParams",
-    "SfmStage", "TrainParams", "TrainStage", "UndistortParams", "UndistortStage", "default_stages",
+    "SfmStage", "TrainParams", "TrainStage", "UndistortParams", "UndistortStage", "auto_budget", "default_stages",
 ]

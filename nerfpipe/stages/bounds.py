@@ -123,7 +123,7 @@ class BoundsStage(Stage):
     """Normalize the world (z up, scene in [-1, 1]^3) and compute per-image near/far bounds."""
 
     name = "bounds"
-    version = 2  # 2: the points' scene box grows by box_margin
+    version = 3  # 3: up from the y axes of photos turned a quarter; 2: the points' scene box grows by box_margin
     Params = BoundsParams
     requires = ("pinhole",)
     provides = {"world": "world", "bounds": "bounds.json"}

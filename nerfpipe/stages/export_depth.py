@@ -38,6 +38,12 @@ class ExportDepthParams:
             raise ValueError(f"chunk must be >= 1, got {self.chunk}")
 
 
+# Under a job budget the views shrink to fit the stage's share, never below this fraction of export_depth.scale;
+# writing a view's files costs about this fraction of rendering its rays.
+MIN_SHRINK = 0.25
+VIEW_OVERHEAD = 1.15
+
+
 def scaled_size(width: int, height: int, scale: float) -> tuple[int, int]:
     return max(1, round(width * scale)), max(1, round(height * scale))
 
@@ -63,6 +69,7 @@ class ExportDepthStage(Stage):
     provides = {"depth": "depth", "depth_index": "depth.json"}
     libraries = ("torch", "numpy", "opencv-contrib-python-headless", "matplotlib")
     accelerated = True
+    budget_share = 0.08
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
         s = manifest.get("summary", {})
@@ -83,6 +90,33 @@ class ExportDepthStage(Stage):
                 total += width * height * 3 * 4
         return total
 
+    @staticmethod
+    def _fitting_scale(model, frames, world: CameraSet, near_far, params: ExportDepthParams, ctx: StageContext,
+                       began: float) -> float:
+        """``params.scale``, or less where the views at that scale would not fit the stage's allotment; logs the
+        size and the predicted seconds."""
+        from nerfpipe.nerf.throughput import fitting_scale, seconds_per_view
+
+        if not frames:
+            return params.scale
+        first = world.camera_of(frames[0])
+        width, height = scaled_size(first.width, first.height, params.scale)
+        k = first.scaled(width / first.width, height / first.height)
+        per_ray = VIEW_OVERHEAD * seconds_per_view(model, (k.fx, k.fy, k.cx, k.cy), frames[0].c2w, width, height,
+                                                   *near_far[frames[0].name], params.chunk) / (width * height)
+        rays = sum(w * h for w, h in (scaled_size(c.width, c.height, params.scale) for c in map(world.camera_of, frames)))
+        scale, fits = params.scale, ""
+        if ctx.allotment is not None:
+            left = ctx.allotment.seconds - (time.perf_counter() - began)
+            scale = params.scale * fitting_scale(per_ray, rays, left, MIN_SHRINK)
+            fits = f" to fit its {ctx.allotment.describe()}"
+            if scale < params.scale:
+                fits += f"; at export_depth.scale {params.scale:g} they would take {per_ray * rays:.0f} s"
+        size = scaled_size(first.width, first.height, scale)
+        ctx.log.info("export_depth: %d views at %dx%d (scale %.3g), about %.0f s%s", len(frames), *size, scale,
+                     per_ray * rays * (scale / params.scale) ** 2, fits)
+        return scale
+
     def run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:
         from nerfpipe.nerf.device import rendering_device
 
@@ -95,6 +129,7 @@ class ExportDepthStage(Stage):
         from nerfpipe.export.depth import DepthIndex, DepthView, png_scale_for, write_view
         from nerfpipe.nerf.model import RadianceModel
 
+        began = time.perf_counter()
         model = RadianceModel.load(inputs["model"].parent, device)
         world = CameraSet.load(inputs["cameras"])  # the training cameras as refined
         bounds = Bounds.load(inputs["bounds"])
@@ -107,6 +142,7 @@ class ExportDepthStage(Stage):
             raise StageError(f"export_depth: views {missing[:3]} of the trained model are not in the world cameras; "
                              "rerun with --force train")
 
+        scale = self._fitting_scale(model, [by_name[n] for _, n in wanted], world, near_far, params, ctx, began)
         folder = out / "depth"
         folder.mkdir()
         png_scale = png_scale_for(max(far for _, far in near_far.values()))
@@ -116,7 +152,7 @@ class ExportDepthStage(Stage):
             for role, name in wanted:
                 frame = by_name[name]
                 camera = world.camera_of(frame)
-                width, height = scaled_size(camera.width, camera.height, params.scale)
+                width, height = scaled_size(camera.width, camera.height, scale)
                 sx, sy = width / camera.width, height / camera.height
                 intrinsics = (camera.fx * sx, camera.fy * sy, camera.cx * sx, camera.cy * sy)
                 near, far = near_far[name]
@@ -135,6 +171,7 @@ class ExportDepthStage(Stage):
             "views": len(views),
             "train_views": sum(v.role == "train" for v in views),
             "heldout_views": sum(v.role == "heldout" for v in views),
+            "scale": scale,
             "width": views[0].width if views else 0,
             "height": views[0].height if views else 0,
             "seconds_per_view": round(seconds / max(len(views), 1), 3),

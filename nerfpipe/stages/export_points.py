@@ -50,6 +50,7 @@ class ExportPointsStage(Stage):
     presets = {"dense": {"target_points": 1_000_000}, "preview": {"target_points": 50_000}}
     requires = ("depth", "depth_index", "bounds", "scene", "sfm_model")
     provides = {"points": "points.ply"}
+    budget_share = 0.02  # reserved under a job budget; the stage is bounded by its own sizes
     libraries = ("numpy", "open3d")
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:

@@ -84,6 +84,10 @@ class RenderParams:
 # grid renders about 60,000 rays a second on 2 cores (the demo: 40 frames of 160 x 120 in 12 s), so 40 frames
 # of at most 320 x 240 take about 50 s (half of 1600 px photos, ingest's default, would be 800 x 600: 5 min).
 # The preview: 12 frames of at most 96 x 72, a few seconds.
+# Under a job budget the frames shrink to fit the stage's share, never below this fraction of their size; what
+# a frame costs beside rendering its rays (two PNGs, the videos) is about this fraction of the rays' time.
+MIN_SHRINK = 0.25
+FRAME_OVERHEAD = 1.1
 PREVIEW = {"frames": 12, "scale": 0.25, "max_side": 96}
 FULL = {"frames": 120, "scale": 1.0, "max_side": 0}
 
@@ -103,7 +107,7 @@ class RenderStage(Stage):
     """Render novel views along a spiral (forward-facing) or an orbit (360°): PNG frames, MP4s, the path."""
 
     name = "render"
-    version = 3  # 3: orbits about the world's up, sweeps for partial circles; 2: H.264 videos, 320 px
+    version = 4  # 4: sweeps over the middle 80 % of the azimuths; 3: orbits about the world's up, sweeps for partial circles; 2: H.264 videos, 320 px
     Params = RenderParams
     presets = {
         "preview": PREVIEW,
@@ -116,6 +120,7 @@ class RenderStage(Stage):
     provides = {"video": "render.mp4", "depth_video": "depth.mp4", "frames": "frames", "camera_path": "camera_path.json"}
     libraries = ("torch", "numpy", "av", "matplotlib")
     accelerated = True
+    budget_share = 0.10
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
         s = manifest.get("summary", {})
@@ -138,7 +143,9 @@ class RenderStage(Stage):
         from nerfpipe.export.paths import path_for_scene
         from nerfpipe.export.video import write_mp4
         from nerfpipe.nerf.model import RadianceModel
+        from nerfpipe.nerf.throughput import fitting_scale, seconds_per_view
 
+        began = time.perf_counter()
         model = RadianceModel.load(inputs["model"].parent, device)
         world = CameraSet.load(inputs["cameras"])  # the training cameras as refined
         bounds = Bounds.load(inputs["bounds"])
@@ -159,8 +166,20 @@ class RenderStage(Stage):
         camera = world.camera_of(world.frames[0])
         width, height = render_size(camera, params.scale, params.max_side)
         scaled = camera.scaled(width / camera.width, height / camera.height)
-        ctx.log.info("render: %d frames of %dx%d (the camera of %s scaled by %.3g) on %s", params.frames, width,
-                     height, world.frames[0].name, width / camera.width, device)
+        per_ray = FRAME_OVERHEAD * seconds_per_view(model, (scaled.fx, scaled.fy, scaled.cx, scaled.cy), poses[0],
+                                                    width, height, bounds.near, bounds.far, params.chunk) / (width * height)
+        wanted = (width, height)
+        if ctx.allotment is not None:
+            left = ctx.allotment.seconds - (time.perf_counter() - began)
+            shrink = fitting_scale(per_ray, len(poses) * width * height, left, MIN_SHRINK)
+            width, height = (max(2, 2 * round(side * shrink / 2)) for side in wanted)
+            scaled = camera.scaled(width / camera.width, height / camera.height)
+        fits = "" if ctx.allotment is None else f" to fit its {ctx.allotment.describe()}" + (
+            f"; {wanted[0]}x{wanted[1]} would take {per_ray * len(poses) * wanted[0] * wanted[1]:.0f} s"
+            if (width, height) != wanted else "")
+        ctx.log.info("render: %d frames of %dx%d (the camera of %s scaled by %.3g) on %s, about %.0f s%s", params.frames,
+                     width, height, world.frames[0].name, width / camera.width, device,
+                     per_ray * len(poses) * width * height, fits)
 
         started = time.perf_counter()
         depth_range = render_frames(model, poses, scaled, (bounds.near, bounds.far), out / "frames", params.chunk, ctx)

@@ -17,8 +17,9 @@ paper holds out 1/8 of its real scenes (Section 6.1).
 from __future__ import annotations
 
 import contextlib
+import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
@@ -140,6 +141,7 @@ class TrainStage(Stage):
     libraries = ("torch", "kornia", "numpy")
     accelerated = True
     resumable = True
+    elastic = ("seconds", "steps")  # under a job budget, train.seconds is what the other stages leave
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
         s = manifest.get("summary", {})
@@ -192,6 +194,7 @@ class TrainStage(Stage):
             return self._run(inputs, out, params, ctx, device)
 
     def _run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext, device) -> dict[str, Any]:
+        started = time.monotonic()
         from nerfpipe.nerf.assembly import build_model, training_config
         from nerfpipe.nerf.evaluation import evaluate, evaluation_scale, scaled_size
         from nerfpipe.nerf.images import ImageLoader, describe_masks, split_views, trained_cameras
@@ -207,7 +210,16 @@ class TrainStage(Stage):
         ctx.log.info("train: %d training images, %d held out (%s)", len(views.train), len(views.heldout), views.rule)
         ViewSplit([f.name for f in views.train], [f.name for f in views.heldout], views.rule).save(out / "views.json")
 
-        trainer = Trainer(model, loader.pixel_set(views.train), training_config(params, layout), out, device)
+        pixels = loader.pixel_set(views.train)
+        if ctx.allotment is not None and params.steps == 0:
+            left = ctx.allotment.seconds - (time.monotonic() - started)
+            params = replace(params, seconds=training_seconds(left, params.eval_budget))
+            ctx.log.info("train: %g s of training (as many steps as fit, the learning rate decaying over the time) "
+                         "fit its %s, with evaluation", params.seconds, ctx.allotment.describe())
+            if left < params.seconds:
+                ctx.log.warning("train: the budget leaves %.0f s for training; training %g s anyway (give a larger "
+                                "--budget, or --budget off and train.seconds)", max(left, 0.0), params.seconds)
+        trainer = Trainer(model, pixels, training_config(params, layout), out, device)
         masks = describe_masks(trainer.pixels)
         if masks is not None:
             decisions.append(masks)
@@ -215,9 +227,10 @@ class TrainStage(Stage):
         resumed = trainer.resume()
         if resumed is not None:
             ctx.log.info("train: resuming from the checkpoint at step %d (%.0f s of training)", resumed, trainer.elapsed)
-        ctx.log.info("train: %s", f"{params.steps} steps" if params.steps > 0 else
-                     f"{params.seconds:g} s of training (train.seconds; as many steps as fit, the learning rate "
-                     "decaying over the time)")
+        if ctx.allotment is None or params.steps > 0:
+            ctx.log.info("train: %s", f"{params.steps} steps" if params.steps > 0 else
+                         f"{params.seconds:g} s of training (train.seconds; as many steps as fit, the learning rate "
+                         "decaying over the time)")
         with _watching(ctx, loader, model):
             with ctx.progress(trainer.total - trainer.done_units(), "train") as advance:
                 trainer.run(advance)
@@ -265,6 +278,18 @@ class TrainStage(Stage):
             ctx.log.info("train: held-out PSNR %.2f dB, SSIM %.3f over %d views at %dx%d%s", evaluation["psnr"],
                          evaluation["ssim"], len(views.heldout), *evaluation["views"][0]["size"], photo)
         return summary
+
+
+# What the train stage keeps of its allotment for saving the model and timing the evaluation, and the least
+# training a budget can leave it (a budget smaller than the stages before training need still trains this long).
+SAVE_RESERVE_SECONDS = 3.0
+MIN_TRAIN_SECONDS = 20.0
+
+
+def training_seconds(allotted: float, eval_budget: float) -> float:
+    """Seconds of training that, with the evaluation after it (at most ``eval_budget`` of the training time)
+    and saving, fit in ``allotted`` seconds; at least ``MIN_TRAIN_SECONDS``, whole seconds."""
+    return float(max(MIN_TRAIN_SECONDS, int((allotted - SAVE_RESERVE_SECONDS) / (1.0 + eval_budget))))
 
 
 # While training, the web viewer renders the view at rest every this many seconds, this many pixels across: a

@@ -109,6 +109,8 @@ def test_stages_filters_by_name_and_speaks_json():
 
 
 def test_a_config_file_sets_parameters_set_wins_and_the_run_writes_its_own(capture, tmp_path):
+    import json
+
     import yaml
 
     settings = tmp_path / "run.yaml"
@@ -120,9 +122,20 @@ def test_a_config_file_sets_parameters_set_wins_and_the_run_writes_its_own(captu
     written = yaml.safe_load((run_dir / "config.yaml").read_text())
     assert written["ingest"]["max_size"] == 300  # --set won
     assert written["train"]["field.levels"] == 2 and written["train"]["optim.lr"] == 0.01
-    assert written["render"]["frames"] == 40 and len(written) == 10  # every parameter of every stage
+    assert written["render"]["frames"] == 40 and len(written) == 11  # the budget, every parameter of every stage
+    # the budget as asked (auto), and not the train.seconds it sets, so the file repeats the run as it was asked
+    assert written["budget"] == "auto" and "seconds" not in written["train"] and "steps" not in written["train"]
     again = run_cli("run", capture, "--out", run_dir, "--config", run_dir / "config.yaml", "--until", "ingest")
     assert again.returncode == 0 and "ingest: up to date, reusing its result" in again.stderr
+    settings.write_text("budget: off\ntrain:\n  seconds: 30\n")
+    run_cli("run", capture, "--out", run_dir, "--config", settings, "--until", "ingest")
+    written = yaml.safe_load((run_dir / "config.yaml").read_text())
+    assert written["budget"] == "off" and written["train"]["seconds"] == 30
+    assert json.loads((run_dir / "run.json").read_text())["budget"] is None
+    settings.write_text("budget: soon\n")
+    late = run_cli("run", capture, "--out", run_dir, "--config", settings, "--until", "ingest")
+    assert late.returncode != 0 and "Traceback" not in late.stderr
+    assert late.stderr.strip() == "error: --budget 'soon': expected a duration such as 10m, 90s or 600, or auto or off"
     settings.write_text("ingest: [1, 2]\n")
     bad = run_cli("run", capture, "--out", run_dir, "--config", settings)
     assert bad.returncode != 0 and "Traceback" not in bad.stderr

@@ -141,6 +141,20 @@ def test_up_is_exact_for_level_cameras_on_a_hemisphere():
     np.testing.assert_allclose(up_direction(rig), Z, atol=1e-9)
 
 
+@pytest.mark.parametrize("quarter", [1, -1], ids=["turned-left", "turned-right"])
+def test_up_of_photos_turned_a_quarter_is_the_normal_of_their_level_y_axes(quarter):
+    # a phone held sideways, walked along part of a circle above a cup (as ../shared/data/llff_cup_kwrous):
+    # the cameras' y axes are level, their x axes point up or down, and their mean up vector is horizontal
+    rig = sphere_rig(30, upper_only=True)[:20]
+    turn = np.array([[0.0, -quarter, 0.0], [quarter, 0.0, 0.0], [0.0, 0.0, 1.0]])  # about each camera's own z
+    turned = rig.copy()
+    turned[:, :3, :3] = rig[:, :3, :3] @ turn
+    assert np.all(np.abs(turned[:, :3, 1] @ Z) < 1e-9)  # their y axes are horizontal
+    np.testing.assert_allclose(up_direction(turned), Z, atol=1e-9)
+    Q = random_rotation(np.random.default_rng(6))
+    np.testing.assert_allclose(up_direction(Similarity(1.0, Q, np.zeros(3)).apply_c2w(turned)), Q @ Z, atol=1e-9)
+
+
 def test_up_of_a_forward_facing_rig_is_the_mean_up_vector():
     np.testing.assert_allclose(up_direction(forward_rig()), Z, atol=0.05)
 

@@ -79,11 +79,24 @@ def test_stage_times_total_only_the_fresh_stages(tmp_path):
 
     html = sections.stage_times(run)
 
-    assert ("<tr><td>ingest</td><td>fresh</td><td>1.4 s</td><td></td></tr>"
-            "<tr><td>sfm</td><td>fresh</td><td>2.0 s</td><td>cached by an earlier run</td></tr>"
-            "<tr><td>train</td><td>stale</td><td>10.0 s</td><td>params changed: train.lr 0.01 -&gt; 0.005</td></tr>"
-            "<tr><td>render</td><td>missing</td><td></td><td>not run yet</td></tr>") in html
+    assert ("<tr><td>ingest</td><td>fresh</td><td>1.4 s</td><td></td><td>41%</td><td></td></tr>"
+            "<tr><td>sfm</td><td>fresh</td><td>2.0 s</td><td></td><td>59%</td><td>cached by an earlier run</td></tr>"
+            "<tr><td>train</td><td>stale</td><td>10.0 s</td><td></td><td></td>"
+            "<td>params changed: train.lr 0.01 -&gt; 0.005</td></tr>"
+            "<tr><td>render</td><td>missing</td><td></td><td></td><td></td><td>not run yet</td></tr>") in html
     assert html.endswith("<p>total of fresh stages: 3 s</p></section>")  # 1.4 + 2.0; the stale 10 s not counted
+
+    # under a job budget: each stage's allotment, and the share of the job that trained the field
+    trained = Committed(tmp_path, {"timings": {"seconds": 70.0, "allotted": 75.0, "budget": 100.0},
+                                   "summary": {"train_seconds": 60.0}})
+    rendered = Committed(tmp_path, {"timings": {"seconds": 10.0, "allotted": 10.0, "budget": 100.0}})
+    statuses = {"sfm": StageStatus("sfm", "fresh", (), "k2", done(20.0)),
+                "train": StageStatus("train", "fresh", (), "k3", trained),
+                "render": StageStatus("render", "fresh", (), "k4", rendered)}
+    html = sections.stage_times(run_data(tmp_path / "b", {"sfm": done(20.0), "train": trained, "render": rendered}, statuses))
+    assert "<tr><td>train</td><td>fresh</td><td>70.0 s</td><td>75 s</td><td>70%</td><td></td></tr>" in html
+    assert html.endswith("<p>total of fresh stages: 100 s; job budget: 100 s (--budget); training the field: 60 s, "
+                         "60% of the total</p></section>")
 
 
 @pytest.mark.parametrize("caption, alt", [("", "img/a.png"), ("a <b>", "a &lt;b&gt;")])

@@ -25,6 +25,7 @@ from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.ray_space import RaySpace
 from nerfpipe.nerf.renderer import SamplingConfig
 from nerfpipe.nerf.samplers import HierarchicalSampler
+from nerfpipe.pipeline.budget import Allotment
 from nerfpipe.pipeline.errors import ParamError, StageError
 from nerfpipe.pipeline.params import build_params
 from nerfpipe.pipeline.stage import StageContext, StageInputs
@@ -120,12 +121,13 @@ def count_progress(calls: list) -> object:
     return progress
 
 
-def run_render(tmp_path: Path, layout: str, photometric: str = "srgb", **params) -> tuple[Path, dict, list]:
+def run_render(tmp_path: Path, layout: str, photometric: str = "srgb", allotment: Allotment | None = None,
+               **params) -> tuple[Path, dict, list]:
     inputs = write_scene(tmp_path / "in", layout, photometric)
     out = tmp_path / "out"
     out.mkdir()
     calls: list = []
-    ctx = StageContext(log=logging.getLogger("test"), progress=count_progress(calls))
+    ctx = StageContext(log=logging.getLogger("test"), progress=count_progress(calls), allotment=allotment)
     summary = RenderStage().run(inputs, out, RenderParams(frames=4, scale=0.5, device="cpu", **params), ctx)
     return out, summary, calls
 
@@ -179,6 +181,22 @@ def test_spiral_of_a_forward_raw_scene_is_srgb_encoded(tmp_path: Path) -> None:
     out, summary, calls = run_render(tmp_path, "forward", photometric="linear_raw")
     assert summary["path"].startswith("spiral (forward scene): 2 turns around the mean camera")
     check_outputs(out, summary, calls, srgb_encode(COLOUR))
+
+
+def test_frames_shrink_to_fit_the_stages_share_of_a_job_budget(tmp_path: Path, monkeypatch, caplog) -> None:
+    import nerfpipe.nerf.throughput as throughput
+
+    monkeypatch.setattr(throughput, "seconds_per_view", lambda *args: 10.0)  # 4 frames of 32 x 24: 44 s
+    caplog.set_level(logging.INFO, "test")
+    _, summary, _ = run_render(tmp_path / "roomy", "inward360", allotment=Allotment(600.0, 6000.0))
+    assert summary["resolution"] == [32, 24]
+    assert "about 44 s to fit its 10 min 0 s (10% of the 100 min 0 s budget)" in caplog.text
+    _, summary, _ = run_render(tmp_path / "tight", "inward360", allotment=Allotment(11.0, 110.0))
+    # 11 s of 44 s: half of each side, less the few milliseconds spent loading the model
+    assert summary["resolution"] in ([16, 12], [14, 10])
+    assert "32x24 would take 44 s" in caplog.text
+    _, summary, _ = run_render(tmp_path / "starved", "inward360", allotment=Allotment(0.001, 0.01))
+    assert summary["resolution"] == [8, 6]  # never below a quarter of each side
 
 
 def test_path_and_elevation_can_be_chosen(tmp_path: Path) -> None:

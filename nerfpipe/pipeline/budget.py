@@ -1,0 +1,102 @@
+"""A time budget for a whole job, shared by its stages (``nerfpipe run --budget 10m``).
+
+Each stage takes part in one of three ways (``Stage.budget_share``, ``Stage.elastic``):
+
+- a share: the stage is allotted that fraction of the budget and sizes its work to fit it (an export
+  renders at the size its allotment affords); its allotment is also what the others reserve for it;
+- elastic: the stage gets what the job has left once the stages before it have run and the stages after
+  it have their shares reserved (training); the parameters it names in ``elastic`` turn that off when a
+  user or a preset sets one of them;
+- neither: the stage takes what it takes, bounded by its own design (reading photos, SfM with given poses).
+
+A budget of ``auto`` is resolved, once per job, by a rule the caller supplies (the application knows what
+the capture holds; this engine does not). The budget, as given (seconds or ``auto``), enters the cache keys
+of the stages it shapes, so a job run again with the same budget reuses their results.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Iterable
+
+from nerfpipe.pipeline.errors import ParamError
+
+AUTO = "auto"
+_UNITS = {"": 1.0, "s": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0}
+
+
+def parse_duration(text: str, what: str = "--budget") -> float | str | None:
+    """``10m``, ``90s``, ``1h``, ``600`` (seconds), ``auto``, or ``off`` (None). Raises ``ParamError``."""
+    text = str(text).strip().lower()
+    if text in (AUTO, "off"):
+        return None if text == "off" else AUTO
+    match = re.fullmatch(r"(\d+(?:\.\d*)?|\.\d+)\s*(s|m|min|h)?", text)
+    if match is None:
+        raise ParamError(f"{what} {text!r}: expected a duration such as 10m, 90s or 600, or auto or off")
+    seconds = float(match.group(1)) * _UNITS[match.group(2) or ""]
+    if not seconds > 0:
+        raise ParamError(f"{what} {text!r}: must be more than 0 seconds")
+    return seconds
+
+
+def format_duration(seconds: float) -> str:
+    minutes, rest = divmod(round(seconds), 60)
+    return f"{minutes} min {rest} s" if minutes else f"{rest} s"
+
+
+@dataclass
+class JobBudget:
+    """``given``: seconds, or ``auto`` (then ``resolve()`` names the seconds, asked once, when a stage first
+    needs an allotment). ``started``: when the job began (``time.monotonic``)."""
+
+    given: float | str
+    resolve: Callable[[], float] | None = None
+    started: float = field(default_factory=time.monotonic)
+    _seconds: float | None = None
+
+    @property
+    def seconds(self) -> float:
+        if self._seconds is None:
+            if isinstance(self.given, str):
+                if self.resolve is None:
+                    raise ParamError("--budget auto needs a rule to size it; give the budget in seconds or minutes")
+                self._seconds = float(self.resolve())
+            else:
+                self._seconds = float(self.given)
+        return self._seconds
+
+    def elapsed(self) -> float:
+        return time.monotonic() - self.started
+
+    def share(self, fraction: float) -> float:
+        """The seconds a stage with this share of the budget is allotted."""
+        return fraction * self.seconds
+
+    def remainder(self, later_shares: Iterable[float]) -> float:
+        """What an elastic stage starting now may take: the budget less what the job spent so far and the
+        shares of the stages still to come after it (never below 0)."""
+        return max(self.seconds - self.elapsed() - sum(self.share(s) for s in later_shares), 0.0)
+
+
+@dataclass(frozen=True)
+class Allotment:
+    """What a running stage was given: ``seconds`` of the job's ``budget`` (both in seconds), and whether it
+    is the elastic stage that takes the remainder."""
+
+    seconds: float
+    budget: float
+    elastic: bool = False
+
+    def describe(self) -> str:
+        budget = f"the {format_duration(self.budget)} budget"
+        role = f"what {budget} leaves" if self.elastic else f"{self.seconds / self.budget:.0%} of {budget}"
+        return f"{format_duration(self.seconds)} ({role})"
+
+
+def takes_part(share: float, elastic_params: tuple[str, ...], chosen: Iterable[str]) -> tuple[bool, bool]:
+    """(budgeted, elastic) for a stage with ``share`` and ``elastic_params`` whose parameters set by the user
+    or a preset are ``chosen``: elastic unless one of those was chosen; budgeted if either."""
+    elastic = bool(elastic_params) and not set(elastic_params) & set(chosen)
+    return elastic or share > 0, elastic

@@ -1,0 +1,116 @@
+"""A job's time budget: durations, the elastic stage's remainder, the shares, and the cache keys."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from typing import ClassVar
+
+import pytest
+
+from nerfpipe.pipeline import ParamError, Pipeline, Stage
+from nerfpipe.pipeline.budget import Allotment, JobBudget, parse_duration, takes_part
+from nerfpipe.stages.ingest import IngestStage
+
+
+@pytest.mark.parametrize("text, seconds", [("10m", 600.0), ("90s", 90.0), ("1.5h", 5400.0), ("600", 600.0),
+                                           ("2 min", 120.0), (" 4M ", 240.0), ("auto", "auto"), ("off", None)])
+def test_durations_read_as_users_write_them(text, seconds):
+    assert parse_duration(text) == seconds
+
+
+@pytest.mark.parametrize("text", ["ten minutes", "0", "-5m", "5d", "", "1e9999"])
+def test_a_duration_that_is_no_duration_is_one_line_naming_it(text):
+    with pytest.raises(ParamError, match="--budget"):
+        parse_duration(text)
+
+
+def test_the_elastic_stage_gets_the_budget_less_what_was_spent_and_the_later_shares():
+    job = JobBudget(100.0, started=time.monotonic() - 30.0)
+    # 100 s - 30 s spent - (10 % + 20 %) of 100 s for the stages after it
+    assert job.remainder([0.1, 0.2]) == pytest.approx(40.0, abs=0.5)
+    assert job.share(0.25) == 25.0
+    assert JobBudget(10.0, started=time.monotonic() - 30.0).remainder([0.5]) == 0.0  # overspent: nothing, never less
+
+
+def test_auto_is_sized_once_by_the_callers_rule():
+    calls = []
+    job = JobBudget("auto", resolve=lambda: calls.append(1) or 240.0)
+    assert job.seconds == 240.0 and job.seconds == 240.0 and calls == [1]
+    with pytest.raises(ParamError, match="auto"):
+        _ = JobBudget("auto").seconds
+
+
+def test_a_chosen_elastic_parameter_stops_the_stage_taking_the_rest():
+    assert takes_part(0.0, ("seconds", "steps"), []) == (True, True)
+    assert takes_part(0.0, ("seconds", "steps"), ["steps", "lr"]) == (False, False)
+    assert takes_part(0.1, (), ["scale"]) == (True, False)
+    assert takes_part(0.0, (), []) == (False, False)
+    assert "of the 1 min 40 s budget" in Allotment(10.0, 100.0).describe()
+
+
+@dataclass(frozen=True)
+class SleepParams:
+    seconds: float = 0.0
+    size: int = 1
+
+
+class Recorder(Stage):
+    """Records the allotment it was given; sleeps ``seconds`` first."""
+
+    version = 1
+    Params = SleepParams
+    seen: ClassVar[dict[str, Allotment | None]] = {}
+
+    def __init__(self, name: str, requires: tuple[str, ...], share: float = 0.0, elastic: tuple[str, ...] = ()) -> None:
+        self.name, self.requires, self.budget_share, self.elastic = name, requires, share, elastic
+        self.provides = {name: f"{name}.json"}
+
+    def run(self, inputs, out, params, ctx):
+        Recorder.seen[self.name] = ctx.allotment
+        time.sleep(params.seconds)
+        (out / f"{self.name}.json").write_text("{}")
+        return {}
+
+
+def stages() -> list[Stage]:
+    return [IngestStage(), Recorder("slow", ("images_json",)), Recorder("train", ("slow",), elastic=("seconds",)),
+            Recorder("render", ("train",), share=0.1), Recorder("mesh", ("train",), share=0.05)]
+
+
+def test_stages_get_their_part_of_the_job_and_the_budget_enters_only_their_keys(capture, tmp_path):
+    run_dir = tmp_path / "run"
+    Recorder.seen.clear()
+    pipe = Pipeline(stages(), capture, run_dir, overrides={"slow": {"seconds": "0.5"}}, budget=20.0)
+    pipe.run()
+    train, render, mesh = (Recorder.seen[n] for n in ("train", "render", "mesh"))
+    assert render == Allotment(2.0, 20.0) and mesh == Allotment(1.0, 20.0)
+    # 20 s less what ingest and slow spent (at least the 0.5 s slept), less render's 2 s and mesh's 1 s
+    assert train.elastic and 15.0 < train.seconds <= 16.5
+    assert Recorder.seen["slow"] is None and json.loads((run_dir / "run.json").read_text())["budget"] == 20.0
+    manifest = json.loads((pipe.result("render").path / "manifest.json").read_text())
+    assert manifest["budget"] == 20.0 and manifest["timings"]["allotted"] == 2.0
+
+    other = Pipeline(stages(), capture, run_dir, overrides={"slow": {"seconds": "0.5"}}, budget=30.0)
+    changed = {n for n in other.plan() if other.plan()[n].key != pipe.plan()[n].key}
+    assert changed == {"train", "render", "mesh"}
+    assert next(s for s in other.status() if s.name == "train").reasons == ("budget changed: 20.0 -> 30.0",)
+    assert Pipeline.from_run_dir(stages(), run_dir).plan()["train"].key == pipe.plan()["train"].key
+
+    fixed = Pipeline(stages(), capture, run_dir, overrides={"slow": {"seconds": "0.5"}, "train": {"seconds": "3"}},
+                     budget=20.0)
+    assert "budget" not in fixed.plan()["train"].material and not fixed.plan()["train"].elastic
+    Recorder.seen.clear()
+    fixed.run()
+    assert Recorder.seen["train"] is None and Recorder.seen["render"] == Allotment(2.0, 20.0)
+
+
+def test_auto_asks_the_rule_when_a_stage_first_needs_its_allotment(capture, tmp_path):
+    asked = []
+    Recorder.seen.clear()
+    pipe = Pipeline(stages(), capture, tmp_path / "run", budget="auto",
+                    budget_rule=lambda p: asked.append(p.result("ingest") is not None) or 50.0)
+    pipe.run()
+    assert asked == [True] and Recorder.seen["render"] == Allotment(5.0, 50.0)
+    assert pipe.plan()["render"].material["budget"] == "auto"
