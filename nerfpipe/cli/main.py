@@ -111,7 +111,8 @@ def run(
         table.add_column(column)
     table.add_column("output", overflow="fold")
     for o in outcomes:
-        table.add_row(o.name, o.action, f"{o.seconds:.1f} s", str(o.path))
+        made = escape(o.reasons[0]) if o.action in ("failed", "skipped") else str(o.path)
+        table.add_row(o.name, o.action, f"{o.seconds:.1f} s", made)
     out_console.print(table)
     if view and not any(o.name == "train" and o.action == "ran" for o in outcomes):
         out_console.print(f"--view: no training ran to watch; `nerfpipe view {escape(str(run_dir))} --web` shows the "

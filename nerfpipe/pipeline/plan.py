@@ -80,12 +80,26 @@ class StageStatus:
 @dataclass(frozen=True)
 class StageOutcome:
     name: str
-    action: Literal["cached", "restored", "ran"]
+    action: Literal["cached", "restored", "ran", "failed", "skipped"]  # the last two: an optional stage, or after one
     key: str
     path: Path
     seconds: float
     reasons: tuple[str, ...] = ()
     summary: Mapping[str, Any] = field(default_factory=dict)
+
+
+def upstream_problem(
+    result: Committed, upstream: Mapping[str, Committed | None], states: Mapping[str, str] | None = None
+) -> str | None:
+    """Why ``result`` may not be reused although its key matches: an upstream result it was built on
+    is missing or damaged, or was computed again since (its commit id differs from the one recorded)."""
+    built_on = result.manifest.get("upstream_commits")
+    for up, current in upstream.items():
+        if current is None:
+            return f"upstream {up} is {(states or {}).get(up, 'missing')}"
+        if built_on is not None and built_on.get(up) != current.commit_id:
+            return f"upstream {up} was computed again after this result"
+    return None
 
 
 def stale_reasons(planned: PlannedStage, previous: Mapping[str, Any], inputs_label: str) -> list[str]:

@@ -22,6 +22,7 @@ from nerfpipe.pipeline.errors import (
     InputError,
     NerfpipeError,
     ParamError,
+    StageError,
     UpstreamNotReadyError,
     disk_full,
     os_error_to_user_error,
@@ -36,6 +37,7 @@ from nerfpipe.pipeline.plan import (
     plan_stages,
     running_because,
     stale_reasons,
+    upstream_problem,
 )
 from nerfpipe.pipeline.run_config import RunConfig
 from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress
@@ -118,7 +120,7 @@ class Pipeline:
             if isinstance(found, Committed):
                 upstream = {up: statuses[up].result if statuses[up].state == "fresh" else None
                             for up in self.dag.upstream[name]}
-                problem = self._upstream_problem(found, upstream, {up: statuses[up].state for up in upstream})
+                problem = upstream_problem(found, upstream, {up: statuses[up].state for up in upstream})
                 if problem is not None:
                     statuses[name] = StageStatus(name, "stale", (problem,), planned.key, found)
                 else:
@@ -133,20 +135,6 @@ class Pipeline:
             else:
                 statuses[name] = StageStatus(name, "missing", (self._never_ran(planned),), planned.key, None)
         return list(statuses.values())
-
-    @staticmethod
-    def _upstream_problem(
-        result: Committed, upstream: Mapping[str, Committed | None], states: Mapping[str, str] | None = None
-    ) -> str | None:
-        """Why ``result`` may not be reused although its key matches: an upstream result it was built on
-        is missing or damaged, or was computed again since (its commit id differs from the one recorded)."""
-        built_on = result.manifest.get("upstream_commits")
-        for up, current in upstream.items():
-            if current is None:
-                return f"upstream {up} is {(states or {}).get(up, 'missing')}"
-            if built_on is not None and built_on.get(up) != current.commit_id:
-                return f"upstream {up} was computed again after this result"
-        return None
 
     def verify(self) -> list[tuple[StageStatus, Path]]:
         """Hash every output of every result the current settings use; move the damaged ones aside.
@@ -239,10 +227,21 @@ class Pipeline:
             if self.budget is not None:
                 rule = self.budget_rule
                 self._job = JobBudget(self.budget, (lambda: rule(self)) if rule is not None else None)
-            outcomes = []
+            outcomes: list[StageOutcome] = []
             for i, name in enumerate(selected):
                 self._pending = list(selected[i + 1:])
-                outcomes.append(self._run_one(planned[name], forced=name in forced))
+                missing = [o.name for o in outcomes if o.action in ("failed", "skipped") and o.name in self.dag.ancestors(name)]
+                if missing:  # an optional stage upstream made nothing
+                    log.warning("%s: skipped, since %s made nothing", name, missing[0])
+                    outcomes.append(StageOutcome(name, "skipped", planned[name].key, self.run_dir, 0.0, (f"{missing[0]} failed",)))
+                    continue
+                try:
+                    outcomes.append(self._run_one(planned[name], forced=name in forced))
+                except StageError as err:
+                    if not planned[name].stage.optional:
+                        raise
+                    log.warning("%s (the run goes on without it)", err)
+                    outcomes.append(StageOutcome(name, "failed", planned[name].key, self.run_dir, 0.0, (str(err),)))
             return outcomes
 
     def run_stage(self, name: str, force: bool = False) -> StageOutcome:
@@ -281,7 +280,7 @@ class Pipeline:
     def _restore(self, planned: PlannedStage) -> StageOutcome | None:
         name = planned.name
         hit = self.store.get(name, planned.key)
-        if hit is None or self._upstream_problem(hit, self._current_upstream(name)) is not None:
+        if hit is None or upstream_problem(hit, self._current_upstream(name)) is not None:
             return None
         if self.store.latest_key(name) == planned.key:
             log.info("%s: up to date, reusing its result", name)
@@ -308,7 +307,7 @@ class Pipeline:
             log.warning("%s: its cached result is damaged (%s); moved it aside to %s", name, found, aside)
             return [f"its cached result was damaged: {found}"], False
         if isinstance(found, Committed):
-            problem = self._upstream_problem(found, self._current_upstream(name))
+            problem = upstream_problem(found, self._current_upstream(name))
             return [problem or "cache key changed"], True
         latest = self.store.latest(name)
         if latest is None:

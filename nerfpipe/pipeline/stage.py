@@ -84,6 +84,9 @@ class Stage:
     # work to fit, or ``elastic``: the parameters that, set by a user or a preset, stop it taking the rest.
     budget_share: ClassVar[float] = 0.0
     elastic: ClassVar[tuple[str, ...]] = ()
+    # An optional stage (an export) that cannot make what it looks for (a ``StageError``) does not stop the
+    # run: the runner warns, and skips only the stages that need its result.
+    optional: ClassVar[bool] = False
 
     @classmethod
     def summary(cls) -> str:

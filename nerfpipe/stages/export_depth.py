@@ -70,6 +70,7 @@ class ExportDepthStage(Stage):
     libraries = ("torch", "numpy", "opencv-contrib-python-headless", "matplotlib")
     accelerated = True
     budget_share = 0.08
+    optional = True
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
         s = manifest.get("summary", {})

@@ -68,6 +68,7 @@ class ExportMeshStage(Stage):
     requires = ("model", "model_json", "bounds", "depth", "depth_index", "points")
     provides = {"mesh": "mesh.ply", "mesh_obj": "mesh.obj", "mesh_glb": "mesh.glb"}
     budget_share = 0.04  # reserved under a job budget; the stage is bounded by its own sizes
+    optional = True
     libraries = ("torch", "numpy", "open3d", "trimesh")
     accelerated = True
 

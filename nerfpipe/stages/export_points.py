@@ -51,6 +51,7 @@ class ExportPointsStage(Stage):
     requires = ("depth", "depth_index", "bounds", "scene", "sfm_model")
     provides = {"points": "points.ply"}
     budget_share = 0.02  # reserved under a job budget; the stage is bounded by its own sizes
+    optional = True
     libraries = ("numpy", "open3d")
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:

@@ -121,6 +121,7 @@ class RenderStage(Stage):
     libraries = ("torch", "numpy", "av", "matplotlib")
     accelerated = True
     budget_share = 0.10
+    optional = True
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
         s = manifest.get("summary", {})

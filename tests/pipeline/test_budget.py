@@ -9,7 +9,7 @@ from typing import ClassVar
 
 import pytest
 
-from nerfpipe.pipeline import ParamError, Pipeline, Stage
+from nerfpipe.pipeline import ParamError, Pipeline, Stage, StageError
 from nerfpipe.pipeline.budget import Allotment, JobBudget, parse_duration, takes_part
 from nerfpipe.stages.ingest import IngestStage
 
@@ -114,3 +114,27 @@ def test_auto_asks_the_rule_when_a_stage_first_needs_its_allotment(capture, tmp_
     pipe.run()
     assert asked == [True] and Recorder.seen["render"] == Allotment(5.0, 50.0)
     assert pipe.plan()["render"].material["budget"] == "auto"
+
+
+class NoSurface(Recorder):
+    optional = True
+
+    def run(self, inputs, out, params, ctx):
+        from nerfpipe.pipeline import StageError
+
+        raise StageError(f"{self.name}: found no surface; lower the threshold")
+
+
+def test_an_optional_stage_that_makes_nothing_warns_and_the_run_goes_on(capture, tmp_path, caplog):
+    stages = [IngestStage(), NoSurface("mesh", ("images_json",)), Recorder("screenshot", ("mesh",)),
+              Recorder("render", ("images_json",))]
+    outcomes = Pipeline(stages, capture, tmp_path / "run").run()
+    assert [(o.name, o.action) for o in outcomes] == [("ingest", "ran"), ("mesh", "failed"), ("screenshot", "skipped"),
+                                                      ("render", "ran")]
+    assert outcomes[1].reasons == ("mesh: found no surface; lower the threshold",)
+    assert "mesh: found no surface; lower the threshold (the run goes on without it)" in caplog.text
+    assert "screenshot: skipped, since mesh made nothing" in caplog.text
+    required = [IngestStage(), Recorder("slow", ("images_json",)), NoSurface("mesh", ("slow",))]
+    required[2].optional = False
+    with pytest.raises(StageError, match="found no surface"):
+        Pipeline(required, capture, tmp_path / "run2").run()
