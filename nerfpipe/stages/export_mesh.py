@@ -96,6 +96,7 @@ class ExportMeshStage(Stage):
         from nerfpipe.export.mesh import (
             Grid,
             clean,
+            evaluate_density,
             marching_cubes,
             poisson,
             surface_colors,
@@ -115,8 +116,10 @@ class ExportMeshStage(Stage):
             box = mesh_box(model.ray_space, far, (lo, hi), params.region)
             grid = Grid.over(box[0], box[1], params.resolution)
             field = model.fine if model.fine is not None else model.coarse
-            ctx.log.info("export_mesh: marching cubes on %s voxels of %.4g at density %g",
-                         "x".join(map(str, grid.cells)), grid.voxel, params.density_threshold)
+            ctx.log.info("export_mesh: marching cubes on %s voxels of %.4g at density %g, about %.0f s of density",
+                         "x".join(map(str, grid.cells)), grid.voxel, params.density_threshold,
+                         timed(lambda pts: evaluate_density(field.query_density, pts, device=device), box, grid.voxel,
+                               PROBE_POINTS) * np.prod(grid.cells) / PROBE_POINTS)
             mesh = marching_cubes(field.query_density, grid, params.density_threshold, params.block, device=device)
             warped = model.ray_space.ndc or model.ray_space.contraction is not None
             if warped:
@@ -135,7 +138,15 @@ class ExportMeshStage(Stage):
                                 else "lower export_mesh.acc_threshold") + " or train longer")
         mesh, report = clean(mesh, params.min_component, params.target_faces)
         if params.method == "marching_cubes":
-            mesh.colors = surface_colors(model, mesh.vertices, vertex_normals(mesh), 2 * voxel)
+            normals = vertex_normals(mesh)
+            probe = slice(0, min(PROBE_POINTS // 16, len(mesh.vertices)))
+            began = time.perf_counter()
+            first = surface_colors(model, mesh.vertices[probe], normals[probe], 2 * voxel)
+            ctx.log.info("export_mesh: colouring %d vertices from the field, about %.0f s", len(mesh.vertices),
+                         (time.perf_counter() - began) * len(mesh.vertices) / max(len(first), 1))
+            rest = [surface_colors(model, mesh.vertices[probe.stop:], normals[probe.stop:], 2 * voxel)] \
+                if probe.stop < len(mesh.vertices) else []
+            mesh.colors = np.concatenate([first, *rest])
         in_sfm = transformed(mesh, bounds.to_sfm)
         for suffix in FORMATS:
             write_mesh(in_sfm, out / f"mesh{suffix}")
@@ -155,6 +166,22 @@ class ExportMeshStage(Stage):
         ctx.log.info("export_mesh: %d triangles, %d vertices -> mesh.ply, mesh.obj, mesh.glb (SfM frame)", mesh.faces,
                      len(mesh.vertices))
         return summary
+
+
+PROBE_POINTS = 65_536  # density queries timed to predict what marching cubes costs (a sixteenth of them: colours)
+
+
+def timed(query, box, spacing: float, count: int) -> float:
+    """Seconds ``query`` takes on a block of about ``count`` grid points ``spacing`` apart at the centre of
+    ``box`` (in the order marching cubes visits its blocks), after one warm-up call."""
+    side = round(count ** (1 / 3))
+    centre = (np.asarray(box[0], dtype=np.float64) + np.asarray(box[1], dtype=np.float64)) / 2
+    axes = [c + (np.arange(side) - side / 2) * spacing for c in centre]
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3).astype(np.float32)
+    query(points[:256])
+    began = time.perf_counter()
+    query(points)
+    return time.perf_counter() - began
 
 
 def mesh_box(ray_space, far: float, scene_box: tuple[np.ndarray, np.ndarray], region: str):
