@@ -27,12 +27,13 @@ def _at_least(params: object, minimum: float, *names: str) -> None:
 class FieldParams:
     """The radiance field: dense grids and a small MLP (fast), or the paper's MLP (Fig. 7)."""
 
-    kind: str = param("grid", "grid: dense feature grids + a small MLP (fast); mlp: the paper's MLP (Fig. 7); any "
-                              "field in nerfpipe.nerf.registry.FIELDS")
+    kind: str = param("grid", "grid: dense feature grids + a small MLP (fast); hash: its finer levels hashed "
+                              "(Instant-NGP); mlp: the paper's MLP (Fig. 7); any field in nerfpipe.nerf.registry.FIELDS")
     levels: int = param(3, "grid: levels of the multiresolution grid")
     min_resolution: int = param(32, "grid: cells a side of the coarsest level")
     max_resolution: int = param(128, "grid: cells a side of the finest level")
     features: int = param(4, "grid: features per vertex and level")
+    log2_table: int = param(19, "hash: rows of each hashed level's table, as a power of 2 (Instant-NGP: 19)")
     hidden: int = param(64, "grid: width of its MLPs")
     depth: int = param(4, "mlp: layers of the trunk (the paper: 8)")
     width: int = param(128, "mlp: channels per trunk layer (the paper: 256)")
@@ -51,6 +52,8 @@ class FieldParams:
         _at_least(self, 1, "levels", "min_resolution", "max_resolution", "features", "hidden", "depth", "width",
                   "view_width")
         _at_least(self, 0, "skip_after", "pos_freqs", "dir_freqs")
+        if not 10 <= self.log2_table <= 24:
+            raise ValueError(f"log2_table must be in [10, 24], got {self.log2_table}")
         if self.skip_after > self.depth - 1:
             raise ValueError(f"skip_after must be below depth ({self.depth}), got {self.skip_after}")
         if self.min_resolution > self.max_resolution:

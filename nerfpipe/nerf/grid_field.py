@@ -138,17 +138,20 @@ class GridField(nn.Module):
         return f"grid field: {c.levels} levels of {c.resolutions()} cells a side, {c.features} features each, " \
                f"and a {c.hidden}-wide MLP"
 
-    def __init__(self, lo: tuple[float, ...], hi: tuple[float, ...], config: GridFieldConfig = GridFieldConfig()) -> None:
+    def __init__(self, lo: tuple[float, ...], hi: tuple[float, ...], config: GridFieldConfig = GridFieldConfig(),
+                 sizes: list[int] | None = None) -> None:
+        """``sizes``: rows of each level's table (default: its dense vertex count, (r + 1)^3)."""
         super().__init__()
         self.config = config
         self.register_buffer("lo", torch.tensor(lo, dtype=torch.float32))
         self.register_buffer("hi", torch.tensor(hi, dtype=torch.float32))
         resolutions = config.resolutions()
-        sizes = [(r + 1) ** 3 for r in resolutions]
+        sizes = sizes or [(r + 1) ** 3 for r in resolutions]
         # every level in one (vertices, features) table: one gather and one scatter for all levels
         self.table = nn.Parameter(torch.empty(sum(sizes), config.features).uniform_(-config.init_scale, config.init_scale))
         self.register_buffer("resolutions", torch.tensor(resolutions), persistent=False)
         self.register_buffer("offsets", torch.tensor([0, *sizes[:-1]]).cumsum(0), persistent=False)
+        self.register_buffer("sizes", torch.tensor(sizes), persistent=False)
         width = config.levels * config.features
         self.density_net = nn.Sequential(nn.Linear(width, config.hidden), nn.ReLU(), nn.Linear(config.hidden, 1 + config.geo_features))
         dir_dim = encoded_size(config.dir_freqs, True) if config.view_dependent else 0
@@ -161,9 +164,13 @@ class GridField(nn.Module):
         """(M, 3) -> features (M, levels * features) and whether each point is inside the box (M,)."""
         u = (x - self.lo) / (self.hi - self.lo)
         inside = ((u >= 0) & (u <= 1)).all(dim=-1)
-        index, weights = trilinear_corners(u, self.resolutions, self.offsets)
+        index, weights = self.corners(u)
         features = _Trilinear.apply(self.table, index, weights)  # (M, L, F)
         return features.flatten(-2), inside
+
+    def corners(self, u: Tensor) -> tuple[Tensor, Tensor]:
+        """Rows and weights of the trilinear corners of (M, 3) box coordinates u on every level (L, 8, M)."""
+        return trilinear_corners(u, self.resolutions, self.offsets)
 
     def _density(self, x: Tensor) -> tuple[Tensor, Tensor]:
         features, inside = self.encode(x)

@@ -11,6 +11,7 @@ import importlib
 
 FIELDS: dict[str, str] = {
     "grid": "nerfpipe.nerf.grid_field:GridField",  # dense multiresolution grids and a small MLP
+    "hash": "nerfpipe.nerf.hash_field:HashGridField",  # the grid field with hashed fine levels (Instant-NGP)
     "mlp": "nerfpipe.nerf.field:NerfField",  # the paper's MLP (Fig. 7)
 }
 SAMPLERS: dict[str, str] = {

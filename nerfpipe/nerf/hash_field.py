@@ -1,0 +1,103 @@
+"""The grid field with Instant-NGP's multiresolution hash encoding (Mueller et al. 2022, Section 3).
+
+Levels whose dense grid has at most ``2**log2_table`` vertices stay dense (a one-to-one table, as
+Instant-NGP keeps its coarse levels); each finer level maps its vertex (i, j, k) into a table of that many
+rows by the spatial hash of Eq. 4 there, (i * 1 xor j * 2654435761 xor k * 805459861) mod T, and lets its
+collisions be averaged out by the gradients, the MLP telling the colliding points apart by the other levels.
+So a finest level of 1024 or 2048 cells a side costs the memory of ``2**log2_table`` rows, not 1025^3.
+
+Everything else -- the one stacked (rows, features) table, the trilinear gather and scatter of
+``nerfpipe.nerf.grid_field``, the MLPs -- is the grid field's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from nerfpipe.nerf.grid_field import Box, GridField, GridFieldConfig
+
+PRIMES = (1, 2654435761, 805459861)  # Instant-NGP's hash, one prime per axis (the first is 1 for coherence)
+
+
+@dataclass(frozen=True)
+class HashFieldConfig(GridFieldConfig):
+    log2_table: int = 19  # rows of each hashed level's table: 2**log2_table
+
+    def level_sizes(self) -> list[int]:
+        """Rows of each level: its dense vertex count, or the table size where that is smaller."""
+        return [min((r + 1) ** 3, 2**self.log2_table) for r in self.resolutions()]
+
+
+def hashed_corners(u: Tensor, resolutions: Tensor, offsets: Tensor, sizes: Tensor) -> tuple[Tensor, Tensor]:
+    """``nerfpipe.nerf.grid_field.trilinear_corners`` for levels of which some are hashed.
+
+    Args:
+        u: (M, 3) in [0, 1] (clamped); resolutions, offsets: (L,) as there; sizes: (L,) rows of each level:
+            a level with fewer rows than (r + 1)^3 vertices is hashed into them (a power of two).
+    Returns:
+        index: (L, 8, M) rows of the stacked table; weights: (L, 8, M), summing to 1 over the corners.
+    """
+    r = resolutions.to(u.dtype).view(-1, 1, 1)
+    p = u.clamp(0.0, 1.0).t().unsqueeze(0) * r  # (L, 3, M)
+    i0 = torch.minimum(p.floor(), r - 1)
+    f = p - i0
+    i0 = i0.long()
+    n = (resolutions + 1).view(-1, 1)
+    hashed = (sizes < n.view(-1) ** 3).view(-1, 1)  # (L, 1)
+    mask = (sizes - 1).view(-1, 1)
+    offset = offsets.view(-1, 1)
+    index, weights = [], []
+    for dx in (0, 1):
+        x = i0[:, 0] + dx
+        wx = f[:, 0] if dx else 1.0 - f[:, 0]
+        for dy in (0, 1):
+            y = i0[:, 1] + dy
+            wxy = wx * (f[:, 1] if dy else 1.0 - f[:, 1])
+            dense_xy, hash_xy = (x * n + y) * n, torch.bitwise_xor(x * PRIMES[0], y * PRIMES[1])
+            for dz in (0, 1):
+                z = i0[:, 2] + dz
+                row = torch.where(hashed, torch.bitwise_and(torch.bitwise_xor(hash_xy, z * PRIMES[2]), mask), dense_xy + z)
+                index.append(row + offset)
+                weights.append(wxy * (f[:, 2] if dz else 1.0 - f[:, 2]))
+    return torch.stack(index, dim=1), torch.stack(weights, dim=1)
+
+
+class HashGridField(GridField):
+    """The grid field whose fine levels are hashed (Instant-NGP), so they can be as fine as the photos."""
+
+    kind = "hash"
+    needs_box = True
+
+    @staticmethod
+    def spec_of(params: Any, box: Box | None) -> dict[str, Any]:
+        """The spec of the hash-grid field ``nerfpipe.nerf.config.FieldParams`` asks for over ``box``."""
+        config = HashFieldConfig(
+            levels=params.levels, min_resolution=params.min_resolution, max_resolution=params.max_resolution,
+            features=params.features, hidden=params.hidden,
+            dir_freqs=params.dir_freqs if params.positional_encoding else 0, view_dependent=params.view_dependence,
+            log2_table=params.log2_table,
+        )
+        return {"field": asdict(config), "field_box": [list(box[0]), list(box[1])]}
+
+    @classmethod
+    def from_spec(cls, spec: dict[str, Any]) -> "HashGridField":
+        lo, hi = spec["field_box"]
+        return cls(tuple(lo), tuple(hi), HashFieldConfig(**spec["field"]))
+
+    @staticmethod
+    def describe(spec: dict[str, Any]) -> str:
+        c = HashFieldConfig(**spec["field"])
+        hashed = sum(size < (r + 1) ** 3 for size, r in zip(c.level_sizes(), c.resolutions()))
+        return (f"hash-grid field: {c.levels} levels of {c.resolutions()[0]} to {c.resolutions()[-1]} cells a side, "
+                f"the finest {hashed} hashed into tables of 2^{c.log2_table} rows, {c.features} features each, "
+                f"and a {c.hidden}-wide MLP")
+
+    def __init__(self, lo: tuple[float, ...], hi: tuple[float, ...], config: HashFieldConfig = HashFieldConfig()) -> None:
+        super().__init__(lo, hi, config, sizes=config.level_sizes())
+
+    def corners(self, u: Tensor) -> tuple[Tensor, Tensor]:
+        return hashed_corners(u, self.resolutions, self.offsets, self.sizes)
