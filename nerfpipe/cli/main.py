@@ -114,6 +114,10 @@ def run(
         made = escape(o.reasons[0]) if o.action in ("failed", "skipped") else str(o.path)
         table.add_row(o.name, o.action, f"{o.seconds:.1f} s", made)
     out_console.print(table)
+    trouble = [o for o in outcomes if o.action in ("failed", "skipped")]
+    if trouble:
+        out_console.print("finished with warnings: " + "; ".join(f"{o.name} {o.action} ({escape(o.reasons[0])})"
+                                                                 for o in trouble), highlight=False, soft_wrap=True)
     if view and not any(o.name == "train" and o.action == "ran" for o in outcomes):
         out_console.print(f"--view: no training ran to watch; `nerfpipe view {escape(str(run_dir))} --web` shows the "
                           "trained field", highlight=False, soft_wrap=True)
@@ -304,6 +308,10 @@ def batch(
             raise typer.BadParameter(f"must be 0 or more, got {max_parallel}", param_hint="--max-parallel")
         if address is not None and executor != "ray":
             raise typer.BadParameter("only with --executor ray", param_hint="--address")
+        root, runs = captures_root.resolve(), out.resolve()
+        if runs == root or root in runs.parents:
+            raise typer.BadParameter(f"{out} lies inside the captures folder {captures_root}, whose every folder is "
+                                     "taken for a capture; choose a folder outside it", param_hint="--out")
         sources = find_captures(captures_root)
         settings = BatchSettings(preset=preset, overrides=parse_assignments(set_), until=until, max_parallel=max_parallel)
         runner = LocalExecutor(max_parallel or 1, max_retries) if executor == "local" else RayExecutor(address, max_retries)

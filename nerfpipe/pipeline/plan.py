@@ -11,6 +11,7 @@ from typing import Any, Literal, Mapping, Sequence
 
 from nerfpipe.pipeline.budget import takes_part
 from nerfpipe.pipeline.dag import Dag
+from nerfpipe.pipeline.errors import ParamError
 from nerfpipe.pipeline.fingerprint import Fingerprint, FingerprintCache, diff_inputs
 from nerfpipe.pipeline.hashing import cache_key
 from nerfpipe.pipeline.params import build_params, describe_changes, params_to_dict
@@ -32,6 +33,16 @@ class PlannedStage:
     @property
     def name(self) -> str:
         return self.stage.name
+
+
+def check_run_dir(source: Path, run_dir: Path) -> None:
+    """Refuse a run directory that is the capture folder or lies inside it (its renders and screenshots would be
+    read as photos by the next run)."""
+    if source.is_dir():
+        root, out = source.resolve(), run_dir.resolve()
+        if out == root or root in out.parents:
+            raise ParamError(f"--out {run_dir} lies inside the capture folder {source}: what a run writes there would "
+                             "be read as photos; choose a folder outside it")
 
 
 def plan_stages(dag: Dag, source: Path, run_dir: Path, preset: str | None,

@@ -33,6 +33,7 @@ from nerfpipe.pipeline.plan import (
     PlannedStage,
     StageOutcome,
     StageStatus,
+    check_run_dir,
     library_versions,
     plan_stages,
     running_because,
@@ -78,6 +79,7 @@ class Pipeline:
         self._job: JobBudget | None = None
         self._pending: list[str] = []
         self.log_path: Path | None = None  # the log file of the latest run or run_stage
+        check_run_dir(self.source, self.run_dir)
         self.store = ArtifactStore(self.run_dir)
         for stage_name in self.overrides:
             self.dag.check_name(stage_name)
@@ -209,17 +211,15 @@ class Pipeline:
         return StageInputs(artifacts, self.source, planned.files)
 
     # -- running -------------------------------------------------------------------------------
-    def run(
-        self,
-        until: str | None = None,
-        only: str | None = None,
-        force: Sequence[str] = (),
-    ) -> list[StageOutcome]:
+    def run(self, until: str | None = None, only: str | None = None, force: Sequence[str] = ()) -> list[StageOutcome]:
         """Run what is not fresh among the selected stages. ``force`` reruns a stage and its downstream."""
         selected = self.dag.select(until=until, only=only)
         forced: set[str] = set()
         for name in force:
-            forced |= {self.dag.check_name(name)} | self.dag.descendants(name)
+            if self.dag.check_name(name) not in selected:
+                chosen = f"--until {until}" if until else f"--only {only}"
+                raise ParamError(f"--force {name}: not among the stages {chosen} runs; drop --force or choose stages that include it")
+            forced |= {name} | self.dag.descendants(name)
         self.store.prepare()
         with self._user_os_errors(), RunLock(self.run_dir), self._log_to_file():
             planned = self.plan()

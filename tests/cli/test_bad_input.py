@@ -269,3 +269,26 @@ def test_a_damaged_run_json_is_one_line(tmp_path):
     result = run_cli("status", run_dir)
     assert result.returncode != 0 and "Traceback" not in result.stderr
     assert "run.json: is damaged" in result.stderr and len(result.stderr.strip().splitlines()) == 1
+
+
+def test_a_run_directory_inside_the_capture_is_refused_before_anything_is_written(photos, tmp_path):
+    for out in (photos, photos / "runs" / "first"):
+        line = assert_one_clear_error(run_cli("run", photos, "--out", out, "--until", "ingest"))
+        assert line == (f"error: --out {out} lies inside the capture folder {photos}: what a run writes there would be "
+                        "read as photos; choose a folder outside it")
+    assert not (photos / "runs").exists() and not (photos / "run.json").exists()
+
+
+def test_force_outside_the_selected_stages_is_refused_not_ignored(photos, tmp_path):
+    line = assert_one_clear_error(run_cli("run", photos, "--out", tmp_path / "run", "--until", "ingest", "--force", "render"))
+    assert line == ("error: --force render: not among the stages --until ingest runs; drop --force or choose stages "
+                    "that include it")
+    assert not (tmp_path / "run" / "stages").exists()
+
+
+def test_batch_runs_inside_the_captures_folder_are_refused(tmp_path):
+    root = tmp_path / "captures"
+    shutil.copytree(TEMPLE, root / "temple")
+    result = run_cli("batch", root, "--out", root / "runs", "--until", "ingest")
+    assert result.returncode != 0 and "Traceback" not in result.stderr
+    assert "lies inside the captures folder" in result.stderr and not (root / "runs").exists()
