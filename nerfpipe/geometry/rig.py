@@ -86,12 +86,19 @@ def rig_radius(c2ws: np.ndarray, center: np.ndarray, fraction: float = 0.5) -> f
     return float(fraction * np.median(np.linalg.norm(c2ws[:, :3, 3] - np.asarray(center), axis=1)))
 
 
+OVERHEAD_SHARE = 0.5
+
+
 def azimuth_coverage(c2ws: np.ndarray, center: np.ndarray) -> float:
     """Degrees of azimuth about +z (world up) through ``center`` that the cameras cover: 360 minus the
-    largest gap between the sorted camera azimuths (360 for a full ring)."""
+    largest gap between the sorted camera azimuths (360 for a full ring). Cameras nearly above the centre
+    (nearer its vertical axis than half the cameras' median distance from it) are left out: their azimuth
+    says little about where the photographer walked, and a few shots from overhead would otherwise close
+    the gap of a walk part way round."""
     c2ws = np.asarray(c2ws, dtype=np.float64)
     offset = c2ws[:, :2, 3] - np.asarray(center, dtype=np.float64)[:2]
-    keep = np.linalg.norm(offset, axis=1) > 1e-12
+    radius = np.linalg.norm(offset, axis=1)
+    keep = (radius > 1e-12) & (radius >= OVERHEAD_SHARE * np.median(radius))
     if keep.sum() < 2:
         return 0.0
     az = np.sort(np.degrees(np.arctan2(offset[keep, 1], offset[keep, 0])))

@@ -114,7 +114,7 @@ class SceneStage(Stage):
     """Decide the scene layout, background, lens and photometry from the data, with the evidence."""
 
     name = "scene"
-    version = 3  # 3: exposure measured from the points' brightness without EXIF; each photo's stops recorded
+    version = 4  # 4: azimuth coverage leaves out cameras from overhead; 3: exposure measured from the points' brightness without EXIF; each photo's stops recorded
     Params = SceneParams
     requires = ("images", "images_json", "pinhole", "world", "bounds", "undistorted_images")
     provides = {"scene": "scene.json"}
