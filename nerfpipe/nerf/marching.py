@@ -20,7 +20,7 @@ from torch import Tensor
 
 from nerfpipe.nerf.contraction import Contraction
 from nerfpipe.nerf.occupancy import DensityFn, MarchingConfig, OccupancyGrid
-from nerfpipe.nerf.rendering import Composite, composite, optical_depth
+from nerfpipe.nerf.rendering import Composite, composite, distortion, optical_depth
 
 # (points (M, 3), unit view directions (M, 3)) -> (rgb (M, 3), sigma (M,))
 FieldFn = Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]
@@ -36,6 +36,7 @@ class PackedSamples:
     starts: Tensor
     ends: Tensor
     valid: Tensor
+    step: Tensor | None = None  # (R, K): the index of each sample's step along its ray (padding: the last + 1)
 
     @property
     def count(self) -> Tensor:
@@ -43,10 +44,11 @@ class PackedSamples:
 
     def columns(self, start: int, stop: int) -> "PackedSamples":
         return PackedSamples(self.t[:, start:stop], self.starts[:, start:stop], self.ends[:, start:stop],
-                             self.valid[:, start:stop])
+                             self.valid[:, start:stop], None if self.step is None else self.step[:, start:stop])
 
     def rows(self, index: Tensor | slice) -> "PackedSamples":
-        return PackedSamples(self.t[index], self.starts[index], self.ends[index], self.valid[index])
+        return PackedSamples(self.t[index], self.starts[index], self.ends[index], self.valid[index],
+                             None if self.step is None else self.step[index])
 
 
 def pack_left(valid: Tensor, *values: Tensor, fill: Tensor) -> tuple[Tensor, list[Tensor]]:
@@ -98,8 +100,10 @@ def march(origins: Tensor, directions: Tensor, near: Tensor, far: Tensor, grid: 
     if bool(inside.any()):
         keep[inside] = grid.is_occupied(points[inside])
     fill = far.unsqueeze(-1)
-    valid, (t, starts, ends) = pack_left(keep, t, starts, ends, fill=fill)
-    return PackedSamples(t, starts, ends, valid)
+    index = torch.arange(t.shape[1], device=t.device, dtype=t.dtype).expand_as(t)
+    valid, (t, starts, ends, step) = pack_left(keep, t, starts, ends, index, fill=fill)
+    step = torch.where(valid, step, torch.full_like(step, float(index.shape[1])))
+    return PackedSamples(t, starts, ends, valid, step)
 
 
 def constant_steps(directions: Tensor, near: Tensor, far: Tensor, step: float, most: int) -> tuple[Tensor, Tensor]:
@@ -158,7 +162,7 @@ def visible(density_fn: DensityFn, origins: Tensor, directions: Tensor, samples:
         keep = samples.valid & (transmittance_before(sigmas, samples) > early_stop)
     width = max(int(keep.sum(dim=-1).max()), 1)
     kept = samples.columns(0, width)
-    return PackedSamples(kept.t, kept.starts, kept.ends, keep[:, :width])
+    return PackedSamples(kept.t, kept.starts, kept.ends, keep[:, :width], kept.step)
 
 
 def evaluate_packed(field: FieldFn, origins: Tensor, directions: Tensor, viewdirs: Tensor,
@@ -214,7 +218,10 @@ def render_marched(field: FieldFn, density_fn: DensityFn, origins: Tensor, direc
         samples, *per_ray = leading_rays(max_samples, samples, *per_ray)
     origins, directions, viewdirs, far = per_ray
     rgb, sigma = evaluate_packed(field, origins, directions, viewdirs, samples)
-    return composite_packed(rgb, sigma, samples, far, background), int(samples.valid.sum())
+    result = composite_packed(rgb, sigma, samples, far, background)
+    if samples.step is not None:  # in units of the whole march: each step 1 / steps long, equal in field space
+        result.distortion = distortion(result.weights, samples.step / config.steps, (samples.step + 1.0) / config.steps)
+    return result, int(samples.valid.sum())
 
 
 @torch.no_grad()

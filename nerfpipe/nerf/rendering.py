@@ -149,7 +149,8 @@ class Composite:
     rgb: (R, 3) colour, composited onto the background; depth: (R,) expected depth sum_i w_i z_i / sum_i w_i
     with z_i the mean stopping depth of sample i's stretch of ray (``termination_depths``; ``far`` where
     nothing was hit); disparity: (R,) 1 / depth (0 where depth is infinite); acc: (R,)
-    accumulated opacity sum_i w_i; weights: (R, N).
+    accumulated opacity sum_i w_i; weights: (R, N); distortion: (R,) mip-NeRF 360's distortion of the
+    weights (``distortion``), where the sampler measured it, else None.
     """
 
     rgb: Tensor
@@ -157,6 +158,7 @@ class Composite:
     disparity: Tensor
     acc: Tensor
     weights: Tensor
+    distortion: Tensor | None = None
 
 
 def composite(
@@ -203,3 +205,27 @@ def composite(
     positive = depth > 0
     disparity = torch.where(positive, 1.0 / torch.where(positive, depth, torch.ones_like(depth)), torch.zeros_like(depth))
     return Composite(rgb, depth, disparity, acc, weights)
+
+
+def distortion(weights: Tensor, starts: Tensor, ends: Tensor) -> Tensor:
+    """mip-NeRF 360's distortion loss (Barron et al. 2022, Eq. 15) of each ray's weights over its intervals:
+
+        L = sum_i sum_j w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 (e_i - s_i),   m_i = (s_i + e_i) / 2,
+
+    small when a ray's weight sits in one short stretch, large when it is spread out or split (floaters in
+    front of a surface). The double sum is computed in O(N) for sorted intervals as
+    2 sum_i w_i (m_i W_i - S_i), W_i and S_i the sums of w_j and w_j m_j over j < i.
+
+    Args:
+        weights: (R, N); starts, ends: (R, N) sorted, non-overlapping intervals in a normalized distance
+            (mip-NeRF 360's s; here the marching steps' own, in which the steps are of equal length).
+    Returns:
+        (R,) the loss of each ray.
+    """
+    w, s, e = _float(weights), _float(starts), _float(ends)
+    mid = 0.5 * (s + e)
+    before_w = torch.cumsum(w, dim=-1) - w
+    before_wm = torch.cumsum(w * mid, dim=-1) - w * mid
+    across = 2.0 * (w * (mid * before_w - before_wm)).sum(dim=-1)
+    within = (w * w * (e - s)).sum(dim=-1) / 3.0
+    return across + within

@@ -42,6 +42,7 @@ class TrainConfig:
     appearance_lr: float = 1e-2  # the per-image exposure gains' learning rate (decays as ``lr`` does)
     pose_lr: float = 3e-3  # the camera corrections' learning rate (decays as ``lr`` does)
     pose_penalty: float = 1e-3  # weight of the corrections' mean squared size in the loss
+    distortion: float = 0.0  # weight of mip-NeRF 360's distortion loss, where the sampler measures it
     pose_warmup: float = 0.1  # the cameras stay put for this share of the steps, then their rate ramps up over as many
 
 
@@ -232,6 +233,9 @@ class Trainer:
         # Eq. 6: squared error of the coarse and the fine rendering (a mean rather than a sum over the batch)
         losses = {name: torch.mean((c.rgb - target) ** 2) for name, c in out.items()}
         loss = sum(losses.values())
+        if self.config.distortion > 0:
+            measured = [c.distortion.mean() for c in out.values() if c.distortion is not None]
+            loss = loss + self.config.distortion * sum(measured)
         if model.refinement is not None:
             loss = loss + self.config.pose_penalty * model.refinement.penalty()
         self.optimizer.zero_grad(set_to_none=True)

@@ -251,3 +251,37 @@ def test_composite_output_dtypes(dtype):
                        torch.tensor([[1.0, 2.0]], dtype=dtype), torch.tensor([3.0], dtype=dtype))
     for value in (result.rgb, result.depth, result.disparity, result.acc, result.weights):
         assert value.dtype == dtype
+
+
+# -- mip-NeRF 360's distortion loss -----------------------------------------------------------------
+
+
+def test_distortion_by_hand_and_against_the_double_sum() -> None:
+    from nerfpipe.nerf.rendering import distortion
+
+    # all weight in one interval of length 0.1: only the within term, 1/3 * 1^2 * 0.1
+    one = distortion(torch.tensor([[1.0]]), torch.tensor([[0.0]]), torch.tensor([[0.1]]))
+    assert one.item() == pytest.approx(0.1 / 3)
+    # half at each end of the ray: 2 * 0.5 * 0.5 * |0.05 - 0.95| + 1/3 * (0.25 * 0.1 + 0.25 * 0.1)
+    split = distortion(torch.tensor([[0.5, 0.5]]), torch.tensor([[0.0, 0.9]]), torch.tensor([[0.1, 1.0]]))
+    assert split.item() == pytest.approx(0.45 + 0.05 / 3)
+    # random sorted intervals with zero-weight padding at the end (as packed marching samples have)
+    g = torch.Generator().manual_seed(0)
+    edges = torch.sort(torch.rand(4, 13, generator=g), dim=-1).values
+    starts, ends = edges[:, :-1:2], edges[:, 1::2]  # 6 disjoint intervals per ray
+    w = torch.rand(4, 6, generator=g) / 6
+    w[:, -2:] = 0.0
+    mid = (starts + ends) / 2
+    brute = (w[:, :, None] * w[:, None, :] * (mid[:, :, None] - mid[:, None, :]).abs()).sum(dim=(1, 2)) \
+        + (w**2 * (ends - starts)).sum(dim=-1) / 3
+    torch.testing.assert_close(distortion(w, starts, ends), brute)
+
+
+def test_distortion_gradients_pull_split_weight_together() -> None:
+    from nerfpipe.nerf.rendering import distortion
+
+    w = torch.tensor([[0.45, 0.1, 0.45]], requires_grad=True)
+    loss = distortion(w, torch.tensor([[0.0, 0.45, 0.9]]), torch.tensor([[0.1, 0.55, 1.0]]))
+    loss.sum().backward()
+    assert torch.isfinite(w.grad).all()
+    assert w.grad[0, 1] < w.grad[0, 0]  # moving weight to the middle costs less than adding to an end
