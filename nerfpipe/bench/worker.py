@@ -72,8 +72,7 @@ def prepare(spec: dict[str, Any]) -> Setup:
         heldout = [heldout[i] for i in pick]
     model, decisions = build_model(params, loader.scene, loader.world, loader.bounds, device, [f.name for f in views.train],
                                    loader.silhouettes(views.train))
-    contracted = model.ray_space.contraction is not None
-    config = dataclasses.replace(training_config(params, loader.scene.layout.value, contracted), checkpoint_every=10**9,
+    config = dataclasses.replace(training_config(params, loader.scene.layout.value), checkpoint_every=10**9,
                                  keep_checkpoints=1)
     if config.steps == 0 and "seconds" not in spec["overrides"].get("train", {}):
         # a time-budgeted preset trains for the benchmark's budget: its learning rate decays over that time

@@ -77,20 +77,9 @@ def lindisp(params: TrainSettings, layout: str) -> bool:
     return layout == "unbounded360" if params.sampler.lindisp == "auto" else params.sampler.lindisp == "on"
 
 
-def distortion_weight(params: TrainSettings, contracted: bool) -> float:
-    """mip-NeRF 360's distortion loss against floaters, where space is contracted (a scene whose background
-    is part of it: the floaters gather in the shell and in front of the cameras); its weight there, 0.01."""
-    if params.optim.distortion != "auto":
-        return float(params.optim.distortion)
-    return AUTO_DISTORTION if contracted else 0.0
-
-
-AUTO_DISTORTION = 0.01  # mip-NeRF 360's lambda (Section 5)
-
-
-def training_config(params: TrainSettings, layout: str, contracted: bool = False) -> TrainConfig:
-    """The optimization the train parameters ask for (Section 5.3), with the scene's density noise, the
-    distortion loss where space is ``contracted``, and the precision settings (``tf32``, ``autocast``)."""
+def training_config(params: TrainSettings, layout: str) -> TrainConfig:
+    """The optimization the train parameters ask for (Section 5.3), with the scene's density noise and the
+    precision settings (``tf32``, ``autocast``)."""
     o, p = params.optim, params.per_image
     return TrainConfig(
         steps=params.steps, seconds=params.seconds, batch_rays=o.batch_rays, lr=o.lr, lr_final=o.lr_final,
@@ -98,7 +87,7 @@ def training_config(params: TrainSettings, layout: str, contracted: bool = False
         density_noise=density_noise(params, layout), seed=params.seed, checkpoint_every=params.checkpoint_every,
         keep_checkpoints=params.keep_checkpoints, autocast=params.autocast, tf32=params.tf32,
         appearance_lr=p.appearance_lr, pose_lr=p.pose_lr, pose_penalty=p.pose_penalty,
-        distortion=distortion_weight(params, contracted),
+        distortion=o.distortion,
     )
 
 

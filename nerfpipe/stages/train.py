@@ -136,7 +136,7 @@ class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
     name = "train"
-    version = 9  # 9: the distortion loss where space is contracted; 8: held-out views scored at a size within eval_budget; 7: parameter groups; 6: visual hull
+    version = 8  # 8: held-out views scored at a size within eval_budget; 7: parameter groups; 6: visual hull
     Params = TrainParams
     presets = PRESETS
     requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")
@@ -223,7 +223,7 @@ class TrainStage(Stage):
             if left < params.seconds:
                 ctx.log.warning("train: the budget leaves %.0f s for training; training %g s anyway (give a larger "
                                 "--budget, or --budget off and train.seconds)", max(left, 0.0), params.seconds)
-        config = training_config(params, layout, contracted=model.ray_space.contraction is not None)
+        config = training_config(params, layout)
         if config.distortion > 0:
             decisions.append(f"mip-NeRF 360's distortion loss (Eq. 15) at weight {config.distortion:g} against floaters")
             ctx.log.info("train: %s", decisions[-1])
