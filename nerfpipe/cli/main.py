@@ -23,6 +23,7 @@ from nerfpipe.cli.console import (
 from nerfpipe.pipeline import Pipeline, parse_assignments
 from nerfpipe.pipeline.budget import parse_duration
 from nerfpipe.pipeline.lock import RunLock
+from nerfpipe.pipeline.plan import check_run_dir
 from nerfpipe.stages import auto_budget, default_stages
 
 app = typer.Typer(
@@ -94,6 +95,7 @@ def run(
         if skip_bad:
             overrides.setdefault("ingest", {})["skip_bad"] = "true"
         run_dir = out if out is not None else Path("runs") / photos_dir.resolve().name
+        check_run_dir(photos_dir, run_dir)
         if view:
             from nerfpipe.export.web import check_address
 

@@ -33,7 +33,6 @@ from nerfpipe.pipeline.plan import (
     PlannedStage,
     StageOutcome,
     StageStatus,
-    check_run_dir,
     library_versions,
     plan_stages,
     running_because,
@@ -79,7 +78,6 @@ class Pipeline:
         self._job: JobBudget | None = None
         self._pending: list[str] = []
         self.log_path: Path | None = None  # the log file of the latest run or run_stage
-        check_run_dir(self.source, self.run_dir)
         self.store = ArtifactStore(self.run_dir)
         for stage_name in self.overrides:
             self.dag.check_name(stage_name)
