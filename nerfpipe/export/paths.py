@@ -272,6 +272,10 @@ def path_for_scene(layout: str, c2ws: np.ndarray, near: float, far: float, targe
         chosen, why = "orbit", f"{layout} scene, cameras all round: {coverage:.0f} deg of azimuth"
     else:
         chosen, why = "sweep", f"{layout} scene, cameras on {coverage:.0f} deg of azimuth"
+        try:
+            sweep_of(c2ws, _focus(c2ws, target), up)
+        except ValueError:  # spread all round the centre, though with gaps (a few photos of a turntable)
+            chosen, why = "orbit", f"{layout} scene, cameras on {coverage:.0f} deg of azimuth but all round the centre"
     if chosen == "spiral":
         poses = spiral_path(c2ws, near, far, n_frames, n_rotations)
         radii = spiral_radii(c2ws)
@@ -284,16 +288,23 @@ def path_for_scene(layout: str, c2ws: np.ndarray, near: float, far: float, targe
         text = (f"orbit ({why}): radius {orbit.radius:.3g} around ({_shown(orbit.target)}) at "
                 f"{orbit.elevation:.1f} deg elevation ({source})")
     else:
-        focus = look_at_center(c2ws)
-        if axis_angles_to(c2ws, focus).mean() > 45.0 or np.linalg.norm(focus - target) > 2.0 * np.linalg.norm(
-                c2ws[:, :3, 3] - target, axis=1).max():
-            focus = np.asarray(target, dtype=np.float64)  # the axes meet nowhere useful: the scene's centre
+        focus = _focus(c2ws, target)
         _check_frames(n_frames)
         sweep = sweep_of(c2ws, focus, up)
         poses = sweep.poses(n_frames)
         text = (f"sweep ({why}): out and back over {np.degrees(sweep.hi - sweep.lo):.0f} deg of the cameras' "
                 f"azimuths at their distance and height, looking at ({_shown(focus)}), where their axes converge")
     return poses, text
+
+
+def _focus(c2ws: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """What a sweep looks at: where the cameras' optical axes converge, or ``target`` (the scene's centre) where
+    they meet nowhere useful (at a mean angle of more than 45 degrees, or far beyond the cameras)."""
+    focus = look_at_center(c2ws)
+    if axis_angles_to(c2ws, focus).mean() > 45.0 or np.linalg.norm(focus - target) > 2.0 * np.linalg.norm(
+            c2ws[:, :3, 3] - target, axis=1).max():
+        return np.asarray(target, dtype=np.float64)
+    return focus
 
 
 def _coverage(c2ws: np.ndarray, target: np.ndarray, up: np.ndarray) -> float:

@@ -261,3 +261,13 @@ def test_the_demo_orbit_stays_at_the_height_of_its_cameras(tmp_path) -> None:
     assert np.all(poses[:, 2, 3] >= heights.min() - 0.3 * ring_radius)
     assert np.all(poses[:, 2, 3] <= heights.max() + 0.3 * ring_radius)
     assert np.all(poses[:, :3, 1] @ [0, 0, 1] < 0)  # upright
+
+
+def test_cameras_all_round_with_gaps_orbit_rather_than_fail() -> None:
+    # seven cameras round the centre with a 105 deg gap (coverage 255 < 270: a sweep would be chosen), yet all
+    # round it (their mean direction from it is 0.17 long), so no sweep exists: an orbit, not an error
+    eyes = [np.array([2 * np.cos(a), 2 * np.sin(a), 0.5]) for a in np.radians([0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 255.0])]
+    c2ws = np.stack([look_at(e, np.zeros(3)) for e in eyes])
+    poses, text = path_for_scene("inward360", c2ws, 0.5, 5.0, np.zeros(3), 8)
+    assert text.startswith("orbit (inward360 scene, cameras on 255 deg of azimuth but all round the centre)")
+    assert_rotations(poses)
