@@ -114,20 +114,26 @@ class GridField(nn.Module):
     kind = "grid"
     needs_box = True  # its grids span a bounded box
 
-    @staticmethod
-    def spec_of(params: Any, box: Box | None) -> dict[str, Any]:
-        """The spec of the grid field ``nerfpipe.nerf.config.FieldParams`` asks for over ``box``."""
-        config = GridFieldConfig(
+    Config = GridFieldConfig  # what its spec's "field" holds
+
+    @classmethod
+    def config_of(cls, params: Any) -> GridFieldConfig:
+        """The configuration ``nerfpipe.nerf.config.FieldParams`` asks for."""
+        return GridFieldConfig(
             levels=params.levels, min_resolution=params.min_resolution, max_resolution=params.max_resolution,
             features=params.features, hidden=params.hidden,
             dir_freqs=params.dir_freqs if params.positional_encoding else 0, view_dependent=params.view_dependence,
         )
-        return {"field": asdict(config), "field_box": [list(box[0]), list(box[1])]}
+
+    @classmethod
+    def spec_of(cls, params: Any, box: Box | None) -> dict[str, Any]:
+        """The spec of the field ``nerfpipe.nerf.config.FieldParams`` asks for over ``box``."""
+        return {"field": asdict(cls.config_of(params)), "field_box": [list(box[0]), list(box[1])]}
 
     @classmethod
     def from_spec(cls, spec: dict[str, Any]) -> "GridField":
         lo, hi = spec["field_box"]
-        return cls(tuple(lo), tuple(hi), GridFieldConfig(**spec["field"]))
+        return cls(tuple(lo), tuple(hi), cls.Config(**spec["field"]))
 
     def spec(self) -> dict[str, Any]:
         return {"field": asdict(self.config), "field_box": [self.lo.tolist(), self.hi.tolist()]}

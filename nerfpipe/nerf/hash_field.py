@@ -18,7 +18,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from nerfpipe.nerf.grid_field import Box, GridField, GridFieldConfig
+from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
 
 PRIMES = (1, 2654435761, 805459861)  # Instant-NGP's hash, one prime per axis (the first is 1 for coherence)
 
@@ -72,21 +72,12 @@ class HashGridField(GridField):
     kind = "hash"
     needs_box = True
 
-    @staticmethod
-    def spec_of(params: Any, box: Box | None) -> dict[str, Any]:
-        """The spec of the hash-grid field ``nerfpipe.nerf.config.FieldParams`` asks for over ``box``."""
-        config = HashFieldConfig(
-            levels=params.levels, min_resolution=params.min_resolution, max_resolution=params.max_resolution,
-            features=params.features, hidden=params.hidden,
-            dir_freqs=params.dir_freqs if params.positional_encoding else 0, view_dependent=params.view_dependence,
-            log2_table=params.log2_table,
-        )
-        return {"field": asdict(config), "field_box": [list(box[0]), list(box[1])]}
+    Config = HashFieldConfig
 
     @classmethod
-    def from_spec(cls, spec: dict[str, Any]) -> "HashGridField":
-        lo, hi = spec["field_box"]
-        return cls(tuple(lo), tuple(hi), HashFieldConfig(**spec["field"]))
+    def config_of(cls, params: Any) -> HashFieldConfig:
+        """The grid field's configuration with the table size ``FieldParams.log2_table``."""
+        return HashFieldConfig(**asdict(GridField.config_of(params)), log2_table=params.log2_table)
 
     @staticmethod
     def describe(spec: dict[str, Any]) -> str:
