@@ -27,6 +27,7 @@ PRESET_CONFIGS = [
     BenchConfig("draft", "presets", "draft", note="grid field, one 64^3 level"),
     BenchConfig("fast", "presets", "fast", note="grid field, 32^3, 64^3 and 128^3 levels, trained by time (the default)"),
     BenchConfig("hash", "presets", "hash", note="hash-grid field, 12 levels of 16^3 to 1024^3, the finest 8 hashed"),
+    BenchConfig("planes", "presets", "planes", note="tri-plane field, 4 levels of 32^2 to 1024^2 planes (K-Planes)"),
     BenchConfig("balanced", "presets", "balanced", note="4x128 MLP with the occupancy grid"),
     BenchConfig("paper", "presets", "paper", note="8x256 coarse + fine MLPs, 64 + 128 samples (Section 5.3)"),
     BenchConfig("paper-1024", "presets", "paper", {"optim.batch_rays": 1024},

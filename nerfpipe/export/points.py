@@ -39,20 +39,77 @@ def backproject(depth: np.ndarray, K: np.ndarray, c2w: np.ndarray) -> np.ndarray
     return cam @ np.asarray(c2w)[:3, :3].T + np.asarray(c2w)[:3, 3]
 
 
-def views_to_points(views: Sequence[tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]], acc_threshold: float,
-                    box: tuple[Sequence[float], Sequence[float]] | None = None) -> tuple[Cloud, np.ndarray]:
+View = tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]  # rendered {depth, acc, rgb}, K (3, 3), c2w (4, 4)
+
+
+def solid(rendered: dict[str, np.ndarray], acc_threshold: float) -> np.ndarray:
+    """(H, W) pixels whose accumulated opacity reaches ``acc_threshold`` at a finite positive depth."""
+    depth = rendered["depth"]
+    return (rendered["acc"] >= acc_threshold) & np.isfinite(depth) & (depth > 0)
+
+
+def nearest_views(c2ws: Sequence[np.ndarray], count: int, max_angle: float = 60.0) -> list[list[int]]:
+    """For each camera, up to ``count`` others that look the most the same way (optical axes within
+    ``max_angle`` degrees), the smallest angle first."""
+    forward = np.stack([np.asarray(c)[:3, 2] for c in c2ws])
+    cosines = forward @ forward.T
+    np.fill_diagonal(cosines, -2.0)
+    order = np.argsort(-cosines, axis=1)[:, :count]
+    limit = np.cos(np.radians(max_angle))
+    return [[int(j) for j in row if cosines[i, j] >= limit] for i, row in enumerate(order)]
+
+
+def agreement(views: Sequence[View], acc_threshold: float, neighbours: int, tolerance: float) -> list[np.ndarray]:
+    """How many other views each pixel's depth is confirmed by: the multi-view geometric consistency check
+    of depth-map fusion (as COLMAP's stereo fusion and MVSNet filter their depth maps).
+
+    A pixel's back-projected point, projected into a neighbouring view (``nearest_views``), agrees with it
+    when it lands inside that view on a solid pixel whose depth is within ``tolerance`` (relative) of the
+    point's depth there. A depth that is an average of two surfaces along the ray -- the starburst of
+    points between an object and what is behind it, and floaters -- finds no other view that agrees.
+
+    Returns:
+        per view, (H, W) counts of agreeing neighbours (0 where the pixel is not solid itself).
+    """
+    solids = [solid(rendered, acc_threshold) for rendered, _, _ in views]
+    counts = []
+    for i, (rendered, K, c2w) in enumerate(views):
+        count = np.zeros(rendered["depth"].shape, dtype=np.int32)
+        pixels = np.flatnonzero(solids[i])
+        points = backproject(rendered["depth"], K, c2w).reshape(-1, 3)[pixels]
+        for j in nearest_views([v[2] for v in views], neighbours)[i]:
+            other, K_j, c2w_j = views[j]
+            c2w_j = np.asarray(c2w_j)
+            cam = (points - c2w_j[:3, 3]) @ c2w_j[:3, :3]  # R^T (p - c), row vectors
+            z = cam[:, 2]
+            ahead = z > 1e-9
+            u = np.floor(K_j[0, 0] * cam[:, 0] / np.where(ahead, z, 1.0) + K_j[0, 2]).astype(np.int64)
+            v = np.floor(K_j[1, 1] * cam[:, 1] / np.where(ahead, z, 1.0) + K_j[1, 2]).astype(np.int64)
+            h, w = other["depth"].shape
+            seen = ahead & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            rows = np.flatnonzero(seen)
+            found = other["depth"][v[rows], u[rows]]
+            agree = solids[j][v[rows], u[rows]] & (np.abs(found - z[rows]) <= tolerance * z[rows])
+            count.reshape(-1)[pixels[rows[agree]]] += 1
+        counts.append(count)
+    return counts
+
+
+def views_to_points(views: Sequence[View], acc_threshold: float, box: tuple[Sequence[float], Sequence[float]] | None = None,
+                    masks: Sequence[np.ndarray] | None = None) -> tuple[Cloud, np.ndarray]:
     """Back-project every view's pixels whose accumulated opacity reaches ``acc_threshold``.
 
     Args:
         views: (rendered {depth (H, W), acc (H, W), rgb (H, W, 3)}, K (3, 3), c2w (4, 4)) per view.
         box: keep points inside this (min, max) box only.
+        masks: per view, (H, W) the pixels to keep besides (``agreement``'s).
     Returns:
         the cloud, with each point's unit direction towards the camera that saw it as its normal (a hint
         for orienting estimated normals), and the index of that camera (N,).
     """
     xyz, rgb, towards, source = [], [], [], []
     for index, (rendered, K, c2w) in enumerate(views):
-        keep = (rendered["acc"] >= acc_threshold) & np.isfinite(rendered["depth"]) & (rendered["depth"] > 0)
+        keep = solid(rendered, acc_threshold) & (True if masks is None else masks[index])
         points = backproject(rendered["depth"], K, c2w)[keep]
         if box is not None:
             inside = np.all((points >= np.asarray(box[0])) & (points <= np.asarray(box[1])), axis=1)

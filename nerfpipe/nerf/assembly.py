@@ -29,6 +29,7 @@ from nerfpipe.nerf.registry import SAMPLERS, resolve
 from nerfpipe.nerf.spec import ModelSpec
 from nerfpipe.nerf.trainer import TrainConfig
 
+CAMERA_MARGIN = 0.05  # the box around the scene and its cameras grows by this share of its size a side
 HULL_RESOLUTION = 64  # cells a side of the visual hull that bounds the scene box
 POSE_ERROR_PX = 1.0  # mean reprojection error of the sparse points above which camera poses are refined by default
 NDC_NEAR_FACTOR = 0.75  # the NDC near plane at 0.75 x the nearest bound, as LLFF's bd_factor places it
@@ -99,8 +100,11 @@ def build_ray_space(params: TrainSettings, scene: SceneDecisions, world: CameraS
     if contracts(params, scene):
         why = ("unbounded 360" if layout == "unbounded360" else
                f"{layout.replace('inward360', 'inward 360')} with the background part of the scene")
-        return RaySpace(contraction=scene_box(bounds)), (
-            f"{why}: world rays over each image's near/far; the scene box at full resolution and the space "
+        box, kept = scene_box(bounds), "the scene box"
+        if params.space.contract_around == "cameras":
+            box, kept = camera_box(box, np.asarray(world.centers())), "the box of the scene and the cameras"
+        return RaySpace(contraction=box), (
+            f"{why}: world rays over each image's near/far; {kept} at full resolution and the space "
             "beyond it contracted into a shell around it (mip-NeRF 360, Eq. 10), steps growing with distance")
     if layout == "forward":
         c2ws = np.array([f.c2w for f in world.frames])
@@ -118,6 +122,16 @@ def build_ray_space(params: TrainSettings, scene: SceneDecisions, world: CameraS
 
 def scene_box(bounds: Bounds) -> Box:
     return (tuple(bounds.scene_box[0]), tuple(bounds.scene_box[1]))
+
+
+def camera_box(box: Box, centers: np.ndarray, margin: float = CAMERA_MARGIN) -> Box:
+    """The box around ``box`` and the camera ``centers`` (N, 3), grown by ``margin`` of its size a side: what
+    the photos mostly show of a scene that goes on beyond its box (the floor they were taken from, the walls
+    near them) then lies in it, at the field's full resolution, instead of in the contracted shell."""
+    lo = np.minimum(np.asarray(box[0], dtype=float), centers.min(axis=0))
+    hi = np.maximum(np.asarray(box[1], dtype=float), centers.max(axis=0))
+    pad = (hi - lo) * margin
+    return tuple((lo - pad).tolist()), tuple((hi + pad).tolist())
 
 
 def field_box(ray_space: RaySpace, layout: str, bounds: Bounds) -> Box | None:

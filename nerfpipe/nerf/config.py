@@ -28,7 +28,8 @@ class FieldParams:
     """The radiance field: dense grids and a small MLP (fast), or the paper's MLP (Fig. 7)."""
 
     kind: str = param("grid", "grid: dense feature grids + a small MLP (fast); hash: its finer levels hashed "
-                              "(Instant-NGP); mlp: the paper's MLP (Fig. 7); any field in nerfpipe.nerf.registry.FIELDS")
+                              "(Instant-NGP); planes: three factorized planes a level (K-Planes); mlp: the paper's "
+                              "MLP (Fig. 7); any field in nerfpipe.nerf.registry.FIELDS")
     levels: int = param(3, "grid: levels of the multiresolution grid")
     min_resolution: int = param(32, "grid: cells a side of the coarsest level")
     max_resolution: int = param(128, "grid: cells a side of the finest level")
@@ -91,6 +92,10 @@ class SpaceParams:
     contract: Auto = param("auto", "contract the space beyond the scene box (mip-NeRF 360); auto: unbounded scenes "
                                    "and inward 360 ones without a backdrop")
     clip_to_box: bool = param(True, "inward 360 with a backdrop: clip each ray to the scene box")
+    contract_around: Literal["scene", "cameras"] = param(
+        "scene", "contracted space keeps at full resolution the scene box, or the box of the scene and the cameras "
+                 "(as mip-NeRF 360 keeps its cameras inside the uncontracted ball; on beer 0.3-0.9 dB worse in 4 "
+                 "minutes: docs/benchmarks.md)")
     hull: Auto = param("auto", "shrink the scene box to the box of the photos' visual hull, where the grids then "
                                "spend their cells; auto and on: for inward 360 photos with silhouettes (alpha or a "
                                "backdrop), on also says why when it cannot")

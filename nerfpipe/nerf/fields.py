@@ -1,8 +1,9 @@
 """Fields: (x, d) -> (rgb, sigma), the part of a model that is learned.
 
 Every field answers the same few questions, so that the model, the samplers and the exports never ask
-which kind it is. Two are registered (``nerfpipe.nerf.registry.FIELDS``): the grid field
-(``nerfpipe.nerf.grid_field``) and the paper's MLP (``nerfpipe.nerf.field``). A new field is a class
+which kind it is. The registered ones (``nerfpipe.nerf.registry.FIELDS``): the grid field
+(``nerfpipe.nerf.grid_field``) with its hashed (``hash_field``) and factorized-plane (``plane_field``) kinds,
+and the paper's MLP (``nerfpipe.nerf.field``). A new field is a class
 with these members and a line in the registry.
 """
 

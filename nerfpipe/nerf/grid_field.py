@@ -171,8 +171,13 @@ class GridField(nn.Module):
         u = (x - self.lo) / (self.hi - self.lo)
         inside = ((u >= 0) & (u <= 1)).all(dim=-1)
         index, weights = self.corners(u)
-        features = _Trilinear.apply(self.table, index, weights)  # (M, L, F)
-        return features.flatten(-2), inside
+        features = _Trilinear.apply(self.table, index, weights)  # (M, L, F), or (M, groups, F)
+        return self.combine(features), inside
+
+    def combine(self, features: Tensor) -> Tensor:
+        """(M, L, F) samples of the levels -> (M, L F), what the MLP reads (a field whose corners come in
+        other groups than levels combines them here)."""
+        return features.flatten(-2)
 
     def corners(self, u: Tensor) -> tuple[Tensor, Tensor]:
         """Rows and weights of the trilinear corners of (M, 3) box coordinates u on every level (L, 8, M)."""

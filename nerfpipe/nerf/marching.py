@@ -20,7 +20,7 @@ from torch import Tensor
 
 from nerfpipe.nerf.contraction import Contraction
 from nerfpipe.nerf.occupancy import DensityFn, MarchingConfig, OccupancyGrid
-from nerfpipe.nerf.rendering import Composite, composite, distortion, optical_depth
+from nerfpipe.nerf.rendering import Composite, composite, optical_depth
 
 # (points (M, 3), unit view directions (M, 3)) -> (rgb (M, 3), sigma (M,))
 FieldFn = Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]
@@ -220,7 +220,7 @@ def render_marched(field: FieldFn, density_fn: DensityFn, origins: Tensor, direc
     rgb, sigma = evaluate_packed(field, origins, directions, viewdirs, samples)
     result = composite_packed(rgb, sigma, samples, far, background)
     if samples.step is not None:  # in units of the whole march: each step 1 / steps long, equal in field space
-        result.distortion = distortion(result.weights, samples.step / config.steps, (samples.step + 1.0) / config.steps)
+        result.intervals = (samples.step / config.steps, (samples.step + 1.0) / config.steps)
     return result, int(samples.valid.sum())
 
 

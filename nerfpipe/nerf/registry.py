@@ -12,6 +12,7 @@ import importlib
 FIELDS: dict[str, str] = {
     "grid": "nerfpipe.nerf.grid_field:GridField",  # dense multiresolution grids and a small MLP
     "hash": "nerfpipe.nerf.hash_field:HashGridField",  # the grid field with hashed fine levels (Instant-NGP)
+    "planes": "nerfpipe.nerf.plane_field:PlaneField",  # three factorized planes a level (K-Planes)
     "mlp": "nerfpipe.nerf.field:NerfField",  # the paper's MLP (Fig. 7)
 }
 SAMPLERS: dict[str, str] = {

@@ -149,8 +149,8 @@ class Composite:
     rgb: (R, 3) colour, composited onto the background; depth: (R,) expected depth sum_i w_i z_i / sum_i w_i
     with z_i the mean stopping depth of sample i's stretch of ray (``termination_depths``; ``far`` where
     nothing was hit); disparity: (R,) 1 / depth (0 where depth is infinite); acc: (R,)
-    accumulated opacity sum_i w_i; weights: (R, N); distortion: (R,) mip-NeRF 360's distortion of the
-    weights (``distortion``), where the sampler measured it, else None.
+    accumulated opacity sum_i w_i; weights: (R, N); intervals: (R, N) starts and ends of the samples'
+    stretches in a normalized distance, where the sampler measured them (``distortion_loss``), else None.
     """
 
     rgb: Tensor
@@ -158,7 +158,12 @@ class Composite:
     disparity: Tensor
     acc: Tensor
     weights: Tensor
-    distortion: Tensor | None = None
+    intervals: tuple[Tensor, Tensor] | None = None
+
+    def distortion_loss(self) -> Tensor | None:
+        """(R,) mip-NeRF 360's distortion of the weights over ``intervals`` (``distortion``), computed only when
+        asked (training with the loss on), None where the sampler gave no intervals."""
+        return None if self.intervals is None else distortion(self.weights, *self.intervals)
 
 
 def composite(

@@ -234,7 +234,7 @@ class Trainer:
         losses = {name: torch.mean((c.rgb - target) ** 2) for name, c in out.items()}
         loss = sum(losses.values())
         if self.config.distortion > 0:
-            measured = [c.distortion.mean() for c in out.values() if c.distortion is not None]
+            measured = [d.mean() for d in (c.distortion_loss() for c in out.values()) if d is not None]
             loss = loss + self.config.distortion * sum(measured)
         if model.refinement is not None:
             loss = loss + self.config.pose_penalty * model.refinement.penalty()

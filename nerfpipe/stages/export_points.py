@@ -1,8 +1,9 @@
 """export_points: a coloured, oriented point cloud from the rendered depth of the training views, and the
 SfM sparse cloud, both as PLY in the original SfM frame.
 
-Pixels whose accumulated opacity reaches ``acc_threshold`` are back-projected with their expected depth
-and rendered colour; the union is down-sampled on a voxel grid (grown until at most ``target_points``
+Pixels whose accumulated opacity reaches ``acc_threshold``, and whose depth ``agree_views`` of the views
+looking the most the same way confirm (the multi-view consistency check of depth-map fusion), are
+back-projected with their expected depth and rendered colour; the union is down-sampled on a voxel grid (grown until at most ``target_points``
 remain), cleared of statistical outliers, and given normals from its neighbours, oriented towards the
 cameras that saw them (Open3D).
 """
@@ -28,15 +29,20 @@ class ExportPointsParams:
     target_points: int = field(default=200_000, metadata={"help": "grow the voxel until at most this many points remain (0: no limit)"})
     outlier_neighbors: int = field(default=20, metadata={"help": "neighbours of the statistical outlier test"})
     outlier_std: float = field(default=2.0, metadata={"help": "drop points whose mean neighbour distance is this many std above the mean"})
+    agree_views: int = field(default=2, metadata={"help": "keep a pixel's point only when this many neighbouring views' depths agree with it (multi-view consistency; 0: keep all)"})
+    neighbours: int = field(default=6, metadata={"help": "views each view's depth is checked against: those looking the most the same way"})
+    agree_tolerance: float = field(default=0.03, metadata={"help": "relative depth difference within which two views agree"})
     crop_to_box: bool = field(default=True, metadata={"help": "360 scenes: keep the points inside the scene box only (false: all of them, background included)"})
 
     def __post_init__(self) -> None:
         if not 0 <= self.acc_threshold <= 1:
             raise ValueError(f"acc_threshold must be in [0, 1], got {self.acc_threshold}")
-        for name in ("voxel", "outlier_std"):
+        if self.agree_views > self.neighbours:
+            raise ValueError(f"agree_views ({self.agree_views}) cannot exceed neighbours ({self.neighbours})")
+        for name in ("voxel", "outlier_std", "agree_tolerance"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        for name in ("target_points", "outlier_neighbors"):
+        for name in ("target_points", "outlier_neighbors", "agree_views", "neighbours"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
 
@@ -45,7 +51,7 @@ class ExportPointsStage(Stage):
     """Point cloud from rendered depth (PLY, SfM frame), plus the SfM sparse cloud."""
 
     name = "export_points"
-    version = 1
+    version = 2  # 2: points only where neighbouring views' depths agree
     Params = ExportPointsParams
     presets = {"dense": {"target_points": 1_000_000}, "preview": {"target_points": 50_000}}
     requires = ("depth", "depth_index", "bounds", "scene", "sfm_model")
@@ -59,12 +65,14 @@ class ExportPointsStage(Stage):
         if "points" not in s:
             return []
         sparse = f"; SfM sparse cloud: {s['sparse_points']} points" if s.get("sparse_points") else "; no SfM sparse points"
-        return [f"{s['points']} points from {s['views']} training views ({s['raw_points']} back-projected, voxel "
-                f"{s['voxel']:.4g}){sparse}"]
+        agreed = (f", {s['consistency']['agreed']} of {s['consistency']['solid']} solid pixels confirmed by other views"
+                  if s.get("consistency") else "")
+        return [f"{s['points']} points from {s['views']} training views ({s['raw_points']} back-projected{agreed}, "
+                f"voxel {s['voxel']:.4g}){sparse}"]
 
     def run(self, inputs: StageInputs, out: Path, params: ExportPointsParams, ctx: StageContext) -> dict[str, Any]:
         from nerfpipe.export.depth import DepthIndex, read_view
-        from nerfpipe.export.points import Cloud, clean_cloud, transformed, views_to_points, write_ply
+        from nerfpipe.export.points import Cloud, agreement, clean_cloud, solid, transformed, views_to_points, write_ply
 
         index = DepthIndex.load(inputs["depth_index"])
         bounds = Bounds.load(inputs["bounds"])
@@ -75,7 +83,23 @@ class ExportPointsStage(Stage):
                              "run it with --set export_depth.views=all")
         views = [(read_view(inputs["depth"], v), v.K(), np.asarray(v.c2w)) for v in train]
         box = bounds.scene_box if params.crop_to_box and scene.layout.value in ("inward360", "unbounded360") else None
-        cloud, _ = views_to_points(views, params.acc_threshold, box)
+        masks, checked = None, None
+        if params.agree_views > 0 and len(views) > params.agree_views:
+            counts = agreement(views, params.acc_threshold, params.neighbours, params.agree_tolerance)
+            masks = [c >= params.agree_views for c in counts]
+            solid_pixels = sum(int(solid(r, params.acc_threshold).sum()) for r, _, _ in views)
+            kept = sum(int(m.sum()) for m in masks)
+            checked = {"solid": solid_pixels, "agreed": kept}
+            ctx.log.info("export_points: %d of %d solid pixels (%.0f%%) have depths that %d of their %d nearest views "
+                         "agree with (within %g)", kept, solid_pixels, 100 * kept / max(solid_pixels, 1),
+                         params.agree_views, params.neighbours, params.agree_tolerance)
+        cloud, _ = views_to_points(views, params.acc_threshold, box, masks)
+        if len(cloud) == 0 and masks is not None:
+            # a field too rough for any two views to agree (a short or tiny run): its depths as they are
+            ctx.log.warning("export_points: no two views' depths agree anywhere; the cloud keeps every solid pixel "
+                            "unchecked (train longer for a checked one)")
+            checked["fallback"] = True
+            cloud, _ = views_to_points(views, params.acc_threshold, box)
         if len(cloud) == 0:
             raise StageError(f"export_points: no pixel of {len(train)} views reaches opacity {params.acc_threshold}; "
                              "lower export_points.acc_threshold or train longer")
@@ -97,4 +121,5 @@ class ExportPointsStage(Stage):
         return {
             "points": len(cleaned), "raw_points": len(cloud), "views": len(train), "voxel": report.voxel,
             "after_voxel": report.after_voxel, "sparse_points": sparse_count, "acc_threshold": params.acc_threshold,
+            "consistency": checked,
         }

@@ -129,6 +129,10 @@ PRESETS = {
     # 8 hashed into 2^17 rows of 2 features each: 2.5 M parameters, where the dense default has 9.8 M
     "hash": {"field.kind": "hash", "field.levels": 12, "field.min_resolution": 16, "field.max_resolution": 1024,
              "field.features": 2, "field.log2_table": 17},
+    # three factorized planes a level (K-Planes): levels of 32, 102, 323 and 1024 cells a side, 4 features
+    # each, 14 M values, where a 1024^3 dense grid would need 4.3 G
+    "planes": {"field.kind": "planes", "field.levels": 4, "field.min_resolution": 32, "field.max_resolution": 1024,
+               "field.features": 4},
 }
 
 

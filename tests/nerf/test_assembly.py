@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
 from nerfpipe.geometry.normalize import robust_box
 from nerfpipe.nerf.assembly import (
     HULL_RESOLUTION,
@@ -24,6 +25,7 @@ from nerfpipe.nerf.samplers import MarchingSampler
 from nerfpipe.pipeline.params import override
 from nerfpipe.stages.train import TrainParams
 from tests.geometry.sphere_photos import CENTER, RADIUS, sphere_views
+from tests.helpers import look_at
 from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
 
 CPU = torch.device("cpu")
@@ -95,6 +97,22 @@ def test_inward_captures_contract_unless_a_backdrop_or_alpha_bounds_them() -> No
     assert room.coarse.lo.tolist() == [-2] * 3 and room.sampler.grid.hi.tolist() == [2] * 3  # the contracted cube
     forced, _ = build_model(train_params({"space.contract": "on"}), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, CPU)
     assert forced.ray_space.contraction is not None
+
+
+def test_contracted_space_keeps_the_scene_box_or_the_cameras_too_at_full_resolution() -> None:
+    # cameras 4 units away from a scene box of half-size 1 stand where the photos' floor and walls are
+    frames = [Frame(f"{i}.png", 1, look_at(np.array([4.0 * np.cos(a), 4.0 * np.sin(a), 1.0]), np.zeros(3)))
+              for i, a in enumerate(np.linspace(0, np.pi, 5))]
+    world, bounds = CameraSet({1: Camera.pinhole(50, 50, 20, 15, 40, 30)}, frames), bounds_of((2.0, 9.0))
+    around, said = build_model(train_params({"space.contract_around": "cameras"}), scene_of("inward360", "none"),
+                               world, bounds, CPU)
+    lo, hi = np.array(around.ray_space.contraction)
+    # x from -4 to 4, y from -1 (the box) to 4, z from -1 to 1 (the box, above the cameras' 1), 5 % more a side
+    np.testing.assert_allclose(lo, [-4.4, -1.25, -1.1], atol=1e-9)
+    np.testing.assert_allclose(hi, [4.4, 4.25, 1.1], atol=1e-9)
+    assert "the box of the scene and the cameras at full resolution" in said[0]
+    scene_only, said = build_model(TrainParams(), scene_of("inward360", "none"), world, bounds, CPU)
+    assert scene_only.ray_space.contraction == ((-1, -1, -1), (1, 1, 1)) and "the scene box at full resolution" in said[0]
 
 
 def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:

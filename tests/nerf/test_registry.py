@@ -139,7 +139,7 @@ def test_a_registered_field_and_sampler_are_built_trained_saved_and_loaded(toys,
 
 
 def test_an_unregistered_kind_is_a_parameter_error_naming_the_choices() -> None:
-    with pytest.raises(ParamError, match=r"train: field.kind must be one of grid, hash, mlp, got 'toy'"):
+    with pytest.raises(ParamError, match=r"train: field.kind must be one of grid, hash, planes, mlp, got 'toy'"):
         build_params("train", TrainParams, PRESETS, None, {"field.kind": "toy"})
     with pytest.raises(ParamError, match=r"sampler.kind must be one of auto, marching, hierarchical, got 'even'"):
         build_params("train", TrainParams, PRESETS, None, {"sampler.kind": "even"})

@@ -498,9 +498,10 @@ def test_marching_keeps_bounds_and_gradients_at_extreme_densities(mode: str, den
     assert_sane(result, white)
     # the distortion loss of the marched weights: finite, at most the ray's weight squared times its length
     # (here at most 1 x the whole march), and with finite gradients too
-    assert result.distortion.shape == result.acc.shape and bool(torch.isfinite(result.distortion).all())
-    assert bool(((result.distortion >= -1e-6) & (result.distortion <= 1.0 + 1e-6)).all())
-    (result.rgb.sum() + result.distortion.sum()).backward()
+    loss = result.distortion_loss()
+    assert loss.shape == result.acc.shape and bool(torch.isfinite(loss).all())
+    assert bool(((loss >= -1e-6) & (loss <= 1.0 + 1e-6)).all())
+    (result.rgb.sum() + loss.sum()).backward()
     assert torch.isfinite(field.raw.grad) and bool(torch.isfinite(field.color.grad).all())
     # early termination: an opaque field stops each ray after its first sample or two; a clear one never
     if density >= 1e6:
