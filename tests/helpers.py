@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -32,6 +33,12 @@ def shared(*parts: str) -> Path:
             pytest.fail(f"{message}: CI runs beside ../shared", pytrace=False)
         pytest.skip(message)
     return path
+
+
+def interruptible() -> None:
+    """``preexec_fn`` of a subprocess a test will send SIGINT: Ctrl-C's default action restored, since a test
+    run started in the background by a script (``cmd &``) inherits SIGINT ignored, and so would the child."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def run_cli(*args: str, cwd: Path | None = None, timeout: float = 120) -> subprocess.CompletedProcess:

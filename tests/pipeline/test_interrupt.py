@@ -10,7 +10,7 @@ import time
 
 from nerfpipe.pipeline import ArtifactStore, Pipeline
 from nerfpipe.stages import default_stages
-from tests.helpers import shared
+from tests.helpers import interruptible, shared
 
 
 def start_and_interrupt(run_dir, sig) -> subprocess.Popen:
@@ -18,7 +18,7 @@ def start_and_interrupt(run_dir, sig) -> subprocess.Popen:
     lego = shared("nerf_synthetic_lego_400", "train")
     cmd = [sys.executable, "-m", "nerfpipe", "run", str(lego), "--out", str(run_dir), "--until", "ingest",
            "--set", "ingest.workers=1"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=interruptible)
     written: list = []
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and proc.poll() is None:

@@ -19,7 +19,7 @@ from nerfpipe.pipeline import Pipeline, param_specs
 from nerfpipe.pipeline.errors import ParamError
 from nerfpipe.pipeline.params import build_params
 from nerfpipe.stages import TrainParams, TrainStage, default_stages
-from tests.helpers import TEMPLE, shared
+from tests.helpers import TEMPLE, interruptible, shared
 from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
 
 # a training small enough for a test: lego at 32 px, a 2x32 MLP, 16 + 16 samples
@@ -330,7 +330,7 @@ def check_web_viewer(run_dir: Path) -> None:
 
     port = free_port()
     process = subprocess.Popen([sys.executable, "-m", "nerfpipe", "view", str(run_dir), "--web", "--port", str(port)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=interruptible)
     try:
         line = ""
         while "web viewer:" not in line:
@@ -340,5 +340,9 @@ def check_web_viewer(run_dir: Path) -> None:
         assert urllib.request.urlopen(f"http://localhost:{port}", timeout=10).status == 200
     finally:
         process.send_signal(signal.SIGINT)
-        out, err = process.communicate(timeout=30)
+        try:
+            out, err = process.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            process.kill()  # leave no viewer behind
+            raise
     assert process.returncode == 0 and "web viewer stopped" in out and "Traceback" not in err, err
