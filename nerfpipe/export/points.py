@@ -72,12 +72,13 @@ def agreement(views: Sequence[View], acc_threshold: float, neighbours: int, tole
         per view, (H, W) counts of agreeing neighbours (0 where the pixel is not solid itself).
     """
     solids = [solid(rendered, acc_threshold) for rendered, _, _ in views]
+    others = nearest_views([c2w for _, _, c2w in views], neighbours)
     counts = []
     for i, (rendered, K, c2w) in enumerate(views):
         count = np.zeros(rendered["depth"].shape, dtype=np.int32)
         pixels = np.flatnonzero(solids[i])
         points = backproject(rendered["depth"], K, c2w).reshape(-1, 3)[pixels]
-        for j in nearest_views([v[2] for v in views], neighbours)[i]:
+        for j in others[i]:
             other, K_j, c2w_j = views[j]
             c2w_j = np.asarray(c2w_j)
             cam = (points - c2w_j[:3, 3]) @ c2w_j[:3, :3]  # R^T (p - c), row vectors

@@ -73,6 +73,16 @@ class _Trilinear(torch.autograd.Function):
         return table_grad, None, weights_grad
 
 
+def grid_cells(u: Tensor, resolutions: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """The cell each of (M, 3) box coordinates u (clamped to [0, 1]) falls in on grids of (L,) ``resolutions``
+    cells a side: its lowest vertex (L, 3, M) as integers, the point's fraction across it (L, 3, M), and
+    the vertices a side (L, 1)."""
+    r = resolutions.to(u.dtype).view(-1, 1, 1)
+    p = u.clamp(0.0, 1.0).t().unsqueeze(0) * r  # (L, 3, M)
+    i0 = torch.minimum(p.floor(), r - 1)
+    return i0.long(), p - i0, (resolutions + 1).view(-1, 1)
+
+
 def trilinear_corners(u: Tensor, resolutions: Tensor, offsets: Tensor) -> tuple[Tensor, Tensor]:
     """Vertices and weights of trilinear interpolation on grids of several resolutions at once.
 
@@ -85,12 +95,7 @@ def trilinear_corners(u: Tensor, resolutions: Tensor, offsets: Tensor) -> tuple[
         (corner c = 4 dx + 2 dy + dz). Points run along the last axis, so every step is a long
         contiguous vector operation.
     """
-    r = resolutions.to(u.dtype).view(-1, 1, 1)
-    p = u.clamp(0.0, 1.0).t().unsqueeze(0) * r  # (L, 3, M)
-    i0 = torch.minimum(p.floor(), r - 1)
-    f = p - i0
-    i0 = i0.long()
-    n = (resolutions + 1).view(-1, 1)
+    i0, f, n = grid_cells(u, resolutions)
     base = [i0[:, 0] * (n * n) + offsets.view(-1, 1), i0[:, 1] * n, i0[:, 2]]  # (L, M) each
     step = [n * n, n, 1]
     index, weights = [], []
@@ -118,8 +123,8 @@ class GridField(nn.Module):
 
     @classmethod
     def config_of(cls, params: Any) -> GridFieldConfig:
-        """The configuration ``nerfpipe.nerf.config.FieldParams`` asks for."""
-        return GridFieldConfig(
+        """The configuration ``nerfpipe.nerf.config.FieldParams`` asks for (of the field's own ``Config``)."""
+        return cls.Config(
             levels=params.levels, min_resolution=params.min_resolution, max_resolution=params.max_resolution,
             features=params.features, hidden=params.hidden,
             dir_freqs=params.dir_freqs if params.positional_encoding else 0, view_dependent=params.view_dependence,

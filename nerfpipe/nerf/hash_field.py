@@ -12,13 +12,14 @@ Everything else -- the one stacked (rows, features) table, the trilinear gather 
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+import dataclasses
+from dataclasses import dataclass
 from typing import Any
 
 import torch
 from torch import Tensor
 
-from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
+from nerfpipe.nerf.grid_field import GridField, GridFieldConfig, grid_cells
 
 PRIMES = (1, 2654435761, 805459861)  # Instant-NGP's hash, one prime per axis (the first is 1 for coherence)
 
@@ -41,12 +42,7 @@ def hashed_corners(u: Tensor, resolutions: Tensor, offsets: Tensor, sizes: Tenso
     Returns:
         index: (L, 8, M) rows of the stacked table; weights: (L, 8, M), summing to 1 over the corners.
     """
-    r = resolutions.to(u.dtype).view(-1, 1, 1)
-    p = u.clamp(0.0, 1.0).t().unsqueeze(0) * r  # (L, 3, M)
-    i0 = torch.minimum(p.floor(), r - 1)
-    f = p - i0
-    i0 = i0.long()
-    n = (resolutions + 1).view(-1, 1)
+    i0, f, n = grid_cells(u, resolutions)
     hashed = (sizes < n.view(-1) ** 3).view(-1, 1)  # (L, 1)
     mask = (sizes - 1).view(-1, 1)
     offset = offsets.view(-1, 1)
@@ -77,7 +73,7 @@ class HashGridField(GridField):
     @classmethod
     def config_of(cls, params: Any) -> HashFieldConfig:
         """The grid field's configuration with the table size ``FieldParams.log2_table``."""
-        return HashFieldConfig(**asdict(GridField.config_of(params)), log2_table=params.log2_table)
+        return dataclasses.replace(super().config_of(params), log2_table=params.log2_table)
 
     @staticmethod
     def describe(spec: dict[str, Any]) -> str:

@@ -11,13 +11,13 @@ Everything else -- the one stacked (rows, features) table, its row gather and sc
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import torch
 from torch import Tensor
 
-from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
+from nerfpipe.nerf.grid_field import GridField, GridFieldConfig, grid_cells
 
 PLANES = ((0, 1), (0, 2), (1, 2))  # the axes each plane spans
 
@@ -42,12 +42,7 @@ def bilinear_corners(u: Tensor, resolutions: Tensor, offsets: Tensor) -> tuple[T
         index: (3 L, 4, M) rows, plane-major (level l's plane p at p L + l); weights: (3 L, 4, M), summing
         to 1 over the 4 corners (corner c = 2 da + db).
     """
-    r = resolutions.to(u.dtype).view(-1, 1, 1)
-    p = u.clamp(0.0, 1.0).t().unsqueeze(0) * r  # (L, 3, M)
-    i0 = torch.minimum(p.floor(), r - 1)
-    f = p - i0
-    i0 = i0.long()
-    n = (resolutions + 1).view(-1, 1)
+    i0, f, n = grid_cells(u, resolutions)
     index, weights = [], []
     for plane, (a, b) in enumerate(PLANES):
         base = offsets.view(-1, 1) + (plane * n + i0[:, a]) * n + i0[:, b]  # (L, M)
@@ -64,11 +59,6 @@ class PlaneField(GridField):
     needs_box = True
 
     Config = PlaneFieldConfig
-
-    @classmethod
-    def config_of(cls, params: Any) -> PlaneFieldConfig:
-        """The grid field's configuration; its levels, resolutions and features are the planes'."""
-        return PlaneFieldConfig(**asdict(GridField.config_of(params)))
 
     @staticmethod
     def describe(spec: dict[str, Any]) -> str:
