@@ -9,7 +9,7 @@ from typing import Callable, Iterator
 
 import typer
 from rich.console import Console
-from rich.markup import escape
+from rich.markup import escape as escape_markup
 from rich.table import Table
 
 from nerfpipe.pipeline import NerfpipeError, Pipeline
@@ -17,6 +17,12 @@ from nerfpipe.pipeline.errors import os_error_to_user_error
 
 err_console = Console(stderr=True)
 out_console = Console()
+
+def escape(text: str) -> str:
+    """``text`` safe to print: control characters (a newline or terminal escape codes in a file name) shown as
+    ``\\n`` or ``\\x1b`` rather than acted on, and Rich markup shown as written."""
+    return escape_markup(text if text.isprintable() else "".join(c if c.isprintable() else repr(c)[1:-1] for c in text))
+
 
 STATE_STYLE = {"fresh": "green", "stale": "yellow", "broken": "red", "missing": "red"}
 
@@ -127,7 +133,7 @@ def batch_progress(total: int) -> Iterator[Callable]:
         for column in ("capture", "state", "stage", "time"):
             table.add_column(column)
         for c in states:
-            table.add_row(c.name, c.state, c.stage or "", f"{c.seconds:.0f} s" if c.started else "")
+            table.add_row(escape(c.name), c.state, c.stage or "", f"{c.seconds:.0f} s" if c.started else "")
         return table
 
     with Live(console=err_console, transient=True, refresh_per_second=4) as live:

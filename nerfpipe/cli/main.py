@@ -7,13 +7,13 @@ from pathlib import Path
 from typing import List, Optional
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
 from nerfpipe.cli.console import (
     STATE_STYLE,
     batch_progress,
     bench_line,
+    escape,
     out_console,
     progress_factory,
     serve_web,
@@ -108,12 +108,12 @@ def run(
         finally:
             if (run_dir / "run.json").is_file():  # the run got as far as recording its settings
                 write_config(run_dir, pipe.plan(), job_budget)
-    table = Table(title=f"nerfpipe run -> {run_dir}", title_justify="left")
+    table = Table(title=f"nerfpipe run -> {escape(str(run_dir))}", title_justify="left")
     for column in ("stage", "result", "time"):
         table.add_column(column)
     table.add_column("output", overflow="fold")
     for o in outcomes:
-        made = escape(o.reasons[0]) if o.action in ("failed", "skipped") else str(o.path)
+        made = escape(o.reasons[0] if o.action in ("failed", "skipped") else str(o.path))
         table.add_row(o.name, o.action, f"{o.seconds:.1f} s", made)
     out_console.print(table)
     trouble = [o for o in outcomes if o.action in ("failed", "skipped")]
@@ -145,11 +145,11 @@ def status(
         pipe = Pipeline.from_run_dir(default_stages(), run_dir, preset, parse_assignments(set_))
         moved = pipe.verify() if verify else []
         statuses = pipe.status()
-    table = Table(title=f"{run_dir} (photos: {pipe.source})", title_justify="left")
+    table = Table(title=f"{escape(str(run_dir))} (photos: {escape(str(pipe.source))})", title_justify="left")
     for column in ("stage", "state", "reason", "key"):
         table.add_column(column)
     for s in statuses:
-        table.add_row(s.name, f"[{STATE_STYLE[s.state]}]{s.state}[/]", "; ".join(s.reasons), s.key[:12])
+        table.add_row(s.name, f"[{STATE_STYLE[s.state]}]{s.state}[/]", escape("; ".join(s.reasons)), s.key[:12])
     out_console.print(table)
     for s in statuses:
         for line in pipe.describe(s):
@@ -319,14 +319,14 @@ def batch(
         runner = LocalExecutor(max_parallel or 1, max_retries) if executor == "local" else RayExecutor(address, max_retries)
         with runner, batch_progress(len(sources)) as on_change:
             states = Batch(sources, out, runner, settings, on_change).run()
-    table = Table(title=f"nerfpipe batch -> {out} ({executor})", title_justify="left")
+    table = Table(title=f"nerfpipe batch -> {escape(str(out))} ({executor})", title_justify="left")
     for column in ("capture", "state", "ran", "cached", "time"):
         table.add_column(column)
     table.add_column("reason", overflow="fold")
     for c in states:
         reason = "" if c.error is None else f"{c.stage or 'plan'}: {c.error}" + (f" (log: {c.log})" if c.log else "")
         style = {"done": "green", "failed": "red"}.get(c.state, "")
-        table.add_row(c.name, f"[{style}]{c.state}[/]", str(c.count("ran")), str(c.count("cached") + c.count("restored")),
+        table.add_row(escape(c.name), f"[{style}]{c.state}[/]", str(c.count("ran")), str(c.count("cached") + c.count("restored")),
                       f"{c.seconds:.1f} s", escape(reason))
     out_console.print(table)
     failed = [c for c in states if c.state != "done"]

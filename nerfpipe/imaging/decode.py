@@ -278,7 +278,7 @@ def read_photo(path: Path, raw: RawOptions = RawOptions(), limits: SizeLimits = 
 
 
 def _decode_image(path: Path, data: bytes, exif: ExifSummary) -> DecodedPhoto:
-    """Decode a JPEG, PNG or TIFF with OpenCV and make it upright RGB(A)."""
+    """Decode a JPEG (libjpeg-turbo, strictly), PNG or TIFF (OpenCV) and make it upright RGB(A)."""
     container = sniff_container(data) or "jpeg"
     if container == "tiff" and exif.orientation != 1:
         # OpenCV's TIFF decoder applies the Orientation tag itself, even with IMREAD_UNCHANGED (its JPEG and
@@ -286,9 +286,11 @@ def _decode_image(path: Path, data: bytes, exif: ExifSummary) -> DecodedPhoto:
         # "as stored" keeps one rule for every container: OpenCV decodes, we orient.
         data = _tiff_with_stored_orientation(data)
     container_name = CONTAINER_NAMES[container]
+    stored = _decode_jpeg_strictly(path, data) if container == "jpeg" else None
     try:
         # IMREAD_UNCHANGED keeps 16-bit depth and alpha, and (unlike IMREAD_COLOR) leaves orientation to us.
-        stored = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        if stored is None:
+            stored = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as err:
         raise BadPhotoError(
             path, f"cannot be decoded (corrupt or not really a {container_name}: {err.msg})", RECOPY_ADVICE
@@ -306,6 +308,26 @@ def _decode_image(path: Path, data: bytes, exif: ExifSummary) -> DecodedPhoto:
         linear=False,
         source_size=(pixels.shape[1], pixels.shape[0]),
     )
+
+
+def _decode_jpeg_strictly(path: Path, data: bytes) -> np.ndarray | None:
+    """A JPEG's pixels as BGR, decoded by libjpeg-turbo (simplejpeg) with its warnings as errors.
+
+    libjpeg decodes damaged image data with a warning on stderr ("Corrupt JPEG data: ... extraneous bytes")
+    and grey or green blocks where the data was; OpenCV passes that image on as if whole. Here a JPEG that
+    decodes only with such a warning raises ``BadPhotoError``. ``None`` for a JPEG simplejpeg does not decode
+    at all (CMYK, 12-bit, arithmetic coding), which OpenCV then tries."""
+    import simplejpeg  # libjpeg-turbo's TurboJPEG API, as ingest's decoder of JPEGs
+
+    try:
+        return simplejpeg.decode_jpeg(data, colorspace="BGR", strict=True)
+    except ValueError as strict_error:
+        try:
+            simplejpeg.decode_jpeg(data, colorspace="BGR", strict=False)
+        except ValueError:
+            return None
+        raise BadPhotoError(path, f"has damaged image data (libjpeg: {str(strict_error).strip()})",
+                            RECOPY_ADVICE) from None
 
 
 def _tiff_with_stored_orientation(data: bytes) -> bytes:

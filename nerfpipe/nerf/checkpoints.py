@@ -9,7 +9,8 @@ from pathlib import Path
 
 import torch
 
-from nerfpipe.nerf.model import RadianceModel
+from nerfpipe.nerf.model import RadianceModel, load_tensors
+from nerfpipe.pipeline.errors import InputError
 
 log = logging.getLogger("nerfpipe.nerf.trainer")
 
@@ -27,10 +28,14 @@ def save_checkpoint(folder: Path, step: int, elapsed: float, model: RadianceMode
     state = {"step": step, "elapsed": elapsed, **model.state(), "optimizer": optimizer.state_dict(), **(extra or {})}
     path = folder / f"step_{step:07d}.pt"
     tmp = folder / f".{path.name}.tmp"
-    torch.save(state, tmp)
-    with open(tmp, "rb") as f:
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        torch.save(state, tmp)
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:  # a full disk, an interrupt: no half-written file stays behind
+        tmp.unlink(missing_ok=True)
+        raise
     if keep > 0:
         for old in checkpoints(folder)[:-keep]:
             old.unlink()
@@ -41,7 +46,11 @@ def load_latest_checkpoint(folder: Path, device: torch.device) -> dict | None:
     """The newest checkpoint that loads (tensors only: ``weights_only=True``), or None."""
     for path in reversed(checkpoints(folder)):
         try:
-            return torch.load(path, map_location=device, weights_only=True)
+            return load_tensors(path, device, "checkpoint")
+        except InputError:
+            log.warning("checkpoint %s is not a nerfpipe checkpoint (it holds Python objects, not only tensors) and "
+                        "was not loaded; trying the one before", path.name)
         except Exception as err:  # a damaged file: fall back to the one before
-            log.warning("checkpoint %s is unreadable (%s); trying the one before", path.name, err)
+            first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            log.warning("checkpoint %s is unreadable (%s); trying the one before", path.name, first)
     return None

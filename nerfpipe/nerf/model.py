@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import pickle
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -24,6 +25,7 @@ from nerfpipe.nerf.registry import FIELDS, SAMPLERS, resolve
 from nerfpipe.nerf.renderer import RayBatch
 from nerfpipe.nerf.samplers import Sampler
 from nerfpipe.nerf.spec import ModelSpec
+from nerfpipe.pipeline.errors import InputError
 
 
 @dataclass
@@ -158,8 +160,19 @@ class RadianceModel:
         """The model ``save`` wrote: built from the spec in model.json, then its weights loaded."""
         spec = ModelSpec.from_json(json.loads((folder / "model.json").read_text()))
         model = build(spec, device)
-        model.load_state(torch.load(folder / "model.pt", map_location=device, weights_only=True))
+        model.load_state(load_tensors(folder / "model.pt", device, "model"))
         return model
+
+
+def load_tensors(path: Path, device: torch.device | str, what: str) -> dict:
+    """The tensors of a file nerfpipe saved, unpickled with ``weights_only`` (no code runs). A file holding
+    anything else is refused with one line, ``InputError``, and never loaded as arbitrary pickles."""
+    try:
+        return torch.load(path, map_location=device, weights_only=True)
+    except pickle.UnpicklingError:
+        raise InputError(path, f"is not a nerfpipe {what}: it holds Python objects, not only tensors, so it was not "
+                         "loaded", "rerun with `--force train` to train it again; load models only from sources you trust"
+                         ) from None
 
 
 def build(spec: ModelSpec, device: torch.device | str = "cpu") -> RadianceModel:

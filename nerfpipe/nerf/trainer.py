@@ -113,8 +113,12 @@ class Trainer:
     """Optimizes a ``RadianceModel`` on a ``PixelSet``; writes checkpoints and ``metrics.jsonl`` in ``out``.
     Applies the config's precision settings (``set_precision``)."""
 
-    def __init__(self, model: RadianceModel, pixels: PixelSet, config: TrainConfig, out: Path, device: torch.device) -> None:
+    def __init__(self, model: RadianceModel, pixels: PixelSet, config: TrainConfig, out: Path, device: torch.device,
+                 clock: Callable[[], float] = time.perf_counter) -> None:
+        """``clock``: seconds from any start, what a time budget is measured by (a test's makes steps take
+        a known time)."""
         set_precision(config, device)
+        self.clock = clock
         self.model, self.pixels, self.config, self.out, self.device = model, pixels.to(device), config, out, device
         groups = parameter_groups(model, config)
         # fused Adam: one pass over each tensor, which matters for grids of millions of values on a CPU
@@ -316,7 +320,7 @@ class Trainer:
             # the clock runs from here to each step's end, and again from the end of ``after_step``: the
             # bookkeeping after a step (logging, checkpoints) counts towards the next one, so a time budget
             # is judged once a step, right after it, and the step that spends it is the one logged last
-            started = time.perf_counter()
+            started = self.clock()
             while not self.finished():
                 loss, psnr = self.train_step(self.step)
                 rays = self.rays
@@ -325,7 +329,7 @@ class Trainer:
                 if self.device.type == "cuda":
                     torch.cuda.synchronize(self.device)
                 self.step += 1
-                now = time.perf_counter()
+                now = self.clock()
                 self.elapsed += now - started
                 started = now
                 last = self.finished()
@@ -363,4 +367,4 @@ class Trainer:
                              psnr, self.elapsed)
                 if after_step is not None and after_step(self):
                     break
-                started = time.perf_counter()
+                started = self.clock()

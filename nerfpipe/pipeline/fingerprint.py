@@ -26,28 +26,32 @@ class Fingerprint:
 
 
 class FingerprintCache:
-    """Remembers (size, mtime_ns) -> sha256 per absolute path, in one JSON file of the run directory."""
+    """Remembers (size, mtime_ns) -> sha256 per absolute path, in one JSON file of the run directory.
 
-    def __init__(self, path: Path) -> None:
-        self.path = path
+    ``rehash`` hashes every file whatever its size and time say (``status --verify``: a photo replaced in place
+    with its size and time kept), and remembers the new hashes."""
+
+    def __init__(self, path: Path, rehash: bool = False) -> None:
+        self.path, self.rehash = path, rehash
         self._entries: dict[str, list] = {}
         self._dirty = False
-        if path.exists():
-            try:
-                self._entries = json.loads(path.read_text())
-            except (OSError, ValueError):
-                self._entries = {}  # a damaged cache only costs rehashing
+        try:
+            entries = json.loads(path.read_text())
+        except (OSError, ValueError):
+            entries = {}  # a missing or damaged cache only costs rehashing
+        if isinstance(entries, dict):  # and one of another shape is dropped, entry by entry
+            self._entries = {k: v for k, v in entries.items() if _well_formed(v)}
 
     def fingerprint(self, file: Path, root: Path) -> Fingerprint:
         st = file.stat()
         key = str(file.resolve())
         cached = self._entries.get(key)
-        if cached is not None and cached[0] == st.st_size and cached[1] == st.st_mtime_ns:
+        if not self.rehash and cached is not None and cached[0] == st.st_size and cached[1] == st.st_mtime_ns:
             digest = cached[2]
         else:
             digest = sha256_file(file)
+            self._dirty = self._dirty or self._entries.get(key) != [st.st_size, st.st_mtime_ns, digest]
             self._entries[key] = [st.st_size, st.st_mtime_ns, digest]
-            self._dirty = True
         return Fingerprint(file.relative_to(root).as_posix(), st.st_size, st.st_mtime_ns, digest)
 
     def save(self) -> None:
@@ -64,6 +68,12 @@ class FingerprintCache:
             tmp.unlink(missing_ok=True)
             return
         self._dirty = False
+
+
+def _well_formed(entry: object) -> bool:
+    """[size, mtime_ns, sha256], as ``fingerprint`` stores them."""
+    return (isinstance(entry, list) and len(entry) == 3 and isinstance(entry[0], int) and isinstance(entry[1], int)
+            and isinstance(entry[2], str))
 
 
 def diff_inputs(old: dict[str, str], new: dict[str, str]) -> tuple[list[str], list[str], list[str]]:

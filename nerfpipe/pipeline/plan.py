@@ -46,11 +46,13 @@ def check_run_dir(source: Path, run_dir: Path) -> None:
 
 
 def plan_stages(dag: Dag, source: Path, run_dir: Path, preset: str | None,
-                overrides: Mapping[str, Mapping[str, Any]], budget: float | str | None) -> dict[str, PlannedStage]:
+                overrides: Mapping[str, Mapping[str, Any]], budget: float | str | None,
+                rehash: bool = False) -> dict[str, PlannedStage]:
     """Every stage's parameters, fingerprinted capture files and cache key, in the DAG's order. The key hashes
     the stage's name, version and parameters, its upstream keys, its files' fingerprints and, for a stage that
-    takes part in the job's time ``budget``, the budget as given."""
-    fingerprints = FingerprintCache(run_dir / ".cache" / "fingerprints.json")
+    takes part in the job's time ``budget``, the budget as given. ``rehash``: hash every capture file, trusting
+    no cached fingerprint."""
+    fingerprints = FingerprintCache(run_dir / ".cache" / "fingerprints.json", rehash)
     root = capture_root(source)
     planned: dict[str, PlannedStage] = {}
     for name in dag.order:
@@ -130,7 +132,8 @@ def stale_reasons(planned: PlannedStage, previous: Mapping[str, Any], inputs_lab
     old_inputs = {rel: meta["sha256"] for rel, meta in previous.get("inputs", {}).items()}
     added, removed, modified = diff_inputs(old_inputs, planned.material["inputs"])
     if added or removed or modified:
-        parts = [f"{len(v)} {word}" for v, word in ((added, "added"), (modified, "modified"), (removed, "removed")) if v]
+        parts = [f"{len(v)} {word}" + (f" ({', '.join(v)})" if len(v) <= 3 else "")
+                 for v, word in ((added, "added"), (modified, "modified"), (removed, "removed")) if v]
         reasons.append(f"{inputs_label} changed: " + ", ".join(parts))
     return reasons or ["cache key changed"]
 

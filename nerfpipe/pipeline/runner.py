@@ -104,12 +104,13 @@ class Pipeline:
         return cls(stages, Path(config.source), run_dir, preset or config.preset, merged, **kwargs)
 
     # -- planning ------------------------------------------------------------------------------
-    def plan(self) -> dict[str, PlannedStage]:
-        if self._plan is not None:
+    def plan(self, rehash: bool = False) -> dict[str, PlannedStage]:
+        """Every stage's parameters and key; ``rehash`` hashes the capture's files again (planned anew)."""
+        if self._plan is not None and not rehash:
             return self._plan
         if not self.source.exists():
             raise InputError(self.source, "capture folder does not exist", "pass a folder of photos, or a video")
-        self._plan = plan_stages(self.dag, self.source, self.run_dir, self.preset, self.overrides, self.budget)
+        self._plan = plan_stages(self.dag, self.source, self.run_dir, self.preset, self.overrides, self.budget, rehash)
         return self._plan
 
     def status(self, verify: bool = False) -> list[StageStatus]:
@@ -137,11 +138,13 @@ class Pipeline:
         return list(statuses.values())
 
     def verify(self) -> list[tuple[StageStatus, Path]]:
-        """Hash every output of every result the current settings use; move the damaged ones aside.
+        """Hash every capture file and every output of every result the current settings use; move the damaged
+        results aside (a changed photo makes the stages that read it stale).
 
         Returns each damaged stage's status and where its folder went; the next ``run`` computes it again.
         """
         moved = []
+        self.plan(rehash=True)
         self.store.prepare()
         with RunLock(self.run_dir):
             for status in self.status(verify=True):

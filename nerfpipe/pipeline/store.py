@@ -103,6 +103,20 @@ def verify_outputs(folder: Path, outputs: dict[str, dict[str, Any]], full: bool 
     return None
 
 
+def _well_formed(manifest: Any) -> bool:
+    """A manifest of the shape ``commit`` writes: its key, its sections as objects, and every output's size,
+    time and sha256."""
+    if not isinstance(manifest, dict) or not isinstance(manifest.get("key"), str):
+        return False
+    if any(not isinstance(manifest.get(k, {}), dict) for k in ("params", "upstream", "upstream_commits", "inputs",
+                                                                 "summary", "timings")):
+        return False
+    outputs = manifest.get("outputs")
+    return isinstance(outputs, dict) and all(
+        isinstance(meta, dict) and isinstance(meta.get("size"), int) and isinstance(meta.get("sha256"), str)
+        and isinstance(meta.get("mtime_ns", 0), int) for meta in outputs.values())
+
+
 @dataclass(frozen=True)
 class Committed:
     """A committed result: its folder and its manifest."""
@@ -141,8 +155,8 @@ class ArtifactStore:
             return Damage(folder, MANIFEST, "is missing")
         except (OSError, ValueError):
             return Damage(folder, MANIFEST, "is not readable JSON")
-        if not isinstance(manifest, dict) or not isinstance(manifest.get("outputs"), dict) or "key" not in manifest:
-            return Damage(folder, MANIFEST, "has no key or outputs")
+        if not _well_formed(manifest):
+            return Damage(folder, MANIFEST, "has no key or outputs, or an output without its size and sha256")
         return verify_outputs(folder, manifest["outputs"], full) or Committed(folder, manifest)
 
     def get(self, stage: str, key: str) -> Committed | None:
@@ -153,9 +167,10 @@ class ArtifactStore:
     def latest_key(self, stage: str) -> str | None:
         """The key the last run of ``stage`` used, whatever became of its result."""
         try:
-            return json.loads((self.stages_dir / stage / "latest.json").read_text())["key"]
-        except (FileNotFoundError, ValueError, KeyError):
-            return None
+            key = json.loads((self.stages_dir / stage / "latest.json").read_text())["key"]
+        except (OSError, ValueError, KeyError, TypeError, IndexError):
+            return None  # a damaged pointer only loses which key ran last
+        return key if isinstance(key, str) else None
 
     def latest(self, stage: str) -> Committed | None:
         """The intact result the last run of ``stage`` used, if any."""

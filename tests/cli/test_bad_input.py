@@ -5,10 +5,10 @@ from __future__ import annotations
 import json
 import shutil
 import struct
-import time
 import zlib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tests.helpers import TEMPLE, run_cli, shared
@@ -61,6 +61,30 @@ def photos(tmp_path) -> Path:
 def test_corrupt_jpeg(photos, tmp_path):
     (photos / "broken.jpg").write_bytes(b"\xff\xd8\xff\xe0" + bytes(range(256)) * 40)
     assert_one_clear_error(ingest(photos, tmp_path), "broken.jpg")
+
+
+def test_a_jpeg_with_damaged_image_data_is_refused_not_decoded_green(photos, tmp_path):
+    """2000 bytes in the middle of the entropy-coded data overwritten (no 0xFF, so no marker breaks the
+    structure): libjpeg decodes it with a warning and grey-green blocks; ingest refuses it, or --skip-bad
+    skips it."""
+    data = bytearray((shared("llff_cup_kwrous", "images") / "1.jpg").read_bytes())
+    middle = len(data) // 2
+    data[middle:middle + 2000] = np.random.default_rng(0).integers(0, 255, 2000, dtype=np.uint8).tobytes()
+    (photos / "cup.jpg").write_bytes(bytes(data))
+    line = assert_one_clear_error(ingest(photos, tmp_path), "cup.jpg", "has damaged image data", "Corrupt JPEG data")
+    assert "copy it again from the camera or card" in line
+    skipped = run_cli("run", photos, "--out", tmp_path / "skip", "--until", "ingest", "--skip-bad")
+    assert skipped.returncode == 0, skipped.stderr
+    assert "warning: skipped" in skipped.stderr and "cup.jpg: has damaged image data" in skipped.stderr
+    assert "2 photos" in skipped.stderr and "1 skipped" in skipped.stderr
+
+
+def test_names_with_control_characters_are_printed_escaped(photos, tmp_path):
+    """A file name holding a newline and a terminal escape code is shown as \\n and \\x1b, not acted on."""
+    (photos / "bad\x1b[2J\nerror: fake.jpg").write_bytes(b"\xff\xd8\xff\xe0" + bytes(range(256)) * 40)
+    result = ingest(photos, tmp_path)
+    assert_one_clear_error(result, "bad\\x1b[2J\\nerror: fake.jpg")
+    assert "\x1b" not in result.stderr and "\nerror: fake" not in result.stderr
 
 
 def test_truncated_jpeg(photos, tmp_path):
@@ -182,9 +206,7 @@ def test_9_a_decompression_bomb_is_refused_before_decoding(photos, tmp_path):
     idat = b"".join(rows.compress(row) for _ in range(20000)) + rows.flush()
     (photos / "bomb.png").write_bytes(png_bytes(20000, 20000, idat, colour_type=0))
     assert (photos / "bomb.png").stat().st_size < 1_000_000
-    started = time.perf_counter()
     result = ingest(photos, tmp_path)
-    assert time.perf_counter() - started < 20
     assert_one_clear_error(result, "bomb.png: is 20000x20000 pixels (400 megapixels), above ingest.max_megapixels=250",
                            "--set ingest.max_megapixels=400")
 

@@ -157,3 +157,59 @@ def test_verify_finds_what_the_cheap_check_cannot_and_the_next_run_recomputes_it
     actions, _ = rerun(run_dir)
     assert actions == {"ingest": "cached", "sfm": "ran", "undistort": "ran"}
     assert "0 damaged results" in run_cli("status", run_dir, "--verify").stdout
+
+
+def test_a_manifest_of_another_shape_is_damage_the_next_run_recomputes(run_dir):
+    """Valid JSON of the wrong shape (an output without its size), not only unreadable JSON."""
+    manifest = result_dir(run_dir, "undistort") / "manifest.json"
+    doc = json.loads(manifest.read_text())
+    for meta in doc["outputs"].values():
+        del meta["size"]
+    manifest.write_text(json.dumps(doc))
+    status = table(run_cli("status", run_dir).stdout)
+    assert status["undistort"][1] == "broken" and "manifest.json has no key or outputs" in status["undistort"][2]
+    actions, stderr = rerun(run_dir)
+    assert actions == {"ingest": "cached", "sfm": "cached", "undistort": "ran"}
+    assert_moved_aside(run_dir, "undistort", "manifest.json", stderr)
+    assert states(run_dir) == dict.fromkeys(STAGES, "fresh")
+
+
+@pytest.mark.parametrize("path", ["stages/sfm/latest.json", ".cache/fingerprints.json"])
+def test_a_pointer_or_cache_of_another_shape_costs_nothing_but_a_lookup(run_dir, path):
+    """latest.json and the fingerprint cache hold no results: a list where an object belongs is dropped."""
+    (run_dir / path).write_text("[]")
+    assert states(run_dir) == dict.fromkeys(STAGES, "fresh")
+    assert set(rerun(run_dir)[0].values()) <= {"cached", "restored"}  # nothing computed again
+    assert isinstance(json.loads((run_dir / path).read_text()), dict)  # and the run rewrote it
+
+
+def test_a_run_json_of_another_shape_is_one_line_and_the_next_run_rewrites_it(run_dir):
+    source = json.loads((run_dir / "run.json").read_text())["source"]
+    (run_dir / "run.json").write_text("{}")
+    result = run_cli("status", run_dir)
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert error_lines(result.stderr) == [f"error: {run_dir / 'run.json'}: is damaged; rerun `nerfpipe run "
+                                          "PHOTOS_DIR --out` on this folder"]
+    result = run_cli("run", source, "--out", run_dir, "--until", "undistort")
+    assert result.returncode == 0 and {row[1] for row in table(result.stdout).values()} == {"cached"}
+    assert states(run_dir) == dict.fromkeys(STAGES, "fresh")
+
+
+def test_verify_hashes_the_photos_too(run_dir, tmp_path):
+    """A photo replaced in place with its size and time kept passes the cheap check; --verify hashes it."""
+    capture = tmp_path / "capture"
+    shutil.copytree(json.loads((run_dir / "run.json").read_text())["source"], capture)
+    config = json.loads((run_dir / "run.json").read_text())
+    (run_dir / "run.json").write_text(json.dumps({**config, "source": str(capture)}))
+    assert states(run_dir) == dict.fromkeys(STAGES, "fresh")
+    photo, other = capture / "templeSR0005.png", (capture / "templeSR0007.png").read_bytes()
+    stat, size = photo.stat(), photo.stat().st_size
+    photo.write_bytes(other[:size].ljust(size, b"\0"))
+    os.utime(photo, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    assert states(run_dir) == dict.fromkeys(STAGES, "fresh")  # size and time say nothing
+    result = run_cli("status", run_dir, "--verify")
+    assert result.returncode == 0, result.stderr
+    status = table(result.stdout)
+    assert status["ingest"][1] == "stale" and status["ingest"][2] == "photos changed: 1 modified (templeSR0005.png)"
+    assert status["sfm"][1] == "stale" and status["undistort"][1] == "stale"
+    assert states(run_dir)["ingest"] == "stale"  # the new hash is remembered

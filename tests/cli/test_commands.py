@@ -27,11 +27,13 @@ def test_run_status_and_rerun(capture, tmp_path):
     shutil.copy(TEMPLE / "templeSR0008.png", capture)
     shutil.copy(TEMPLE / "templeSR0011.png", capture / "templeSR0001.png")
     status = run_cli("status", run_dir)
-    assert "photos changed: 2 added, 1 modified" in status.stdout
+    assert "photos changed: 2 added (templeSR0007.png, templeSR0008.png), 1 modified (templeSR0001.png)" \
+        in status.stdout.replace("\n", "")
 
     rerun = run_cli("run", capture, "--out", run_dir, "--set", "ingest.max_size=320", "--until", "ingest")
     assert rerun.returncode == 0
-    assert "ingest: running again: photos changed: 2 added, 1 modified" in rerun.stderr
+    assert ("ingest: running again: photos changed: 2 added (templeSR0007.png, templeSR0008.png), 1 modified "
+            "(templeSR0001.png)") in rerun.stderr
 
 
 def test_status_of_a_folder_that_is_no_run(tmp_path):

@@ -163,22 +163,28 @@ def test_the_random_backdrop_reaches_both_passes_of_section_5_2_sampling(tmp_pat
 
 
 def test_a_time_budget_trains_until_it_is_spent_with_the_learning_rate_decaying_over_it(tmp_path) -> None:
+    import itertools
     import json
 
     model = marching_model()
     config = TrainConfig(steps=0, seconds=1.5, batch_rays=256, batch_samples=2000, lr=1e-2, lr_final=1e-3, log_every=5)
-    trainer = Trainer(model, pixels_of_one_view(), config, tmp_path, torch.device("cpu"))
+    ticks = itertools.count()
+    clock = lambda: next(ticks) / 16  # noqa: E731 - each read 1/16 s later: a step (between two reads) takes that
+    trainer = Trainer(model, pixels_of_one_view(), config, tmp_path, torch.device("cpu"), clock=clock)
     advanced = []
     trainer.run(lambda n=1, info=None: advanced.append(n))
-    assert trainer.step > 5 and 1.5 <= trainer.elapsed < 3.0 and trainer.finished()
+    # the budget is judged after each step: the 24th step spends 1.5 s, and is the last
+    assert trainer.step == 24 and trainer.elapsed == pytest.approx(1.5) and trainer.finished()
     assert trainer.total == 2 and sum(advanced) == 2  # the progress bar counts whole seconds, and ends full
     log = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
-    assert log[-1]["step"] == trainer.step  # the last step is logged (and checkpointed), whatever its number
+    assert [r["step"] for r in log] == [5, 10, 15, 20, 24]  # every log_every steps, and the last one
+    walls = [0.3125, 0.625, 0.9375, 1.25, 1.5]
+    assert [r["wall"] for r in log] == pytest.approx(walls, abs=1e-3)
+    assert all(r["steps_per_s"] == pytest.approx(16.0) for r in log)
     lrs = [r["lr"] for r in log]
-    # decayed by the clock, to lr_final; where more than 200 steps fit in the 1.5 s, the stall guard finds the
-    # batch PSNR at the level of the mean colour (the grey view is its own mean colour) and restarts at half the rate
-    assert trainer.lr_scale == (0.5 if trainer.guard.restarted_at else 1.0)
-    assert lrs == sorted(lrs, reverse=True) and lrs[-1] == pytest.approx(1e-3 * trainer.lr_scale)
+    # decayed by the clock, from lr to lr_final: exponentially, 1e-2 * 0.1 ** (elapsed / 1.5)
+    assert trainer.lr_scale == 1.0 and trainer.guard.restarted_at is None  # 24 steps: before the stall guard acts
+    assert lrs == pytest.approx([1e-2 * 0.1 ** (w / 1.5) for w in walls])
     assert max(p.name for p in (tmp_path / "checkpoints").iterdir()) == f"step_{trainer.step:07d}.pt"
     # resumed from its last checkpoint, the spent budget stays spent
     again = Trainer(marching_model(), pixels_of_one_view(), config, tmp_path, torch.device("cpu"))

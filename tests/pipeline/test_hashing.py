@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 
 import pytest
@@ -66,6 +67,37 @@ def test_damaged_fingerprint_cache_only_costs_rehashing(tmp_path):
     photo = tmp_path / "a.png"
     photo.write_bytes(b"x")
     assert FingerprintCache(tmp_path / "fp.json").fingerprint(photo, tmp_path).sha256 == hashlib.sha256(b"x").hexdigest()
+
+
+@pytest.mark.parametrize("text", ["[]", '"text"', '{"/a.png": 5}', '{"/a.png": [1, 2]}', '{"/a.png": ["1", 2, "h"]}'])
+def test_a_fingerprint_cache_of_another_shape_only_costs_rehashing(tmp_path, text):
+    (tmp_path / "fp.json").write_text(text.replace("/a.png", str((tmp_path / "a.png").resolve())))
+    photo = tmp_path / "a.png"
+    photo.write_bytes(b"x")
+    cache = FingerprintCache(tmp_path / "fp.json")
+    assert cache.fingerprint(photo, tmp_path).sha256 == hashlib.sha256(b"x").hexdigest()
+    cache.save()  # and the file is rewritten in the right shape
+    assert json.loads((tmp_path / "fp.json").read_text()) == {
+        str(photo.resolve()): [1, photo.stat().st_mtime_ns, hashlib.sha256(b"x").hexdigest()]}
+
+
+def test_rehash_trusts_no_cached_fingerprint(tmp_path):
+    """A photo replaced in place with its size and time kept: only hashing it again sees it (status --verify)."""
+    import os
+
+    photo = tmp_path / "a.png"
+    photo.write_bytes(b"abc")
+    cache = FingerprintCache(tmp_path / "fp.json")
+    first = cache.fingerprint(photo, tmp_path)
+    cache.save()
+    st = photo.stat()
+    photo.write_bytes(b"xyz")
+    os.utime(photo, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert FingerprintCache(tmp_path / "fp.json").fingerprint(photo, tmp_path) == first  # size and time say nothing
+    rehashed = FingerprintCache(tmp_path / "fp.json", rehash=True)
+    assert rehashed.fingerprint(photo, tmp_path).sha256 == hashlib.sha256(b"xyz").hexdigest()
+    rehashed.save()
+    assert FingerprintCache(tmp_path / "fp.json").fingerprint(photo, tmp_path).sha256 == hashlib.sha256(b"xyz").hexdigest()
 
 
 def test_diff_inputs():

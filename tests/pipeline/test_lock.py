@@ -5,7 +5,6 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 
@@ -41,9 +40,8 @@ def test_second_run_fails_at_once_and_a_killed_holder_releases(capture, tmp_path
     run_dir = tmp_path / "run"
     holder = hold_lock(run_dir)
     try:
-        started = time.monotonic()
+        # the holder never lets go while it lives: a run that waited for it would hit run_cli's timeout
         result = run_cli("run", capture, "--out", run_dir, "--until", "ingest")
-        assert time.monotonic() - started < 20  # it does not wait for the holder
         assert result.returncode != 0
         assert f"run directory is in use by pid {holder.pid}" in result.stderr
         assert "Traceback" not in result.stderr

@@ -93,10 +93,12 @@ def test_status_reasons(capture, tmp_path):
     shutil.copy(TEMPLE / "templeSR0006.png", capture)
     shutil.copy(TEMPLE / "templeSR0009.png", capture / "templeSR0002.png")
     photos = Pipeline.from_run_dir(two_stages(), run_dir).status()
-    assert photos[0].reasons == ("photos changed: 2 added, 1 modified",)
+    assert photos[0].reasons == ("photos changed: 2 added (templeSR0005.png, templeSR0006.png), 1 modified "
+                                 "(templeSR0002.png)",)
     (capture / "templeSR0003.png").unlink()
     assert Pipeline.from_run_dir(two_stages(), run_dir).status()[0].reasons == (
-        "photos changed: 2 added, 1 modified, 1 removed",
+        "photos changed: 2 added (templeSR0005.png, templeSR0006.png), 1 modified (templeSR0002.png), 1 removed "
+        "(templeSR0003.png)",
     )
 
 

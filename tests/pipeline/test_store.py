@@ -43,6 +43,37 @@ def test_a_folder_without_manifest_is_not_a_result(tmp_path):
     assert store.get("s", "abc") is None and store.latest("s") is None and store.keys("s") == []
 
 
+@pytest.mark.parametrize("change", [
+    lambda m: m["outputs"]["sub/a.txt"].pop("size"),
+    lambda m: m["outputs"].update({"sub/a.txt": "5 bytes"}),
+    lambda m: m.update(outputs=[]),
+    lambda m: m.update(key=7),
+    lambda m: m.update(summary=[]),
+    lambda m: m.update(timings="fast"),
+])
+def test_a_manifest_of_another_shape_is_damage_not_a_crash(tmp_path, change):
+    store = ArtifactStore(tmp_path)
+    committed = store.commit("s", "k" * 64, _work(store, "k" * 64, "hello"), {"key": "k" * 64, "stage": "s"})
+    manifest = json.loads((committed.path / MANIFEST).read_text())
+    change(manifest)
+    (committed.path / MANIFEST).write_text(json.dumps(manifest))
+    found = store.inspect("s", "k" * 64)
+    assert isinstance(found, Damage) and found.file == MANIFEST
+    assert found.problem == "has no key or outputs, or an output without its size and sha256"
+    assert store.get("s", "k" * 64) is None
+
+
+@pytest.mark.parametrize("text", ["[]", "{}", '{"key": 5}', '["k"]', '"k"', "{"])
+def test_a_latest_pointer_of_another_shape_only_loses_which_key_ran_last(tmp_path, text):
+    store = ArtifactStore(tmp_path)
+    store.commit("s", "k" * 64, _work(store, "k" * 64, "hello"), {"key": "k" * 64, "stage": "s"})
+    store.set_latest("s", "k" * 64)
+    assert store.latest_key("s") == "k" * 64
+    (tmp_path / "stages" / "s" / "latest.json").write_text(text)
+    assert store.latest_key("s") is None and store.latest("s") is None
+    assert store.get("s", "k" * 64) is not None  # the result itself is still there for the key that needs it
+
+
 def test_begin_wipes_what_a_killed_attempt_left(tmp_path):
     store = ArtifactStore(tmp_path)
     work = _work(store, "k" * 64, "partial")
