@@ -22,7 +22,14 @@ import cv2
 import numpy as np
 
 from nerfpipe.imaging.exif import ExifSummary, read_exif
-from nerfpipe.imaging.integrity import CONTAINER_NAMES, RECOPY_ADVICE, check_integrity, sniff_container
+from nerfpipe.imaging.integrity import (
+    CONTAINER_NAMES,
+    HEAD_BYTES,
+    RECOPY_ADVICE,
+    check_head,
+    check_integrity,
+    sniff_container,
+)
 from nerfpipe.imaging.tiff import open_tiff, read_ifd
 from nerfpipe.imaging.video import VIDEO_EXTENSIONS
 from nerfpipe.pipeline.errors import BadPhotoError
@@ -144,17 +151,20 @@ def read_header(source: Path | bytes) -> PhotoHeader | None:
     """
     from PIL import JpegImagePlugin, PngImagePlugin, TiffImagePlugin
 
-    data = source if isinstance(source, bytes) else None
     try:
-        if data is None:
+        if isinstance(source, bytes):
+            data = source
+        else:
             with open(source, "rb") as f:
-                head = f.read(8)
-        container = sniff_container(data if data is not None else head)
+                data = f.read(HEAD_BYTES)  # Pillow walks a JPEG's garbage byte by byte: give it no more
+        container = sniff_container(data)
         plugin = {"jpeg": JpegImagePlugin.JpegImageFile, "png": PngImagePlugin.PngImageFile,
                   "tiff": TiffImagePlugin.TiffImageFile}.get(container or "")
         if plugin is None:
             return None
-        with plugin(io.BytesIO(data) if data is not None else str(source)) as image:
+        # a TIFF's IFD may be anywhere in the file: Pillow seeks to it in the file itself
+        whole = container == "tiff" and not isinstance(source, bytes)
+        with plugin(str(source) if whole else io.BytesIO(data)) as image:
             width, height = image.size
             mode = image.mode
             channels = len(image.getbands())
@@ -259,6 +269,10 @@ def read_photo(path: Path, raw: RawOptions = RawOptions(), limits: SizeLimits = 
     kind = photo_kind(path)
     if kind is None:
         raise BadPhotoError(path, "is not a supported photo format", unsupported_advice(path))
+    head = check_head(path, kind)  # before the whole file is read: a huge file of garbage costs its head only
+    header = read_header(head) if kind != "raw" else None
+    if header is not None:
+        check_size(path, (header.width, header.height), limits)
     try:
         data = path.read_bytes()
     except OSError as err:
@@ -271,8 +285,7 @@ def read_photo(path: Path, raw: RawOptions = RawOptions(), limits: SizeLimits = 
         from nerfpipe.imaging.raw import develop_raw  # rawpy loads LibRaw: only when a RAW shows up
 
         return develop_raw(path, data, exif, raw, limits)
-    header = read_header(data)
-    if header is not None:
+    if header is None and (header := read_header(data)) is not None:  # a TIFF whose IFD lies past the head
         check_size(path, (header.width, header.height), limits)
     return _decode_image(path, data, exif)
 

@@ -90,27 +90,60 @@ def check_integrity(path: Path, data: bytes, kind: str) -> None:
         _check_tiff(path, data)
 
 
+HEAD_BYTES = 1 << 20  # a photo's head: its magic bytes, and a JPEG's segments up to its first scan
+
+
+def check_head(path: Path, kind: str, size: int = HEAD_BYTES) -> bytes:
+    """Read the first ``size`` bytes of ``path`` and raise ``BadPhotoError`` if they are no photo's start: empty,
+    not the magic bytes of a JPEG, PNG or TIFF (camera RAW excepted), or a JPEG whose segments before its
+    first scan are corrupt. A file is checked this way before it is hashed or read whole (a 3 GB file of
+    zeros named .jpg costs a megabyte). Returns the head."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(size)
+    except OSError as err:
+        raise BadPhotoError(path, f"cannot be read ({err.strerror or err})",
+                            "check that it exists and that you may read it") from err
+    if not head:
+        raise BadPhotoError(path, "is empty (0 bytes)", RECOPY_ADVICE)
+    container = sniff_container(head)
+    if container is None and kind != "raw":
+        raise BadPhotoError(path, f"is not a valid {CONTAINER_NAMES[kind]} file",
+                            "its content is not a JPEG, PNG or TIFF image; re-export it or remove it from the photo folder")
+    if container == "jpeg":
+        _check_jpeg(path, head, whole=False)
+    return head
+
+
 def _truncated(path: Path, detail: str) -> BadPhotoError:
     return BadPhotoError(path, f"is truncated ({detail})", RECOPY_ADVICE)
 
 
-def _check_jpeg(path: Path, data: bytes) -> None:
+def _check_jpeg(path: Path, data: bytes, whole: bool = True) -> None:
     """Walk the JPEG segments by their lengths and require an end-of-image marker after the last scan.
 
     Segments (APPn with EXIF and its thumbnail, DQT, DHT, SOF, ...) are skipped by length, so the EOI of an
     embedded thumbnail is never mistaken for ours. After each start-of-scan the entropy-coded data runs to the
-    next real marker; progressive JPEGs have several scans, each walked in turn.
+    next real marker; progressive JPEGs have several scans, each walked in turn. Not ``whole``: ``data`` is the
+    file's head, walked to its first scan; running out of it says nothing.
     """
     position = 2
     seen_scan = False
+
+    def ran_out() -> None:
+        if whole:
+            raise _truncated(path, "JPEG ends before its end-of-image marker")
+
     while True:
         if position + 2 > len(data):
-            raise _truncated(path, "JPEG ends before its end-of-image marker")
+            ran_out()
+            return
         if data[position] != 0xFF:
             # Stray bytes between segments: libjpeg skips to the next marker with a warning; so do we.
             position = data.find(b"\xff", position)
             if position < 0:
-                raise _truncated(path, "JPEG ends before its end-of-image marker")
+                ran_out()
+                return
             continue
         marker = data[position + 1]
         if marker == 0xFF:
@@ -126,7 +159,8 @@ def _check_jpeg(path: Path, data: bytes) -> None:
             position += 2
             continue
         if position + 4 > len(data):
-            raise _truncated(path, "JPEG ends before its end-of-image marker")
+            ran_out()
+            return
         (length,) = struct.unpack_from(">H", data, position + 2)
         if length < 2:
             raise BadPhotoError(
@@ -134,8 +168,11 @@ def _check_jpeg(path: Path, data: bytes) -> None:
             )
         position += 2 + length
         if position > len(data):
-            raise _truncated(path, "JPEG ends before its end-of-image marker")
+            ran_out()
+            return
         if marker == _JPEG_SOS:
+            if not whole:
+                return
             seen_scan = True
             next_marker = _JPEG_MARKER_AFTER_SCAN.search(data, position)
             if next_marker is None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -29,13 +30,15 @@ MIN_DECODED_SHARE = 0.9
 
 @dataclass(frozen=True)
 class VideoFrame:
-    """One kept frame: ``pixels`` (H, W, 3) uint8 RGB, upright; its ``index`` among the video's frames, its
-    time in seconds, and its sharpness (variance of the Laplacian of the grey frame)."""
+    """One kept frame: ``pixels`` (H, W, 3) uint8 RGB, upright (shrunk as asked); its ``index`` among the
+    video's frames, its time in seconds, its sharpness (variance of the Laplacian of the grey frame), and the
+    (width, height) it was decoded at, upright."""
 
     pixels: np.ndarray
     index: int
     time_s: float
     sharpness: float
+    source_size: tuple[int, int]
 
 
 def sharpness(rgb: np.ndarray) -> float:
@@ -54,8 +57,12 @@ def upright(rgb: np.ndarray, rotation: int) -> np.ndarray:
     return np.ascontiguousarray(np.rot90(rgb, round(rotation / 90) % 4))
 
 
-def sharpest_frames(path: Path, count: int) -> tuple[list[VideoFrame], int, float]:
+def sharpest_frames(path: Path, count: int, shrink: Callable[[np.ndarray], np.ndarray] = lambda rgb: rgb
+                    ) -> tuple[list[VideoFrame], int, float]:
     """The sharpest frame of each of ``count`` equal windows of the video at ``path``.
+
+    Sharpness is measured on each decoded frame; a window's candidate is kept as ``shrink`` makes it (the
+    size ingest writes), so 150 windows of a 4K video hold 150 small frames, not 150 4K ones.
 
     Returns:
         the kept frames in time order (fewer than ``count`` when the video is shorter), the number of frames
@@ -81,7 +88,9 @@ def sharpest_frames(path: Path, count: int) -> tuple[list[VideoFrame], int, floa
                 score = sharpness(rgb)
                 if window not in best or score > best[window].sharpness:
                     time_s = float(frame.time) if frame.time is not None else decoded / rate
-                    best[window] = VideoFrame(upright(rgb, frame.rotation or 0), decoded, time_s, score)
+                    rgb = upright(rgb, frame.rotation or 0)
+                    size = (rgb.shape[1], rgb.shape[0])
+                    best[window] = VideoFrame(np.ascontiguousarray(shrink(rgb)), decoded, time_s, score, size)
                 decoded += 1
         except (av_errors(), OSError) as err:
             raise _cut_off(path, decoded, stated, f" ({_message(err)})") from None
@@ -113,6 +122,10 @@ def _open(path: Path, advice: str):
     if not container.streams.video:
         container.close()
         raise BadPhotoError(path, "holds no video stream", "pass a video with pictures in it")
+    if container.format.name.endswith("_pipe") or container.format.name == "image2":  # FFmpeg's still-image readers
+        container.close()
+        raise BadPhotoError(path, f"is a still image ({container.format.name.removesuffix('_pipe').upper()}), "
+                            "not a video", "give it its image extension and pass the folder that holds it")
     return container
 
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import shutil
 import time
 import uuid
@@ -270,23 +271,37 @@ class ArtifactStore:
 
     # -- pruning -------------------------------------------------------------------------------
     def clean(self, keep_all_keys: bool = False) -> tuple[int, int]:
-        """Remove results other than each stage's latest, work folders and results set aside as broken.
+        """Remove results other than each stage's latest, work folders and results set aside as broken: only
+        what the store made, known by its names (a user's own files in these folders stay).
 
-        Returns (folders, bytes).
+        Returns (entries removed, bytes freed).
         """
-        removed, freed = 0, 0
         victims: list[Path] = []
-        for scratch in (self.work_dir, self.run_dir / BROKEN):
-            if scratch.exists():
-                victims.extend(scratch.iterdir())
+        for scratch, made in ((self.work_dir, _WORK_NAME), (self.run_dir / BROKEN, _BROKEN_NAME)):
+            if scratch.is_dir():
+                victims.extend(p for p in scratch.iterdir() if made.fullmatch(p.name) and not p.is_symlink())
         if not keep_all_keys and self.stages_dir.is_dir():
             for stage_dir in self.stages_dir.iterdir():
+                if not stage_dir.is_dir() or stage_dir.is_symlink():
+                    continue
                 latest = self.latest(stage_dir.name)
                 for child in stage_dir.iterdir():
-                    if child.is_dir() and (latest is None or child.name != latest.key):
+                    if (_KEY_NAME.fullmatch(child.name) and child.is_dir() and not child.is_symlink()
+                            and (latest is None or child.name != latest.key)):
                         victims.append(child)
+        freed = 0
         for victim in victims:
-            freed += sum(p.stat().st_size for p in victim.rglob("*") if p.is_file()) if victim.is_dir() else 0
-            shutil.rmtree(victim) if victim.is_dir() else victim.unlink()
-            removed += 1
-        return removed, freed
+            if victim.is_dir():
+                freed += sum(p.lstat().st_size for p in victim.rglob("*") if p.is_file() and not p.is_symlink())
+                shutil.rmtree(victim)
+            else:
+                freed += victim.lstat().st_size
+                victim.unlink()
+        return len(victims), freed
+
+
+# the names the store gives what ``clean`` may remove: work folders ``begin`` and ``commit`` make, results
+# ``set_aside`` moved, and result folders (a 64-hex key)
+_WORK_NAME = re.compile(r"[a-z0-9_]+-[0-9a-z]{16}|trash-[a-z0-9_]+-[0-9a-f]{8}")
+_BROKEN_NAME = re.compile(r"[a-z0-9_]+-[0-9a-z]{12}-\d{8}-\d{6}-[0-9a-f]{4}")
+_KEY_NAME = re.compile(r"[0-9a-z]{64}")

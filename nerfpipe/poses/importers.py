@@ -44,10 +44,18 @@ from nerfpipe.geometry.cameras import (
     pose_from_rt,
 )
 from nerfpipe.pipeline.errors import InputError
+from nerfpipe.poses.colmap_files import check_binary_model
 from nerfpipe.poses.layout import IMAGE_SUFFIXES, CaptureLayout, _read_json, resolve_inside
 from nerfpipe.poses.llff import import_llff
 from nerfpipe.poses.middlebury import import_middlebury
-from nerfpipe.poses.photos import CameraTable, Photos, checked_rotation, relative_names, to_ingested_size
+from nerfpipe.poses.photos import (
+    CameraTable,
+    Photos,
+    checked_position,
+    checked_rotation,
+    relative_names,
+    to_ingested_size,
+)
 
 
 def import_poses(layout: CaptureLayout, records: list[dict[str, Any]]) -> CameraSet:
@@ -72,6 +80,9 @@ def import_colmap(layout: CaptureLayout, photos: Photos) -> CameraSet:
     model_dir = layout.pose_files[0].parent
     images_file = next((p for p in layout.pose_files if p.stem == "images"), layout.pose_files[0])
     rec = read_colmap_model(model_dir)
+    if not rec.images:
+        raise InputError(images_file, "holds no images", "re-export the model from COLMAP, or remove it to let SfM "
+                         "compute the poses")
 
     table = CameraTable()
     frames: list[Frame] = []
@@ -98,7 +109,8 @@ def import_colmap(layout: CaptureLayout, photos: Photos) -> CameraSet:
         R = checked_rotation(w2c[:3, :3], images_file, where)
         camera_id = table.add(to_ingested_size(cam, record, images_file, where), key=image.camera_id)
         frame_of_image[image.image_id] = len(frames)
-        frames.append(Frame(record["name"], camera_id, invert_pose(pose_from_rt(R, w2c[:3, 3]))))
+        frames.append(Frame(record["name"], camera_id, invert_pose(pose_from_rt(R, checked_position(w2c[:3, 3],
+                                                                                                     images_file, where)))))
     unregistered.update(photos.name(p) for p in layout.photos if photos.relpath(p) not in seen)
 
     return CameraSet(table.cameras, frames, colmap_points(rec, frame_of_image, len(frames)), "colmap_model",
@@ -117,6 +129,8 @@ def read_colmap_model(model_dir: Path) -> Any:
                              "re-export the model from COLMAP, or remove it to let SfM compute the poses") from None
 
     ext = ".bin" if (model_dir / "images.bin").is_file() else ".txt"
+    if ext == ".bin":
+        check_binary_model(model_dir)  # counts pycolmap would trust, checked against the files' sizes
     if (model_dir / f"points3D{ext}").is_file():
         return read(model_dir)
     with tempfile.TemporaryDirectory() as tmp:  # cameras + images with known poses and no points yet
@@ -214,7 +228,8 @@ def transform_matrix(entry: dict[str, Any], pose_file: Path, where: str) -> np.n
     if matrix.shape == (4, 4) and np.abs(matrix[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-6:
         raise InputError(pose_file, f"{where}: the last row of transform_matrix is {matrix[3].tolist()}, not [0, 0, 0, 1]",
                          "a camera-to-world matrix is a rigid transform; fix or regenerate the pose file")
-    return pose_from_rt(checked_rotation(matrix[:3, :3], pose_file, where), matrix[:3, 3])
+    return pose_from_rt(checked_rotation(matrix[:3, :3], pose_file, where), checked_position(matrix[:3, 3], pose_file,
+                                                                                            where))
 
 
 def transforms_camera(values: dict[str, Any], record: dict[str, Any], pose_file: Path, where: str) -> Camera:

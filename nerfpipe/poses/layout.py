@@ -152,6 +152,11 @@ def _transforms(capture: Path) -> CaptureLayout | None:
             if not isinstance(name, str) or not name:
                 raise InputError(pose_file, f"frame {i} has no file_path", "every frame needs the path of its image")
             photos.setdefault(resolve_inside(capture, name, pose_file, IMAGE_SUFFIXES), split)
+    if not photos:
+        raise InputError(pose_files[0] if len(pose_files) == 1 else capture,
+                         f"{'has' if len(pose_files) == 1 else 'have'} an empty frames list: no photo to reconstruct",
+                         "list each photo under \"frames\" with its file_path and transform_matrix, or remove the "
+                         "file to let SfM compute the poses")
     splits = {p.relative_to(capture).as_posix(): s for p, s in photos.items()}
     return CaptureLayout("transforms", capture, sorted(photos), pose_files, splits)
 

@@ -9,7 +9,14 @@ from nerfpipe.artifacts import PHOTO_SUBFOLDER
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, PoseHints, pose_from_rt
 from nerfpipe.pipeline.errors import InputError
 from nerfpipe.poses.layout import CaptureLayout
-from nerfpipe.poses.photos import CameraTable, Photos, checked_rotation, relative_names, to_ingested_size
+from nerfpipe.poses.photos import (
+    CameraTable,
+    Photos,
+    checked_position,
+    checked_rotation,
+    relative_names,
+    to_ingested_size,
+)
 
 # LLFF columns [down, right, backwards] -> OpenCV [right, down, forward] = [c1, c0, -c2].
 LLFF_TO_OPENCV = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -31,7 +38,9 @@ def import_llff(layout: CaptureLayout, photos: Photos) -> CameraSet:
     except (OSError, ValueError, EOFError) as err:
         problem = "holds Python objects, not numbers" if "pickle" in str(err) else f"is not a readable .npy array ({err})"
         raise InputError(pose_file, problem, "regenerate it with LLFF's imgs2poses") from None
-    if array.ndim != 2 or array.shape[1] != 17 or not np.issubdtype(array.dtype, np.number):
+    if array.dtype.kind not in "fiu":  # integers or floats: not complex numbers, strings or records
+        raise InputError(pose_file, f"holds {array.dtype} values, not real numbers", "regenerate it with LLFF's imgs2poses")
+    if array.ndim != 2 or array.shape[1] != 17:
         raise InputError(pose_file, f"has shape {array.shape} ({array.dtype}); poses_bounds.npy must be (N, 17): "
                          "a 3x5 [R | t | hwf] pose and near, far per image", "regenerate it with LLFF's imgs2poses")
     # rows follow COLMAP/LLFF name order: lexicographic, as sorted(os.listdir("images"))
@@ -61,7 +70,7 @@ def import_llff(layout: CaptureLayout, photos: Photos) -> CameraSet:
             continue
         camera = Camera.pinhole(focal, focal, width / 2, height / 2, round(width), round(height))
         camera_id = table.add(to_ingested_size(camera, record, pose_file, where))
-        frames.append(Frame(record["name"], camera_id, pose_from_rt(R, pose[:, 3])))
+        frames.append(Frame(record["name"], camera_id, pose_from_rt(R, checked_position(pose[:, 3], pose_file, where))))
         bounds[record["name"]] = [near, far]
     return CameraSet(table.cameras, frames, None, "llff", sorted(unregistered),
                      PoseHints(relative_names(layout, layout.pose_files), llff_bounds=bounds))

@@ -9,7 +9,15 @@ import numpy as np
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, PoseHints, invert_pose, pose_from_rt
 from nerfpipe.pipeline.errors import InputError
 from nerfpipe.poses.layout import CaptureLayout, resolve_inside
-from nerfpipe.poses.photos import CameraTable, Photos, checked_rotation, parse_numbers, relative_names, to_ingested_size
+from nerfpipe.poses.photos import (
+    CameraTable,
+    Photos,
+    checked_position,
+    checked_rotation,
+    parse_numbers,
+    relative_names,
+    to_ingested_size,
+)
 
 PAR_FIELDS = 22  # name, K (9), R (9), t (3)
 
@@ -28,6 +36,7 @@ def import_middlebury(layout: CaptureLayout, photos: Photos) -> CameraSet:
             fx, fy, cx, cy = (float(v) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
             camera = Camera.pinhole(fx, fy, cx, cy, record["source_width"], record["source_height"])
             camera_id = table.add(to_ingested_size(camera, record, pose_file, f"line {line_no}"))
+            t = checked_position(t, pose_file, f"line {line_no}")
             frames.append(Frame(record["name"], camera_id, invert_pose(pose_from_rt(R, t))))
     return CameraSet(table.cameras, frames, None, "middlebury", sorted(unregistered),
                      PoseHints(relative_names(layout, layout.pose_files)))

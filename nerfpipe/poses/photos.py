@@ -86,6 +86,20 @@ def checked_rotation(R: np.ndarray, pose_file: Path, where: str) -> np.ndarray:
     return u @ vt
 
 
+MAX_COORDINATE = 1e9  # a camera farther out than this from the origin, in any unit, is a broken pose file
+
+
+def checked_position(t: np.ndarray, pose_file: Path, where: str) -> np.ndarray:
+    """``t`` (3,), a pose's translation, if finite and within ``MAX_COORDINATE`` (1e300 is finite, but its
+    square, in any distance computed later, is not)."""
+    if not np.all(np.isfinite(t)):
+        raise InputError(pose_file, f"{where}: the pose holds a non-finite value", "fix or regenerate the pose file")
+    if np.abs(t).max() > MAX_COORDINATE:
+        raise InputError(pose_file, f"{where}: the translation {np.abs(t).max():.3g} lies beyond any real scene "
+                         f"(|t| <= {MAX_COORDINATE:.0e})", "fix or regenerate the pose file")
+    return t
+
+
 def parse_numbers(tokens: list[str], pose_file: Path, line_no: int) -> np.ndarray:
     values = []
     for token in tokens:

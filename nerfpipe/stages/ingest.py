@@ -70,6 +70,7 @@ class IngestParams:
 
 
 PNG_SHARE = 0.2  # PNG bytes / pixel bytes of a typical photo, for the free-space check
+MIN_VIDEO_FRAMES = 3  # fewer views than SfM can reconstruct from: refused at ingest, naming the video
 
 
 def target_size(width: int, height: int, max_size: int) -> tuple[int, int]:
@@ -93,7 +94,7 @@ class IngestStage(Stage):
     """Decode photos (JPEG, PNG, TIFF, camera RAW), apply EXIF orientation, downscale, write PNGs + images.json."""
 
     name = "ingest"
-    version = 2  # 2: images.json records the capture layout and splits; names keep sub-folders
+    version = 3  # 2: layout and splits in images.json, sub-folder names; 3: short or tiny videos refused
     Params = IngestParams
     presets = {
         "draft": {"max_size": 400},
@@ -121,7 +122,18 @@ class IngestStage(Stage):
         return [line + (", " + ", ".join(extras) if extras else "")]
 
     def input_files(self, source: Path, params: IngestParams) -> list[Path]:
-        return detect_layout(source).photos
+        """The photos, their heads checked before the engine hashes them: a file that is no photo (a 3 GB
+        file of zeros named .jpg) is refused for a read of 64 KB, not after hashing it (unless
+        ``skip_bad``, which skips it later with a warning)."""
+        from nerfpipe.imaging import photo_kind
+        from nerfpipe.imaging.integrity import check_head
+
+        photos = detect_layout(source).photos
+        if not params.skip_bad:
+            for photo in photos:
+                if (kind := photo_kind(photo)) is not None:
+                    check_head(photo, kind, size=1 << 16)
+        return photos
 
     def expected_bytes(self, inputs: StageInputs, params: IngestParams) -> int:
         """The PNGs' size from the photos' headers: their pixels at the output size and depth, times the
@@ -211,14 +223,25 @@ class IngestStage(Stage):
 
         (fp,) = inputs.files
         path = inputs.path(fp)
-        frames, decoded, rate = sharpest_frames(path, params.video_frames)
+
+        def shrink(rgb: np.ndarray) -> np.ndarray:
+            size = target_size(rgb.shape[1], rgb.shape[0], params.max_size)
+            return rgb if size == rgb.shape[1::-1] else cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+
+        frames, decoded, rate = sharpest_frames(path, params.video_frames, shrink)
+        src_w, src_h = frames[0].source_size
+        if min(src_w, src_h) < params.min_size:
+            raise BadPhotoError(path, f"has frames of only {src_w}x{src_h} pixels, below ingest.min_size="
+                                f"{params.min_size}", "pass a video of a higher resolution")
+        if len(frames) < MIN_VIDEO_FRAMES:
+            raise BadPhotoError(path, f"holds only {decoded} frame{'s' * (decoded != 1)}; a reconstruction needs at "
+                                f"least {MIN_VIDEO_FRAMES} views (a NeRF wants dozens)",
+                                "pass a video that walks round the subject, a few seconds or more")
         records = []
         for i, frame in enumerate(frames):
-            src_h, src_w = frame.pixels.shape[:2]
-            width, height = target_size(src_w, src_h, params.max_size)
+            src_w, src_h = frame.source_size
             pixels = frame.pixels
-            if (width, height) != (src_w, src_h):
-                pixels = cv2.resize(pixels, (width, height), interpolation=cv2.INTER_AREA)
+            height, width = pixels.shape[:2]
             name = f"frame_{i:04d}.png"  # numbered in order, so SfM matches them sequentially
             write_png(out / "images" / name, pixels)
             records.append({

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from nerfpipe.pipeline.errors import BadPhotoError
 from tests.helpers import TEMPLE, run_cli, shared
 
 
@@ -314,3 +315,20 @@ def test_batch_runs_inside_the_captures_folder_are_refused(tmp_path):
     result = run_cli("batch", root, "--out", root / "runs", "--until", "ingest")
     assert result.returncode != 0 and "Traceback" not in result.stderr
     assert "lies inside the captures folder" in result.stderr and not (root / "runs").exists()
+
+
+@pytest.mark.parametrize("start, problem", [(b"", "is not a valid JPEG file; its content is not a JPEG"),
+                                            (b"\xff\xd8\xff\xe0", "is not a valid JPEG file (corrupt segment at byte 2)")])
+def test_a_3_gb_file_of_zeros_named_jpg_is_refused_from_its_head_before_it_is_hashed(photos, tmp_path, start,
+                                                                                     problem):
+    """A sparse file: 3 GB to read and hash, 64 KB to refuse."""
+    from nerfpipe.stages.ingest import IngestParams, IngestStage
+
+    big = photos / "big.jpg"
+    with open(big, "wb") as f:
+        f.write(start)
+        f.truncate(3 << 30)
+    assert_one_clear_error(ingest(photos, tmp_path), f"big.jpg: {problem}")
+    with pytest.raises(BadPhotoError, match="big.jpg: is not a valid JPEG file"):  # before the engine hashes it
+        IngestStage().input_files(photos, IngestParams())
+    assert big in IngestStage().input_files(photos, IngestParams(skip_bad=True))  # skipped later, with a warning

@@ -69,3 +69,30 @@ def test_cut_off_and_unreadable_videos_raise_one_clear_error(tmp_path: Path) -> 
     (tmp_path / "junk.mov").write_bytes(b"not a video" * 50)
     with pytest.raises(BadPhotoError, match="junk.mov: cannot be read as a video"):
         sharpest_frames(tmp_path / "junk.mov", 10)
+
+
+def test_kept_frames_are_held_shrunk_with_the_size_they_were_decoded_at(tmp_path: Path) -> None:
+    """150 windows of a 4K video must not hold 150 4K frames: each candidate is kept as ``shrink`` makes it,
+    after its sharpness is measured at full size."""
+    frames = temple_frames(20, blur_every=4)
+    write_mp4(frames, tmp_path / "pan.mp4", fps=10)
+    seen = []
+
+    def shrink(rgb):
+        seen.append(rgb.shape)
+        return cv2.resize(rgb, (80, 60), interpolation=cv2.INTER_AREA)
+
+    kept, _, _ = sharpest_frames(tmp_path / "pan.mp4", 5, shrink)
+    assert [f.index for f in kept] == [0, 4, 8, 12, 16]  # chosen by full-size sharpness, as without shrinking
+    assert all(f.pixels.shape == (60, 80, 3) and f.source_size == (320, 240) for f in kept)
+    assert set(seen) == {(240, 320, 3)} and len(seen) >= 5
+
+
+def test_a_still_image_named_like_a_video_is_refused(tmp_path: Path) -> None:
+    """FFmpeg opens a PNG as a one-frame 'video' (its png_pipe reader); that is a photo with the wrong name."""
+    import shutil
+
+    shutil.copy(TEMPLE / "templeSR0001.png", tmp_path / "clip.mp4")
+    with pytest.raises(BadPhotoError, match=r"clip.mp4: is a still image \(PNG\), not a video; give it its image "
+                                            "extension and pass the folder that holds it"):
+        sharpest_frames(tmp_path / "clip.mp4", 10)

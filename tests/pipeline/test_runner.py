@@ -159,8 +159,8 @@ def test_clean_keeps_only_the_latest_result_of_each_stage(capture, tmp_path):
     run_dir = tmp_path / "run"
     pipe(capture, run_dir, overrides={"ingest": {"max_size": "200"}}).run()
     latest = pipe(capture, run_dir).run()
-    (run_dir / ".work" / "ingest-leftover").mkdir(parents=True)
     store = ArtifactStore(run_dir)
+    store.begin("ingest", "0123456789abcdef" * 4)  # what a killed attempt left
     assert len(store.keys("ingest")) == 2
     removed, freed = store.clean()
     assert removed == 3 and freed > 0

@@ -151,3 +151,27 @@ def test_prepare_refuses_a_file_and_a_path_through_one(tmp_path):
         ArtifactStore(tmp_path / "f" / "run").prepare()
     ArtifactStore(tmp_path / "new" / "run").prepare()
     assert (tmp_path / "new" / "run").is_dir()
+
+
+def test_clean_removes_only_what_the_store_made_and_counts_its_bytes(tmp_path):
+    """--out may name a folder that already held the user's own broken/ or .work/: those files stay."""
+    store = ArtifactStore(tmp_path)
+    old, new = "a" * 64, "b" * 64
+    for key, payload in ((old, "x" * 100), (new, "y" * 7)):
+        store.commit("s", key, _work(store, key, payload), {"key": key, "stage": "s"})
+    old_bytes = sum(p.stat().st_size for p in (tmp_path / "stages" / "s" / old).rglob("*") if p.is_file())
+    left = store.begin("s", "c" * 64)  # an unfinished attempt
+    (left / "part.bin").write_bytes(b"z" * 1000)
+    aside = store.set_aside("s", new, Damage(tmp_path, "sub/a.txt", "is missing"))
+    aside_bytes = sum(p.stat().st_size for p in aside.rglob("*") if p.is_file())
+    mine = {tmp_path / ".work" / "notes.txt": b"my notes", tmp_path / BROKEN / "photo.jpg": b"\xff\xd8" * 50,
+            tmp_path / BROKEN / "s-drafts" / "a.txt": b"draft", tmp_path / "stages" / "s" / "keep-me": b"mine"}
+    for path, data in mine.items():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data)
+    store.set_latest("s", new)  # the latest result went aside: the older one is not the latest either
+
+    removed, freed = store.clean()
+    assert removed == 3 and freed == old_bytes + 1000 + aside_bytes
+    assert all(path.read_bytes() == data for path, data in mine.items())
+    assert not left.exists() and not aside.exists() and not (tmp_path / "stages" / "s" / old).exists()

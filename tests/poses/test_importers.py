@@ -282,7 +282,7 @@ def test_colmap_text_model_without_points_matches_middlebury(tmp_path):
     assert colmap.cameras[1] == middlebury.cameras[1]
 
 
-def test_unreadable_colmap_model_names_its_folder(tmp_path):
+def test_a_cut_colmap_model_names_its_file(tmp_path):
     beer = shared("colmap_beer_yhuoyuh")
     model = tmp_path / "cap" / "sparse" / "0"
     model.mkdir(parents=True)
@@ -292,9 +292,9 @@ def test_unreadable_colmap_model_names_its_folder(tmp_path):
         shutil.copy(beer / "sparse" / "0" / name, model)
     (model / "images.bin").write_bytes((beer / "sparse" / "0" / "images.bin").read_bytes()[:1000])
     layout = detect_layout(tmp_path / "cap")
-    with pytest.raises(InputError, match="could not be read as a COLMAP model") as err:
+    with pytest.raises(InputError, match="is cut short: its records run past its end") as err:
         import_poses(layout, fake_records(layout))
-    assert err.value.path == model
+    assert err.value.path == model / "images.bin"  # found by the walk, before pycolmap reads the counts
 
 
 def test_folder_layout_has_nothing_to_import(capture):
@@ -394,6 +394,12 @@ def test_poses_bounds_of_the_wrong_shape(tmp_path):
     assert err.value.path == capture / "poses_bounds.npy"
 
 
+def test_poses_bounds_of_complex_numbers(tmp_path):
+    capture = _llff_capture(tmp_path / "cap", 2, _llff_rows(2).astype(complex))
+    with pytest.raises(InputError, match="holds complex128 values, not real numbers"):
+        _import(capture)
+
+
 def test_poses_bounds_rows_must_match_the_photos(tmp_path):
     capture = _llff_capture(tmp_path / "cap", 3, _llff_rows(2))
     with pytest.raises(InputError, match="has 2 rows but images/ holds 3 photos") as err:
@@ -425,8 +431,10 @@ def test_poses_bounds_camera_of_another_aspect_ratio(tmp_path):
         ({"transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, "x"], [0, 0, 0, 1]]}, "not a matrix of numbers"),
         ({"transform_matrix": (np.eye(4) * [2, 1, 1, 1]).tolist()}, "the rotation is not a rotation"),
         ({"transform_matrix": np.eye(4).tolist(), "fl_x": "big"}, "fl_x is 'big', not a finite number"),
+        ({"transform_matrix": [[1, 0, 0, 1e300], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]},
+         r"the translation 1e\+300 lies beyond any real scene \(\|t\| <= 1e\+09\)"),
     ],
-    ids=["no-matrix", "3x3", "string", "not-a-rotation", "bad-focal"],
+    ids=["no-matrix", "3x3", "string", "not-a-rotation", "bad-focal", "1e300"],
 )
 def test_malformed_transforms_frame(tmp_path, frame, message):
     capture = temple_capture(tmp_path / "cap", 1)
@@ -477,4 +485,12 @@ def test_unparsable_transforms_json(tmp_path):
     (capture / "transforms.json").write_text('{"frames": [')
     with pytest.raises(InputError, match="is not valid JSON") as err:
         _import(capture)
+    assert err.value.path == capture / "transforms.json"
+
+
+def test_a_transforms_json_with_no_frames_is_one_line_naming_it(tmp_path):
+    capture = temple_capture(tmp_path / "cap", 2)
+    (capture / "transforms.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": []}))
+    with pytest.raises(InputError, match="has an empty frames list: no photo to reconstruct") as err:
+        detect_layout(capture)
     assert err.value.path == capture / "transforms.json"

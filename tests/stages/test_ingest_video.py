@@ -59,3 +59,16 @@ def test_a_folder_holding_one_video_is_that_video_and_a_cut_video_is_one_line(cl
     (folder / "again.mp4").unlink()
     result = run_cli("run", folder, "--out", tmp_path / "run", "--until", "ingest", "--set", "ingest.video_frames=5")
     assert result.returncode == 0 and "ingest: 5 of the 71 frames of beer.mp4" in result.stderr, result.stderr
+
+
+@pytest.mark.parametrize("frames, size, problem", [
+    (1, (64, 48), "holds only 1 frame; a reconstruction needs at least 3 views"),
+    (30, (16, 16), "has frames of only 16x16 pixels, below ingest.min_size=32"),
+])
+def test_a_video_too_short_or_too_small_is_refused_at_ingest_naming_it(tmp_path, frames, size, problem):
+    """Not later, in SfM, as 'only 1 photo' or 'no features', without the video's name."""
+    still = cv2.resize(cv2.imread(str(sorted(shared("colmap_beer_yhuoyuh", "images").glob("*.jpg"))[0])), size)
+    write_mp4([still[..., ::-1]] * frames, tmp_path / "short.mp4", fps=10)
+    result = run_cli("run", tmp_path / "short.mp4", "--out", tmp_path / "run", "--until", "sfm")
+    assert_one_clear_error(result, f"short.mp4: {problem}")
+    assert "sfm: running" not in result.stderr
