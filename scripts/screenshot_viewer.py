@@ -5,6 +5,10 @@ Run by hand (needs `apt-get install -y chromium`):
 
     python scripts/screenshot_viewer.py runs/templeSparseRing docs/web_viewer.png
     python scripts/screenshot_viewer.py --training samples/templeSparseRing /tmp/watch docs/web_viewer_training.png
+    python scripts/screenshot_viewer.py --keyframes 3 runs/templeSparseRing docs/web_viewer_panel.png
+
+The third uses the panel as a user would: it clicks "Add keyframe", drags the view round, three times, then
+"Save camera_path.json" (RUN_DIR/camera_path.json), and captures the page with the keyframes drawn.
 
 The second watches a field in training: it starts `nerfpipe run PHOTOS --out RUN --until train --view`, takes
 the picture ``WAIT_S`` seconds after the viewer answers, and interrupts the run (Ctrl-C; it resumes later).
@@ -49,22 +53,50 @@ def wait_for(url: str, seconds: float = 60) -> None:
     sys.exit(f"{url} did not answer within {seconds:.0f} s")
 
 
-async def capture(debug_port: int, url: str, out: Path) -> None:
+CLICK = "[...document.querySelectorAll('button')].find(b => b.textContent.trim() === {label!r}).click()"
+
+
+async def capture(debug_port: int, url: str, out: Path, keyframes: int = 0) -> None:
     import websockets
 
     target = json.loads(urllib.request.urlopen(
         urllib.request.Request(f"http://localhost:{debug_port}/json/new?{url}", method="PUT")).read())
     async with websockets.connect(target["webSocketDebuggerUrl"], max_size=None) as ws:
+        ids = iter(range(1, 10_000))
+
+        async def call(method: str, **params) -> dict:
+            number = next(ids)
+            await ws.send(json.dumps({"id": number, "method": method, "params": params}))
+            while True:
+                reply = json.loads(await ws.recv())
+                if reply.get("id") == number:
+                    return reply.get("result", {})
+
         await asyncio.sleep(WAIT_S)
-        await ws.send(json.dumps({"id": 1, "method": "Page.captureScreenshot", "params": {"format": "png"}}))
-        while True:
-            reply = json.loads(await ws.recv())
-            if reply.get("id") == 1:
-                out.write_bytes(base64.b64decode(reply["result"]["data"]))
-                return
+        for i in range(keyframes):
+            await call("Runtime.evaluate", expression=CLICK.format(label="Add keyframe"))
+            await asyncio.sleep(1.0)
+            # drag the view a sixth of the way across: the camera orbits the centre, leaving the keyframe in sight
+            x, y = SIZE[0] * 0.35, SIZE[1] * 0.5
+            await call("Input.dispatchMouseEvent", type="mousePressed", x=x, y=y, button="left", clickCount=1)
+            for step in range(1, 11):
+                await call("Input.dispatchMouseEvent", type="mouseMoved", x=x + 22 * step, y=y - 2 * step,
+                           button="left", buttons=1)
+            await call("Input.dispatchMouseEvent", type="mouseReleased", x=x + 220, y=y - 20, button="left",
+                       clickCount=1)
+            await asyncio.sleep(3.0)
+        if keyframes:
+            await call("Runtime.evaluate", expression=CLICK.format(label="Save camera_path.json"))
+            for _ in range(14):  # and step back, to see the keyframes and the path through them
+                await call("Input.dispatchMouseEvent", type="mouseWheel", x=SIZE[0] * 0.4, y=SIZE[1] * 0.5,
+                           deltaX=0, deltaY=200)
+                await asyncio.sleep(0.3)
+            await asyncio.sleep(4.0)
+        result = await call("Page.captureScreenshot", format="png")
+        out.write_bytes(base64.b64decode(result["data"]))
 
 
-def main(run_dir: Path, out: Path, photos: Path | None = None) -> None:
+def main(run_dir: Path, out: Path, photos: Path | None = None, keyframes: int = 0) -> None:
     browser = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
     if browser is None:
         sys.exit("no Chromium found; apt-get install -y chromium")
@@ -84,7 +116,7 @@ def main(run_dir: Path, out: Path, photos: Path | None = None) -> None:
         try:
             wait_for(f"http://localhost:{port}", 60 if photos is None else 900)  # the stages before train first
             wait_for(f"http://localhost:{debug_port}/json/version")
-            asyncio.run(capture(debug_port, f"http://localhost:{port}", out))
+            asyncio.run(capture(debug_port, f"http://localhost:{port}", out, keyframes))
         finally:
             chrome.terminate()
             viewer.send_signal(signal.SIGINT)
@@ -97,5 +129,7 @@ if __name__ == "__main__":
         main(Path(sys.argv[1]), Path(sys.argv[2]))
     elif len(sys.argv) == 5 and sys.argv[1] == "--training":
         main(Path(sys.argv[3]), Path(sys.argv[4]), photos=Path(sys.argv[2]))
+    elif len(sys.argv) == 5 and sys.argv[1] == "--keyframes":
+        main(Path(sys.argv[3]), Path(sys.argv[4]), keyframes=int(sys.argv[2]))
     else:
         sys.exit(__doc__)

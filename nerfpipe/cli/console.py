@@ -153,6 +153,7 @@ def serve_web(pipe: Pipeline, host: str, port: int) -> None:
         bounds_json=pipe.artifact("bounds", "bounds"),
         mesh_ply=pipe.optional_artifact("mesh"),
         points_ply=pipe.optional_artifact("points"),
+        run_dir=pipe.run_dir,
     )
     viewer = serve(scene, host=host, port=port)
     held = [f"{len(scene.frames)} cameras with their photos"]

@@ -61,6 +61,8 @@ class WebScene:
     far: float = 1.0
     sharp_width: int = SHARP_WIDTH  # pixels across of the render at rest
     refresh_seconds: float | None = None  # render the view at rest again this often (a field in training)
+    run_dir: Path | None = None  # a finished run's folder: the panel (``web_panel``) writes its files there
+    full_width: int = SHARP_WIDTH  # pixels across of the training photos: the panel's full-size render
 
 
 def _wxyz(rotation: np.ndarray) -> np.ndarray:
@@ -79,6 +81,7 @@ class WebViewer:
     points: Any = None
     frusta: list[Any] = field(default_factory=list)
     renders: int = 0  # live frames rendered so far
+    panel: Any = None  # the ``web_panel.Panel`` of a finished run's viewer
     _stop: threading.Event = field(default_factory=threading.Event)
 
     @property
@@ -157,13 +160,25 @@ def serve(scene: WebScene, host: str = "127.0.0.1", port: int = 8080) -> WebView
             threading.Thread(target=_live_render, args=(viewer, client), daemon=True).start()
 
     server.on_client_connect(on_connect)
+    if scene.model is not None and scene.run_dir is not None:
+        from nerfpipe.export.web_panel import add_panel
+
+        viewer.panel = add_panel(viewer, scene.run_dir, scene.full_width)
     return viewer
+
+
+def client_c2w(camera: Any) -> np.ndarray:
+    """(4, 4) camera-to-world of a browser's camera (viser's are OpenCV-axed, as nerfpipe's)."""
+    import viser.transforms as tf
+
+    c2w = np.eye(4)
+    c2w[:3, :3] = tf.SO3(np.asarray(camera.wxyz)).as_matrix()
+    c2w[:3, 3] = camera.position
+    return c2w
 
 
 def _live_render(viewer: WebViewer, client: Any) -> None:
     """Render the client's view whenever it changes: fast at once, sharp once it has rested."""
-    import viser.transforms as tf
-
     shown: tuple | None = None  # (camera state, width) last rendered
     while not viewer._stop.is_set() and client.client_id in viewer.server.get_clients():
         camera = client.camera
@@ -176,11 +191,8 @@ def _live_render(viewer: WebViewer, client: Any) -> None:
         refresh = viewer.scene.refresh_seconds
         due = refresh is not None and shown is not None and time.time() - shown[2] > refresh
         if moved or (rested and (shown[1] != sharp or due)):
-            c2w = np.eye(4)
-            c2w[:3, :3] = tf.SO3(np.asarray(camera.wxyz)).as_matrix()
-            c2w[:3, 3] = camera.position
-            client.scene.set_background_image(render_view(viewer.scene, c2w, camera.fov, camera.aspect, width),
-                                              format="jpeg")
+            client.scene.set_background_image(render_view(viewer.scene, client_c2w(camera), camera.fov, camera.aspect,
+                                                          width), format="jpeg")
             viewer.renders += 1
             shown = (state, width, time.time())
         else:
@@ -191,22 +203,21 @@ def render_view(scene: WebScene, c2w: np.ndarray, fov: float, aspect: float, wid
     """(H, W, 3) uint8: the field seen by a pinhole camera at ``c2w`` (OpenCV axes) with vertical ``fov``."""
     import torch
 
+    from nerfpipe.export.camera_path import view_range
+
     height = max(2, round(width / aspect))
     focal = 0.5 * height / np.tan(fov / 2)
-    # near and far around the scene from wherever the browser's camera is: the world's centre is the scene's,
-    # and nothing the cameras saw lay farther from it than their far bound (at least the [-1, 1]^3 box)
-    reach = max(float(np.sqrt(3.0)), scene.far)
-    distance = float(np.linalg.norm(c2w[:3, 3]))
-    near, far = max(1e-2, distance - reach), distance + reach
+    near, far = view_range(c2w, scene.far)  # from wherever the browser's camera is
     with torch.no_grad():
         rendered = scene.model.render_image((focal, focal, width / 2, height / 2), c2w, width, height, near, far)
     return (np.clip(rendered["rgb"].numpy(), 0, 1) * 255).astype(np.uint8)
 
 
 def web_scene(model_dir: Path, cameras_dir: Path, images_dir: Path, bounds_json: Path,
-              mesh_ply: Path | None = None, points_ply: Path | None = None) -> WebScene:
+              mesh_ply: Path | None = None, points_ply: Path | None = None, run_dir: Path | None = None) -> WebScene:
     """A finished run's results as a ``WebScene``: the train stage's model and cameras (the world frame), the
-    ingested photos, the bounds (near, far and ``to_world``), and the mesh and point cloud when exported."""
+    ingested photos, the bounds (near, far and ``to_world``), and the mesh and point cloud when exported;
+    ``run_dir`` (the run's folder) adds the panel that writes camera paths and full-size views there."""
     from nerfpipe.artifacts import Bounds
     from nerfpipe.export.mesh import read_mesh, transformed
     from nerfpipe.export.points import read_ply
@@ -215,10 +226,13 @@ def web_scene(model_dir: Path, cameras_dir: Path, images_dir: Path, bounds_json:
     from nerfpipe.nerf.model import RadianceModel
 
     bounds = Bounds.load(bounds_json)
-    frames = web_frames(CameraSet.load(cameras_dir), images_dir)
+    cameras = CameraSet.load(cameras_dir)
+    frames = web_frames(cameras, images_dir)
     mesh = transformed(read_mesh(mesh_ply), bounds.to_world) if mesh_ply is not None else None
     points = transformed_cloud(read_ply(points_ply), bounds.to_world) if points_ply is not None else None
-    return WebScene(frames, mesh, points, RadianceModel.load(model_dir), bounds.near, bounds.far)
+    full_width = cameras.camera_of(cameras.frames[0]).width if cameras.frames else SHARP_WIDTH
+    return WebScene(frames, mesh, points, RadianceModel.load(model_dir), bounds.near, bounds.far, run_dir=run_dir,
+                    full_width=full_width)
 
 
 def web_frames(cameras: Any, images_dir: Path) -> list[WebFrame]:

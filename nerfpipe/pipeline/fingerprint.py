@@ -17,7 +17,8 @@ from nerfpipe.pipeline.hashing import sha256_file
 
 @dataclass(frozen=True)
 class Fingerprint:
-    """What the cache key records about one input file. ``relpath`` is relative to its root folder."""
+    """What the cache key records about one input file. ``relpath`` is relative to its root folder, or absolute
+    for a file outside it."""
 
     relpath: str
     size: int
@@ -52,7 +53,9 @@ class FingerprintCache:
             digest = sha256_file(file)
             self._dirty = self._dirty or self._entries.get(key) != [st.st_size, st.st_mtime_ns, digest]
             self._entries[key] = [st.st_size, st.st_mtime_ns, digest]
-        return Fingerprint(file.relative_to(root).as_posix(), st.st_size, st.st_mtime_ns, digest)
+        # a file outside the capture (a camera path a parameter names) is known by its absolute path
+        relpath = file.relative_to(root).as_posix() if file.is_relative_to(root) else Path(key).as_posix()
+        return Fingerprint(relpath, st.st_size, st.st_mtime_ns, digest)
 
     def save(self) -> None:
         """Keep the hashes for the next run; a cache only, so a disk that takes no writes (full, read-only)

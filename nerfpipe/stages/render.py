@@ -21,7 +21,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Literal
+from typing import Any, Iterator, Literal, Sequence
 
 import numpy as np
 
@@ -40,16 +40,21 @@ from nerfpipe.pipeline.store import write_json_atomic
 DEPTH_RANGE_PERCENTILES = (2.0, 98.0)
 
 
+PATH_KINDS = ("auto", "spiral", "orbit", "sweep")
+
+
 @dataclass(frozen=True)
 class RenderParams:
     frames: int = field(default=40, metadata={"help": "frames along the path"})
     fps: float = field(default=20.0, metadata={"help": "frames per second of the videos"})
     scale: float = field(default=0.5, metadata={"help": "render size relative to the first training camera (0.5: half width and height)"})
     max_side: int = field(default=320, metadata={"help": "cap on the longest side of the render in pixels, after scale (0: none)"})
-    path: Literal["auto", "spiral", "orbit", "sweep"] = field(
-        default="auto", metadata={"help": "camera path; auto: spiral for forward-facing scenes, orbit around the "
-                                          "world's up for 360° ones whose cameras go all round (270° or more), "
-                                          "else a sweep out and back along the cameras"}
+    path: str = field(
+        default="auto", metadata={"help": "camera path: auto, spiral, orbit, sweep, or a camera_path.json (keyframes "
+                                          "recorded in `nerfpipe view --web`; its frames and fps apply); auto: "
+                                          "spiral for forward-facing scenes, orbit around the world's up for 360° "
+                                          "ones whose cameras go all round (270° or more), else a sweep out and "
+                                          "back along the cameras"}
     )
     n_rotations: float = field(default=2.0, metadata={"help": "spiral: turns around the mean camera (LLFF: 2)"})
     elevation: str = field(default="auto", metadata={"help": "orbit: degrees above the target, or auto (the cameras' mean)"})
@@ -57,6 +62,12 @@ class RenderParams:
     device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
 
     def __post_init__(self) -> None:
+        if self.path not in PATH_KINDS:
+            file = Path(self.path).expanduser()
+            if file.suffix.lower() != ".json" or not file.is_file():
+                raise ValueError(f"path must be one of {', '.join(PATH_KINDS)} or an existing camera_path.json file, "
+                                 f"got {self.path!r}")
+            object.__setattr__(self, "path", str(file.resolve()))  # the same file from wherever status runs
         for name in ("frames", "chunk"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -107,7 +118,7 @@ class RenderStage(Stage):
     """Render novel views along a spiral (forward-facing) or an orbit (360°): PNG frames, MP4s, the path."""
 
     name = "render"
-    version = 4  # 4: sweeps over the middle 80 % of the azimuths; 3: orbits about the world's up, sweeps for partial circles; 2: H.264 videos, 320 px
+    version = 5  # 5: keyframe paths, a fov per frame in camera_path.json; 4: sweeps over the middle 80 % of the azimuths
     Params = RenderParams
     presets = {
         "preview": PREVIEW,
@@ -122,6 +133,10 @@ class RenderStage(Stage):
     accelerated = True
     budget_share = 0.10
     optional = True
+
+    def input_files(self, source: Path, params: RenderParams) -> list[Path]:
+        """A camera path file, when ``path`` names one: its content enters the cache key."""
+        return [] if params.path in PATH_KINDS else [Path(params.path)]
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
         s = manifest.get("summary", {})
@@ -141,6 +156,7 @@ class RenderStage(Stage):
             return self._run(inputs, out, params, ctx, device)
 
     def _run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext, device) -> dict[str, Any]:
+        from nerfpipe.export.camera_path import CameraPath, view_range
         from nerfpipe.export.paths import path_for_scene
         from nerfpipe.export.video import write_mp4
         from nerfpipe.nerf.model import RadianceModel
@@ -154,21 +170,32 @@ class RenderStage(Stage):
         if not world.frames:
             raise StageError("render: the normalized world has no cameras to build a path from; check the bounds stage")
 
-        c2ws = np.array([f.c2w for f in world.frames])
-        lo, hi = bounds.box()
-        try:
-            poses, description = path_for_scene(layout, c2ws, bounds.near, bounds.far, (lo + hi) / 2.0, params.frames,
-                                                kind=params.path, n_rotations=params.n_rotations,
-                                                elevation=params.elevation_degrees())
-        except ValueError as err:
-            raise StageError(f"render: cannot build the {params.path} camera path of this capture: {err}") from None
-        ctx.log.info("render: %s", description)
-
         camera = world.camera_of(world.frames[0])
+        fps, fovs = params.fps, None
+        if params.path in PATH_KINDS:
+            c2ws = np.array([f.c2w for f in world.frames])
+            lo, hi = bounds.box()
+            try:
+                poses, description = path_for_scene(layout, c2ws, bounds.near, bounds.far, (lo + hi) / 2.0,
+                                                    params.frames, kind=params.path, n_rotations=params.n_rotations,
+                                                    elevation=params.elevation_degrees())
+            except ValueError as err:
+                raise StageError(f"render: cannot build the {params.path} camera path of this capture: {err}") from None
+        else:
+            keyed = CameraPath.load(Path(params.path))
+            poses, fovs = keyed.sample()
+            fps = keyed.fps
+            description = (f"the camera path of {params.path}: {len(keyed.keyframes)} keyframes, {keyed.frames} frames "
+                           f"at {fps:g} fps{', looped' if keyed.loop else ''}")
+        ctx.log.info("render: %s", description)
+        # a path along the photos' cameras has their depth range; keyframes anywhere, each its own around the scene
+        ranges = [(bounds.near, bounds.far) if fovs is None else view_range(c2w, bounds.far) for c2w in poses]
+
         width, height = render_size(camera, params.scale, params.max_side)
         scaled = camera.scaled(width / camera.width, height / camera.height)
-        per_ray = FRAME_OVERHEAD * seconds_per_view(model, (scaled.fx, scaled.fy, scaled.cx, scaled.cy), poses[0],
-                                                    width, height, bounds.near, bounds.far, params.chunk) / (width * height)
+        middle = len(poses) // 2  # timed on the path's middle frame: its first may look away from the scene
+        per_ray = FRAME_OVERHEAD * seconds_per_view(model, (scaled.fx, scaled.fy, scaled.cx, scaled.cy), poses[middle],
+                                                    width, height, *ranges[middle], params.chunk) / (width * height)
         wanted = (width, height)
         if ctx.allotment is not None:
             left = ctx.allotment.seconds - (time.perf_counter() - began)
@@ -178,19 +205,20 @@ class RenderStage(Stage):
         fits = "" if ctx.allotment is None else f" to fit its {ctx.allotment.describe()}" + (
             f"; {wanted[0]}x{wanted[1]} would take {per_ray * len(poses) * wanted[0] * wanted[1]:.0f} s"
             if (width, height) != wanted else "")
-        ctx.log.info("render: %d frames of %dx%d (the camera of %s scaled by %.3g) on %s, about %.0f s%s", params.frames,
+        ctx.log.info("render: %d frames of %dx%d (the camera of %s scaled by %.3g) on %s, about %.0f s%s", len(poses),
                      width, height, world.frames[0].name, width / camera.width, device,
                      per_ray * len(poses) * width * height, fits)
 
+        cameras = [scaled] * len(poses) if fovs is None else [with_fov(scaled, fov) for fov in fovs]
         started = time.perf_counter()
-        depth_range = render_frames(model, poses, scaled, (bounds.near, bounds.far), out / "frames", params.chunk, ctx)
+        depth_range = render_frames(model, poses, cameras, ranges, out / "frames", params.chunk, ctx)
         seconds = time.perf_counter() - started
-        count = write_mp4(read_frames(out / "frames", "rgb", len(poses)), out / "render.mp4", params.fps)
-        write_mp4(read_frames(out / "frames", "depth", len(poses)), out / "depth.mp4", params.fps)
+        count = write_mp4(read_frames(out / "frames", "rgb", len(poses)), out / "render.mp4", fps)
+        write_mp4(read_frames(out / "frames", "depth", len(poses)), out / "depth.mp4", fps)
 
         to_sfm = np.asarray(model.info.get("to_sfm", bounds.to_sfm), dtype=np.float64)
         write_json_atomic(out / "camera_path.json", camera_path_json(
-            description, layout, params.fps, scaled, (bounds.near, bounds.far), depth_range, to_sfm, poses))
+            description, layout, fps, cameras, (bounds.near, bounds.far), depth_range, to_sfm, poses))
         per_frame = seconds / max(len(poses), 1)
         ctx.log.info("render: %d frames in %.1f s (%.2f s a frame) -> render.mp4, depth.mp4", count, seconds, per_frame)
         return {
@@ -198,25 +226,34 @@ class RenderStage(Stage):
             "path": description,
             "seconds_per_frame": round(per_frame, 3),
             "resolution": [width, height],
-            "fps": params.fps,
+            "fps": fps,
             "device": str(device),
             "depth_range": [round(v, 6) for v in depth_range] if depth_range is not None else None,
         }
 
 
-def render_frames(model, poses: np.ndarray, camera: Camera, near_far: tuple[float, float], folder: Path, chunk: int,
-                  ctx: StageContext) -> tuple[float, float] | None:
-    """Render each pose (N, 4, 4) with ``camera`` into ``folder/rgb_NNNN.png`` and a coloured
-    ``depth_NNNN.png``; returns the depth colour range, fixed by the first frame (None without frames)."""
+def with_fov(camera: Camera, fov: float) -> Camera:
+    """``camera`` (a pinhole) zoomed to the vertical field of view ``fov`` (degrees), its pixel aspect kept."""
+    from nerfpipe.export.camera_path import focal_of
+
+    fy = focal_of(camera.height, fov)
+    return Camera.pinhole(fy * camera.fx / camera.fy, fy, camera.cx, camera.cy, camera.width, camera.height)
+
+
+def render_frames(model, poses: np.ndarray, cameras: Sequence[Camera], ranges: Sequence[tuple[float, float]],
+                  folder: Path, chunk: int, ctx: StageContext) -> tuple[float, float] | None:
+    """Render each pose (N, 4, 4) with its camera of ``cameras`` (N, all of one size) and its (near, far) of
+    ``ranges`` into ``folder/rgb_NNNN.png`` and a coloured ``depth_NNNN.png``; returns the depth colour
+    range, fixed by the first frame (None without frames)."""
     from nerfpipe.export.video import colorize_depth
 
-    intrinsics = (camera.fx, camera.fy, camera.cx, camera.cy)
     linear = model.info.get("photometric") == "linear_raw"
     folder.mkdir(parents=True, exist_ok=True)
     depth_range: tuple[float, float] | None = None
     with ctx.progress(len(poses), "render") as advance:
-        for i, c2w in enumerate(poses):
+        for i, (c2w, camera, near_far) in enumerate(zip(poses, cameras, ranges)):
             began = time.perf_counter()
+            intrinsics = (camera.fx, camera.fy, camera.cx, camera.cy)
             result = model.render_image(intrinsics, c2w, camera.width, camera.height, *near_far, chunk)
             rgb = result["rgb"].clamp(0.0, 1.0).numpy()
             depth, acc = result["depth"].numpy(), result["acc"].numpy()
@@ -229,9 +266,12 @@ def render_frames(model, poses: np.ndarray, camera: Camera, near_far: tuple[floa
     return depth_range
 
 
-def camera_path_json(description: str, layout: str, fps: float, camera: Camera, near_far: tuple[float, float],
-                     depth_range: tuple[float, float] | None, to_sfm: np.ndarray, poses: np.ndarray) -> dict[str, Any]:
-    """``camera_path.json``: the path's intrinsics and every pose, in the normalized world and the SfM frame."""
+def camera_path_json(description: str, layout: str, fps: float, cameras: Sequence[Camera],
+                     near_far: tuple[float, float], depth_range: tuple[float, float] | None, to_sfm: np.ndarray,
+                     poses: np.ndarray) -> dict[str, Any]:
+    """``camera_path.json``: the path's intrinsics and every pose, in the normalized world and the SfM frame,
+    with each frame's vertical field of view (``render.path=`` this file renders the same frames again)."""
+    from nerfpipe.export.camera_path import fov_of
     from nerfpipe.export.paths import transform_poses
 
     sfm_poses = transform_poses(poses, to_sfm)
@@ -240,7 +280,7 @@ def camera_path_json(description: str, layout: str, fps: float, camera: Camera, 
         "path": description,
         "layout": layout,
         "fps": fps,
-        "camera": camera.to_json(),
+        "camera": cameras[0].to_json(),
         "near": near_far[0],
         "far": near_far[1],
         "depth_colours": {"range": list(depth_range) if depth_range is not None else None,
@@ -248,8 +288,8 @@ def camera_path_json(description: str, layout: str, fps: float, camera: Camera, 
         "to_sfm": to_sfm.tolist(),
         "frames": [
             {"rgb": f"frames/rgb_{i:04d}.png", "depth": f"frames/depth_{i:04d}.png", "c2w": pose.tolist(),
-             "c2w_sfm": sfm_pose.tolist()}
-            for i, (pose, sfm_pose) in enumerate(zip(poses, sfm_poses))
+             "c2w_sfm": sfm_pose.tolist(), "fov": fov_of(camera.height, camera.fy)}
+            for i, (pose, sfm_pose, camera) in enumerate(zip(poses, sfm_poses, cameras))
         ],
     }
 

@@ -130,3 +130,45 @@ def test_a_port_in_use_or_out_of_range_is_one_line_with_one_to_try() -> None:
     for bad in (99999, -5, 0):
         with pytest.raises(ParamError, match=rf"^--port {bad}: a port is a number from 1 to 65535"):
             web.check_address("127.0.0.1", bad)
+
+
+def test_the_panel_records_keyframes_into_a_camera_path_and_renders_full_size_views(tmp_path) -> None:
+    """The panel's actions as its buttons call them, with a browser tab's camera."""
+    from nerfpipe.export.camera_path import CameraPath
+    from nerfpipe.imaging.png import read_png
+
+    model = CountingModel()
+    viewer = web.serve(WebScene(frames=[], model=model, run_dir=tmp_path, full_width=200), port=free_port())
+    try:
+        panel = viewer.panel
+        assert {h.label for h in panel.handles.values() if hasattr(h, "label")} >= {
+            "Add keyframe", "Clear keyframes", "Save camera_path.json", "Render full size", "Resolution"}
+        tab = FakeClient().camera
+        assert panel.add_keyframe(tab) == 1
+        tab.position = np.array([1.0, -3.0, 0.5])
+        tab.fov = 0.6
+        assert panel.add_keyframe(tab) == 2 and len(panel.frusta) == 2
+        saved = panel.save(frames=30, fps=12.0, loop=False)
+        assert saved == tmp_path / "camera_path.json"
+        path = CameraPath.load(saved)
+        assert (path.frames, path.fps, len(path.keyframes)) == (30, 12.0, 2)
+        assert np.allclose(path.keyframes[1].c2w[:3, 3], [1.0, -3.0, 0.5])
+        assert path.keyframes[0].fov == pytest.approx(np.degrees(0.8)) and path.keyframes[1].fov == pytest.approx(
+            np.degrees(0.6))
+        view = panel.render_full(tab)
+        assert view.parent == tmp_path / "views" and read_png(view).shape == (150, 200, 3)  # 4:3 at full width
+        assert model.widths[-1] == 200
+        panel.clear()
+        assert panel.keyframes == [] and panel.frusta == []
+        with pytest.raises(ValueError, match="at least one keyframe"):
+            panel.save(frames=30, fps=12.0, loop=False)
+    finally:
+        viewer.stop()
+
+
+def test_a_viewer_without_a_run_directory_has_no_panel() -> None:
+    viewer = web.serve(WebScene(frames=[], model=CountingModel()), port=free_port())
+    try:
+        assert viewer.panel is None
+    finally:
+        viewer.stop()

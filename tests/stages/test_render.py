@@ -206,6 +206,48 @@ def test_path_and_elevation_can_be_chosen(tmp_path: Path) -> None:
     assert np.allclose(poses[:, 2, 3], np.sqrt(4.64) * 0.5)  # radius x sin 30 deg
 
 
+def test_a_keyframe_camera_path_is_rendered_frame_by_frame_with_its_fields_of_view(tmp_path: Path) -> None:
+    """What the viewer's panel saves: its frames and fps apply, each frame zoomed to its field of view; the
+    render's own camera_path.json renders the same frames again."""
+    from nerfpipe.export.camera_path import CameraPath, Keyframe
+
+    keys = (Keyframe(ring()[0], 40.0), Keyframe(ring()[2], 60.0), Keyframe(ring()[4], 40.0))
+    path = CameraPath(keys, frames=5, fps=8.0)
+    path.save(tmp_path / "keyed.json")
+    out, summary, calls = run_render(tmp_path / "a", "inward360", path=str(tmp_path / "keyed.json"))
+    assert summary["frames"] == 5 and summary["fps"] == 8.0 and calls[0] == (5, "render")
+    assert summary["path"] == f"the camera path of {tmp_path / 'keyed.json'}: 3 keyframes, 5 frames at 8 fps"
+    written = json.loads((out / "camera_path.json").read_text())
+    poses, fovs = path.sample()
+    assert np.allclose([f["c2w"] for f in written["frames"]], poses)
+    assert [f["fov"] for f in written["frames"]] == pytest.approx(list(fovs))
+    assert fovs[0] == pytest.approx(40.0) and fovs[2] == pytest.approx(60.0)
+    # the keyframe at 60 deg sees the cube smaller than the one at 40 deg from the same distance
+    cube = [int((read_png(out / "frames" / f"rgb_{i:04d}.png").sum(axis=-1) > 30).sum()) for i in (0, 2, 4)]
+    assert cube[1] < 0.7 * cube[0] and cube[2] == pytest.approx(cube[0], rel=0.15)  # frames 0, 2 and 4
+    again, _, _ = run_render(tmp_path / "b", "inward360", path=str(out / "camera_path.json"))
+    assert np.allclose([f["c2w"] for f in json.loads((again / "camera_path.json").read_text())["frames"]], poses)
+    assert (read_png(again / "frames" / "rgb_0002.png") == read_png(out / "frames" / "rgb_0002.png")).all()
+
+
+def test_a_camera_path_file_enters_the_cache_key(tmp_path: Path, monkeypatch) -> None:
+    from nerfpipe.export.camera_path import CameraPath, Keyframe
+    from nerfpipe.pipeline.fingerprint import FingerprintCache
+
+    path = tmp_path / "keyed.json"
+    CameraPath((Keyframe(ring()[0], 40.0),), frames=3).save(path)
+    monkeypatch.chdir(tmp_path)
+    params = build_params("render", RenderParams, RenderStage.presets, None, {"path": "keyed.json"})
+    assert params.path == str(path.resolve())  # the same file whichever folder status runs from
+    (file,) = RenderStage().input_files(tmp_path / "capture", params)
+    fingerprint = FingerprintCache(tmp_path / "fp.json").fingerprint(file, tmp_path / "capture")
+    assert fingerprint.relpath == path.resolve().as_posix()  # outside the capture: known by its absolute path
+    assert RenderStage().input_files(tmp_path / "capture", RenderParams()) == []
+    with pytest.raises(ParamError, match="render: path must be one of auto, spiral, orbit, sweep or an existing "
+                                         "camera_path.json file, got 'nowhere.json'"):
+        build_params("render", RenderParams, RenderStage.presets, None, {"path": "nowhere.json"})
+
+
 def test_params_presets_and_errors(tmp_path: Path) -> None:
     for preset in RenderStage.presets:
         build_params("render", RenderParams, RenderStage.presets, preset, {})
