@@ -164,6 +164,8 @@ def test_spaces_and_non_ascii_paths_work(tmp_path):
         (["--set", "ingest.bit_depth=12"], ["ingest.bit_depth: '12' is not one of auto, 8, 16"]),
         (["--set", "ingest.max_size=-5"], ["max_size must be 0"]),
         (["--preset", "ultra"], ["unknown preset 'ultra'"]),
+        (["--set", "ingest.max_megapixels=nan"], ["ingest.max_megapixels: expected a finite number, got 'nan'"]),
+        (["--set", "train.seconds=inf"], ["train.seconds: expected a finite number, got 'inf'"]),
     ],
 )
 def test_bad_flags(photos, tmp_path, flags, needles):
@@ -332,3 +334,37 @@ def test_a_3_gb_file_of_zeros_named_jpg_is_refused_from_its_head_before_it_is_ha
     with pytest.raises(BadPhotoError, match="big.jpg: is not a valid JPEG file"):  # before the engine hashes it
         IngestStage().input_files(photos, IngestParams())
     assert big in IngestStage().input_files(photos, IngestParams(skip_bad=True))  # skipped later, with a warning
+
+
+@pytest.mark.parametrize("command", ["status", "batch"])
+def test_a_non_finite_value_is_one_line_in_status_and_batch_too(photos, tmp_path, command):
+    """Not the 60-line traceback the hashing of the parameters gave."""
+    if command == "status":
+        assert ingest(photos, tmp_path).returncode == 0
+        result = run_cli("status", tmp_path / "run", "--set", "train.seconds=nan")
+    else:
+        captures = tmp_path / "captures"
+        captures.mkdir()
+        shutil.move(photos, captures / "photos")
+        result = run_cli("batch", captures, "--out", tmp_path / "batch", "--set", "train.seconds=inf")
+    assert_one_clear_error(result, "train.seconds: expected a finite number, got '")
+
+
+@pytest.mark.parametrize("case", ["points3D cut short", "three empty files"])
+def test_a_damaged_colmap_model_is_one_line_before_pycolmap_reads_it(in_images, tmp_path, case):
+    """A cut points3D.bin made pycolmap reserve 16.9 GB and die; three 0-byte files imported 0 poses."""
+    model = in_images / "sparse" / "0"
+    model.mkdir(parents=True)
+    for name in ("cameras.bin", "images.bin", "points3D.bin"):
+        data = shared("colmap_beer_yhuoyuh", "sparse", "0", name).read_bytes()
+        if case == "three empty files":
+            data = b""
+        elif name == "points3D.bin":
+            data = data[: len(data) // 2]
+        (model / name).write_bytes(data)
+    result = run_cli("run", in_images, "--out", tmp_path / "run", "--until", "sfm")
+    if case == "three empty files":
+        assert_one_clear_error(result, f"{model / 'cameras.bin'}: is empty (0 bytes)", "re-export it from COLMAP")
+    else:
+        assert_one_clear_error(result, f"{model / 'points3D.bin'}: is cut short: its records run past its end")
+    assert "imported" not in result.stderr

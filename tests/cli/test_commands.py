@@ -6,6 +6,8 @@ import importlib.metadata
 import shutil
 import subprocess
 
+import pytest
+
 from tests.helpers import REPO, TEMPLE, run_cli
 
 
@@ -145,3 +147,16 @@ def test_a_config_file_sets_parameters_set_wins_and_the_run_writes_its_own(captu
     settings.write_text("ingest: {max_size: 320\n")
     broken = run_cli("run", capture, "--out", run_dir, "--config", settings)
     assert broken.returncode != 0 and "not a readable YAML file" in broken.stderr and "Traceback" not in broken.stderr
+
+
+@pytest.mark.slow
+def test_a_ten_second_run_of_the_demo_finishes_with_a_video(tmp_path):
+    """The quick run a new user tries first: too little training for good exports, but it ends with exit 0,
+    a render.mp4, and a mesh or the reason there is none; no stage's shortfall fails the run."""
+    result = run_cli("run", TEMPLE, "--out", tmp_path / "run", "--set", "train.seconds=10", "--set",
+                     "ingest.max_size=320", timeout=900)
+    assert result.returncode == 0, result.stderr
+    assert "Traceback" not in result.stderr and "error:" not in result.stderr
+    assert len(list((tmp_path / "run" / "stages" / "render").glob("*/render.mp4"))) == 1
+    meshes = list((tmp_path / "run" / "stages" / "export_mesh").glob("*/mesh.ply"))
+    assert meshes or "export_mesh skipped (" in result.stdout.replace("\n", "")
