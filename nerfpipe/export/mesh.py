@@ -231,7 +231,8 @@ def transformed(mesh: Mesh, similarity: Sequence[Sequence[float]]) -> Mesh:
 
 # -- files -------------------------------------------------------------------------------------------
 def write_mesh(mesh: Mesh, path: Path) -> None:
-    """PLY (binary) or OBJ through Open3D, with vertex colours and normals; GLB with ``write_glb``."""
+    """PLY (binary) or OBJ through Open3D, with vertex colours and normals; GLB with ``write_glb`` (in the
+    mesh's coordinates: give it ``gltf_frame``'s)."""
     import open3d as o3d
 
     if path.suffix.lower() == ".glb":
@@ -252,27 +253,67 @@ def read_mesh(path: Path) -> Mesh:
     return from_open3d(o3d.io.read_triangle_mesh(str(path)))
 
 
-def write_glb(path: Path, mesh: Mesh) -> None:
-    """A binary glTF 2.0 file with one triangle mesh (positions, normals, 8-bit vertex colours when coloured),
-    which Blender, three.js and most viewers open; written by trimesh (Open3D 0.20 writes a GLB its own
-    reader cannot read back)."""
+# glTF's axes: +Y up. A z-up frame turns to them by x -> x, z -> y, y -> -z (a rotation about x).
+Z_UP_TO_GLTF = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+GLB_ROUGHNESS = 0.8
+
+
+def gltf_frame(to_world: Sequence[Sequence[float]]) -> np.ndarray:
+    """The 4x4 similarity from the SfM frame to a GLB's: the normalized world's rotation and centre (its z up
+    turned to glTF's +Y), at the SfM frame's scale, so distances keep the capture's units."""
+    to_world = np.asarray(to_world, dtype=np.float64)
+    scale = float(np.cbrt(np.linalg.det(to_world[:3, :3])))
+    return Z_UP_TO_GLTF @ np.diag([1 / scale, 1 / scale, 1 / scale, 1.0]) @ to_world
+
+
+def write_glb(path: Path, mesh: Mesh, units: str = "arbitrary (the SfM frame's)") -> None:
+    """A binary glTF 2.0 file with one triangle mesh, as Blender, three.js and most viewers expect it: a PBR
+    material (metallic 0, roughness ``GLB_ROUGHNESS``; glTF's default is metal, which renders dark), and
+    the vertex colours in ``COLOR_0`` converted to linear, as glTF defines it (sRGB bytes there look washed
+    out). ``mesh`` is written in its own coordinates (``gltf_frame`` gives +Y up); ``units`` is stated in the
+    mesh's extras. Written by trimesh (Open3D 0.20 writes a GLB its own reader cannot read back)."""
     import trimesh
 
-    colors = None if mesh.colors is None else np.round(np.clip(mesh.colors, 0, 1) * 255).astype(np.uint8)
-    solid = trimesh.Trimesh(mesh.vertices, mesh.triangles, vertex_normals=vertex_normals(mesh),
-                            vertex_colors=colors, process=False)
+    from nerfpipe.imaging.png import srgb_decode
+
+    material = trimesh.visual.material.PBRMaterial(name="nerfpipe", baseColorFactor=[255, 255, 255, 255],
+                                                   metallicFactor=0.0, roughnessFactor=GLB_ROUGHNESS,
+                                                   doubleSided=True)
+    visual = trimesh.visual.TextureVisuals(material=material)
+    if mesh.colors is not None:
+        linear = srgb_decode(np.clip(mesh.colors, 0, 1))
+        rgba = np.concatenate([np.round(linear * 255), np.full((len(linear), 1), 255.0)], axis=1)
+        visual.vertex_attributes["color"] = rgba.astype(np.uint8)
+    solid = trimesh.Trimesh(mesh.vertices, mesh.triangles, vertex_normals=vertex_normals(mesh), visual=visual,
+                            process=False)
+    solid.metadata.update({"units": units, "up": "+y", "generator": "nerfpipe"})
     solid.export(path, file_type="glb", include_normals=True)
 
 
 def read_glb(path: Path) -> Mesh:
-    """The triangle mesh of a GLB (every primitive, joined), with its vertex colours if it has them."""
+    """The triangle mesh of a GLB (every primitive, joined), with its vertex colours (sRGB) if it has them."""
     import trimesh
 
-    solid = trimesh.load(path, file_type="glb", force="mesh", process=False)
-    colors = None
-    if solid.visual.kind == "vertex":
-        colors = np.asarray(solid.visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0
-    return Mesh(np.asarray(solid.vertices, dtype=np.float64), np.asarray(solid.faces, dtype=np.int64), colors)
+    from nerfpipe.imaging.png import srgb_encode
+
+    scene = trimesh.load(path, file_type="glb", process=False)
+    if not isinstance(scene, trimesh.Scene):
+        scene = trimesh.Scene(scene)
+    vertices, triangles, colors, offset = [], [], [], 0
+    for node in scene.graph.nodes_geometry:  # each mesh where the scene graph places it
+        transform, name = scene.graph[node]
+        part = scene.geometry[name]
+        if part.visual.kind == "vertex":
+            rgb = np.asarray(part.visual.vertex_colors)[:, :3]
+        else:
+            attributes = getattr(part.visual, "vertex_attributes", {})
+            rgb = np.asarray(attributes["color"])[:, :3] if "color" in attributes else None
+        vertices.append(trimesh.transform_points(np.asarray(part.vertices, dtype=np.float64), transform))
+        triangles.append(np.asarray(part.faces, dtype=np.int64) + offset)
+        colors.append(None if rgb is None else srgb_encode(rgb / 255.0))  # COLOR_0 is linear
+        offset += len(part.vertices)
+    coloured = all(c is not None for c in colors) and colors
+    return Mesh(np.concatenate(vertices), np.concatenate(triangles), np.concatenate(colors) if coloured else None)
 
 
 def surface_colors(model: Any, vertices: np.ndarray, normals: np.ndarray, offset: float, chunk: int = 8192) -> np.ndarray:

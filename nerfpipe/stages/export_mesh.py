@@ -58,7 +58,7 @@ class ExportMeshStage(Stage):
     """Triangle mesh (marching cubes or TSDF fusion; optional Poisson) as PLY, OBJ and GLB in the SfM frame."""
 
     name = "export_mesh"
-    version = 1
+    version = 2  # 2: the GLB +Y up with a PBR material and linear vertex colours
     Params = ExportMeshParams
     presets = {
         "preview": {"resolution": 128, "target_faces": 50_000},
@@ -97,6 +97,7 @@ class ExportMeshStage(Stage):
             Grid,
             clean,
             evaluate_density,
+            gltf_frame,
             marching_cubes,
             poisson,
             surface_colors,
@@ -149,7 +150,8 @@ class ExportMeshStage(Stage):
             mesh.colors = np.concatenate([first, *rest])
         in_sfm = transformed(mesh, bounds.to_sfm)
         for suffix in FORMATS:
-            write_mesh(in_sfm, out / f"mesh{suffix}")
+            write_mesh(in_sfm if suffix != ".glb" else transformed(in_sfm, gltf_frame(bounds.to_world)),
+                       out / f"mesh{suffix}")
         summary: dict[str, Any] = {
             "method": params.method, "faces": mesh.faces, "vertices": len(mesh.vertices), "voxel": voxel,
             "components": report.components, "components_kept": report.components_kept,
@@ -159,11 +161,13 @@ class ExportMeshStage(Stage):
             points = point_clouds.transformed(point_clouds.read_ply(inputs["points"]), bounds.to_world)
             surface = poisson(point_clouds.to_open3d(points), params.poisson_depth, box=(lo, hi))
             surface, _ = clean(surface, params.min_component, params.target_faces)
+            surface = transformed(surface, bounds.to_sfm)
             for suffix in FORMATS:
-                write_mesh(transformed(surface, bounds.to_sfm), out / f"mesh_poisson{suffix}")
+                write_mesh(surface if suffix != ".glb" else transformed(surface, gltf_frame(bounds.to_world)),
+                           out / f"mesh_poisson{suffix}")
             summary["poisson_faces"] = surface.faces
         summary["seconds"] = round(time.perf_counter() - started, 2)
-        ctx.log.info("export_mesh: %d triangles, %d vertices -> mesh.ply, mesh.obj, mesh.glb (SfM frame)", mesh.faces,
+        ctx.log.info("export_mesh: %d triangles, %d vertices -> mesh.ply, mesh.obj (SfM frame), mesh.glb (+Y up)", mesh.faces,
                      len(mesh.vertices))
         return summary
 

@@ -23,6 +23,7 @@ from nerfpipe.export.mesh import (
 )
 from nerfpipe.export.points import clean_cloud, views_to_points
 from nerfpipe.export.points import transformed as cloud_transformed
+from nerfpipe.imaging.png import srgb_decode
 from nerfpipe.nerf.analytic import SphereField
 from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.ray_space import RaySpace
@@ -205,7 +206,9 @@ def test_mesh_files_round_trip(tmp_path, suffix):
     order = np.lexsort(back.vertices.T)
     ref = np.lexsort(moved.vertices.T)
     assert np.allclose(back.vertices[order], moved.vertices[ref], atol=1e-5)
-    assert back.colors is not None and np.allclose(back.colors[order], moved.colors[ref], atol=1 / 255 + 1e-6)
+    # GLB holds linear 8-bit colours (glTF's COLOR_0): in sRGB a step is up to 13/255 in the darkest tones
+    atol = 1 / 255 + 1e-6 if suffix != ".glb" else 13 / 255
+    assert back.colors is not None and np.allclose(back.colors[order], moved.colors[ref], atol=atol)
 
 
 def test_our_glb_opens_in_an_independent_reader(tmp_path):
@@ -222,7 +225,39 @@ def test_our_glb_opens_in_an_independent_reader(tmp_path):
     vertices, colors = np.asarray(other.vertices), np.asarray(other.vertex_colors)
     order, ref = np.lexsort(vertices.T), np.lexsort(mesh.vertices.T)
     assert np.allclose(vertices[order], mesh.vertices[ref], atol=1e-5)
-    assert np.allclose(colors[order], mesh.colors[ref], atol=1 / 255 + 1e-6)
+    assert np.allclose(colors[order], srgb_decode(mesh.colors[ref]), atol=0.5 / 255 + 1e-6)  # linear, as glTF says
+
+
+def test_the_glb_has_a_dielectric_material_linear_colours_and_y_up(tmp_path):
+    """glTF's default material is metal (three.js renders it dark); COLOR_0 is linear; +Y is up."""
+    import json
+    import struct
+
+    from nerfpipe.export.mesh import Mesh, gltf_frame
+
+    mesh = Mesh(np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), np.array([[0, 1, 2]]),
+                np.array([[0.5, 0.5, 0.5], [1.0, 0.0, 0.0], [0.2, 0.4, 0.8]]))
+    write_mesh(mesh, tmp_path / "m.glb")
+    data = (tmp_path / "m.glb").read_bytes()
+    (length,) = struct.unpack_from("<I", data, 12)
+    doc = json.loads(data[20:20 + length])
+    (material,) = doc["materials"]
+    assert material["pbrMetallicRoughness"]["metallicFactor"] == 0.0
+    assert material["pbrMetallicRoughness"]["roughnessFactor"] == 0.8
+    primitive = doc["meshes"][0]["primitives"][0]
+    assert primitive["material"] == 0 and {"POSITION", "NORMAL", "COLOR_0"} <= set(primitive["attributes"])
+    colour = doc["accessors"][primitive["attributes"]["COLOR_0"]]
+    # by hand: sRGB 0.5, 0.8, 0.2 are linear 0.214, 0.604, 0.0331: bytes 55, 154, 8
+    assert colour["max"][:3] == [255, 55, 154] and colour["min"][:3] == [8, 0, 0]
+    assert doc["meshes"][0]["extras"]["up"] == "+y" and "units" in doc["meshes"][0]["extras"]
+    # the normalized world's z (up) is the GLB's +Y, at the SfM frame's scale, about the world's centre
+    to_world = np.array([[0.0, -2.0, 0.0, 1.0], [2.0, 0.0, 0.0, 0.5], [0.0, 0.0, 2.0, -3.0], [0.0, 0.0, 0.0, 1.0]])
+    frame = gltf_frame(to_world)
+    up_in_sfm = np.linalg.inv(to_world)[:3, :3] @ [0.0, 0.0, 1.0]
+    assert np.allclose(frame[:3, :3] @ up_in_sfm / np.linalg.norm(up_in_sfm), [0.0, 1.0, 0.0])
+    assert np.isclose(np.linalg.det(frame[:3, :3]), 1.0)  # a rotation: distances in the capture's units
+    centre = np.linalg.inv(to_world) @ [0.0, 0.0, 0.0, 1.0]
+    assert np.allclose(frame @ centre, [0.0, 0.0, 0.0, 1.0])
 
 
 def test_cleaning_drops_small_pieces_and_simplifies():
