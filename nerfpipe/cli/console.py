@@ -167,3 +167,23 @@ def serve_web(pipe: Pipeline, host: str, port: int) -> None:
     except KeyboardInterrupt:
         viewer.stop()
         out_console.print("web viewer stopped", highlight=False)
+
+
+def print_outcomes(run_dir, outcomes, view: bool) -> None:
+    """`run`'s table of what each stage did, the warnings of a run that finished without some exports, and
+    what --view could not show."""
+    table = Table(title=f"nerfpipe run -> {escape(str(run_dir))}", title_justify="left")
+    for column in ("stage", "result", "time"):
+        table.add_column(column)
+    table.add_column("output", overflow="fold")
+    for o in outcomes:
+        made = escape(o.reasons[0] if o.action in ("failed", "skipped") else str(o.path))
+        table.add_row(o.name, o.action, f"{o.seconds:.1f} s", made)
+    out_console.print(table)
+    trouble = [o for o in outcomes if o.action in ("failed", "skipped")]
+    if trouble:
+        out_console.print("finished with warnings: " + "; ".join(f"{o.name} {o.action} ({escape(o.reasons[0])})"
+                                                                 for o in trouble), highlight=False, soft_wrap=True)
+    if view and not any(o.name == "train" and o.action == "ran" for o in outcomes):
+        out_console.print(f"--view: no training ran to watch; `nerfpipe view {escape(str(run_dir))} --web` shows the "
+                          "trained field", highlight=False, soft_wrap=True)

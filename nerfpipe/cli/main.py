@@ -15,6 +15,7 @@ from nerfpipe.cli.console import (
     bench_line,
     escape,
     out_console,
+    print_outcomes,
     progress_factory,
     serve_web,
     setup_logging,
@@ -108,21 +109,13 @@ def run(
         finally:
             if (run_dir / "run.json").is_file():  # the run got as far as recording its settings
                 write_config(run_dir, pipe.plan(), job_budget)
-    table = Table(title=f"nerfpipe run -> {escape(str(run_dir))}", title_justify="left")
-    for column in ("stage", "result", "time"):
-        table.add_column(column)
-    table.add_column("output", overflow="fold")
-    for o in outcomes:
-        made = escape(o.reasons[0] if o.action in ("failed", "skipped") else str(o.path))
-        table.add_row(o.name, o.action, f"{o.seconds:.1f} s", made)
-    out_console.print(table)
-    trouble = [o for o in outcomes if o.action in ("failed", "skipped")]
-    if trouble:
-        out_console.print("finished with warnings: " + "; ".join(f"{o.name} {o.action} ({escape(o.reasons[0])})"
-                                                                 for o in trouble), highlight=False, soft_wrap=True)
-    if view and not any(o.name == "train" and o.action == "ran" for o in outcomes):
-        out_console.print(f"--view: no training ran to watch; `nerfpipe view {escape(str(run_dir))} --web` shows the "
-                          "trained field", highlight=False, soft_wrap=True)
+    print_outcomes(run_dir, outcomes, view)
+    with user_errors(debug):
+        from nerfpipe.cli.exports import refresh_exports
+
+        exported = refresh_exports(pipe)
+    out_console.print(f"exports: {escape(str(exported.folder))} ({', '.join(exported.names) or 'nothing yet'})",
+                      highlight=False, soft_wrap=True)
     with user_errors(debug):
         from nerfpipe.report import write_report
 
@@ -345,7 +338,7 @@ def stages(
     """The stage graph, with each stage's parameters, defaults and presets."""
     import json
 
-    from nerfpipe.cli.reference import stage_reference
+    from nerfpipe.cli.reference import print_reference, stage_reference
     from nerfpipe.pipeline import Dag, ParamError
 
     dag = Dag(default_stages())
@@ -358,20 +351,26 @@ def stages(
     if as_json:
         print(json.dumps(reference, indent=1))
         return
-    if not names:
-        out_console.print("[bold]" + " -> ".join(dag.order) + "[/]\n")
-    for name, entry in reference.items():
-        out_console.print(f"[bold]{name}[/] (version {entry['version']}): {escape(entry['summary'])}")
-        if entry["upstream"]:
-            out_console.print(f"  needs: {', '.join(entry['requires'])} (from {', '.join(entry['upstream'])})")
-        out_console.print(f"  provides: {', '.join(f'{a} ({p})' for a, p in entry['provides'].items())}")
-        for spec in entry["parameters"]:
-            out_console.print(f"  [cyan]{name}.{spec['name']}[/] = {escape(str(spec['default']))}  "
-                              f"[dim]({escape(spec['type'])})[/]  {escape(spec['help'])}", highlight=False, soft_wrap=True)
-        for preset_name, values in entry["presets"].items():
-            shown = ", ".join(f"{k}={v}" for k, v in values.items())
-            out_console.print(f"  preset [green]{preset_name}[/]: {escape(shown)}", highlight=False)
-        out_console.print()
+    print_reference(reference, dag.order if not names else None)
+
+
+@app.command()
+def export(
+    run_dir: Path = typer.Argument(..., help="Run directory of an earlier `nerfpipe run`."),
+    to: Path = typer.Option(..., "--to", help="Folder to copy the exports into (made if missing)."),
+    debug: bool = DebugOption,
+) -> None:
+    """Copy a run's exports (mesh, points, videos, depth maps, transforms.json, COLMAP cameras) to a folder."""
+    setup_logging(debug)
+    from nerfpipe.cli.exports import refresh_exports
+    from nerfpipe.export.bundle import copy_exports
+
+    with user_errors(debug):
+        exported = refresh_exports(Pipeline.from_run_dir(default_stages(), run_dir))
+        copied = copy_exports(exported.folder, to)
+    out_console.print(f"copied {', '.join(exported.names)} ({copied / 1e6:.1f} MB) to {escape(str(to))}"
+                      + (f"; not made by this run: {', '.join(exported.missing)}" if exported.missing else ""),
+                      highlight=False, soft_wrap=True)
 
 
 @app.command()

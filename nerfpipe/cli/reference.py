@@ -61,3 +61,23 @@ def stage_reference(dag: Dag, names: list[str]) -> dict[str, Any]:
             "presets": {k: dict(v) for k, v in stage.presets.items()},
         }
     return reference
+
+
+def print_reference(reference: dict[str, Any], order: list[str] | None) -> None:
+    """`nerfpipe stages` for people: the graph (``order``, when all stages are shown), then each stage."""
+    from nerfpipe.cli.console import escape, out_console
+
+    if order:
+        out_console.print("[bold]" + " -> ".join(order) + "[/]\n")
+    for name, entry in reference.items():
+        out_console.print(f"[bold]{name}[/] (version {entry['version']}): {escape(entry['summary'])}")
+        if entry["upstream"]:
+            out_console.print(f"  needs: {', '.join(entry['requires'])} (from {', '.join(entry['upstream'])})")
+        out_console.print(f"  provides: {', '.join(f'{a} ({p})' for a, p in entry['provides'].items())}")
+        for spec in entry["parameters"]:
+            out_console.print(f"  [cyan]{name}.{spec['name']}[/] = {escape(str(spec['default']))}  "
+                              f"[dim]({escape(spec['type'])})[/]  {escape(spec['help'])}", highlight=False, soft_wrap=True)
+        for preset_name, values in entry["presets"].items():
+            shown = ", ".join(f"{k}={v}" for k, v in values.items())
+            out_console.print(f"  preset [green]{preset_name}[/]: {escape(shown)}", highlight=False)
+        out_console.print()

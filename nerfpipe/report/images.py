@@ -42,10 +42,21 @@ def _pyplot() -> Any:
     return plt
 
 
+def plot_frame(centers: np.ndarray, points: np.ndarray | None) -> tuple[np.ndarray, float]:
+    """The centre and half side of the cube a camera plot shows: every camera (N, 3), and the sparse points
+    (P, 3) between their 1st and 99th percentiles, with a 5 % margin."""
+    lo, hi = centers.min(axis=0), centers.max(axis=0)
+    if points is not None and len(points):
+        lo = np.minimum(lo, np.percentile(points, 1, axis=0))
+        hi = np.maximum(hi, np.percentile(points, 99, axis=0))
+    return (lo + hi) / 2, 1.05 * float((hi - lo).max()) / 2 or 1.0
+
+
 def plot_cameras(path: Path, centers: np.ndarray, axes: np.ndarray, points: np.ndarray | None,
                  colors: np.ndarray | None) -> None:
     """A 3D plot of camera centres (N, 3) with their viewing axes (N, 3) and, when given, sparse
-    points (P, 3) in their colours (P, 3) in [0, 1]; framed on the 1st..99th percentile of all of them."""
+    points (P, 3) in their colours (P, 3) in [0, 1]; framed on every camera first, then on the 1st..99th
+    percentile of the points (a few far-off points do not shrink the scene, and no camera is cut off)."""
     plt = _pyplot()
     fig = plt.figure(figsize=(6, 5), dpi=100)
     ax = fig.add_subplot(projection="3d")
@@ -55,9 +66,7 @@ def plot_cameras(path: Path, centers: np.ndarray, axes: np.ndarray, points: np.n
     ax.scatter(*centers.T, s=12, c="tab:red", label="cameras")
     span = float(np.ptp(centers, axis=0).max()) if len(centers) > 1 else 1.0
     ax.quiver(*centers.T, *(axes * 0.1 * span).T, color="tab:red", linewidth=0.8)
-    everything = centers if points is None or not len(points) else np.concatenate([centers, points[keep]])
-    lo, hi = np.percentile(everything, 1, axis=0), np.percentile(everything, 99, axis=0)
-    mid, half = (lo + hi) / 2, float((hi - lo).max()) / 2 or 1.0
+    mid, half = plot_frame(centers, points[keep] if points is not None and len(points) else None)
     ax.set_xlim(mid[0] - half, mid[0] + half)
     ax.set_ylim(mid[1] - half, mid[1] + half)
     ax.set_zlim(mid[2] - half, mid[2] + half)

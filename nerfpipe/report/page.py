@@ -16,7 +16,8 @@ h2 { border-bottom: 1px solid #ccc; padding-bottom: .2em; }
 figure { display: inline-block; margin: .3em; text-align: center; font-size: .8em; }
 figure img { max-width: 100%; }
 .grid { display: flex; flex-wrap: wrap; }
-.pair { display: inline-block; margin: .5em; }
+.row { display: flex; flex-wrap: wrap; align-items: flex-end; margin: .5em 0; }
+.row figure { flex: 1 1 30%; }
 table { border-collapse: collapse; font-size: .9em; }
 td, th { border: 1px solid #ddd; padding: .3em .6em; text-align: left; vertical-align: top; }
 """

@@ -9,6 +9,7 @@ from __future__ import annotations
 import html
 import json
 import shutil
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -87,32 +88,58 @@ def training(run: RunData) -> str | None:
                        "exposure learned for it")
     pairs = heldout_pairs(run)
     if pairs:
-        body += "<h3>Held-out views: render beside ground truth</h3>" + "".join(pairs)
+        body += ("<h3>Held-out views: render, photo and their difference</h3><p>difference: |render - photo| "
+                 f"per pixel, times {ERROR_GAIN} (black: equal)</p>" + "".join(pairs))
     return section("Training", body)
 
 
+ERROR_GAIN = 4  # the held-out difference images, brightened: a 1/4 error is white
+
+
 def heldout_pairs(run: RunData) -> list[str]:
-    """One block per held-out view of the train stage's ``metrics.json``: its render and ground truth
-    (those of the two that exist), with the view's PSNR and SSIM."""
+    """One row per held-out view of the train stage's ``metrics.json``: its render, its photo and their
+    difference side by side (those that exist), with the view's PSNR and SSIM."""
+    from nerfpipe.imaging.png import read_png
+
     metrics = json.loads(run.artifact("train", "metrics").read_text(encoding="utf-8"))
     renders = run.artifact("train", "eval")
     blocks = []
     for view in metrics.get("views", []):
         stem = view_file_stem(view["name"])
-        pair = []
-        for suffix in ("render", "gt"):
+        row = []
+        for suffix, caption in (("render", "render"), ("gt", "photo")):
             source = renders / f"{stem}.{suffix}.png"
             if source.exists():
                 shutil.copy2(source, run.img / f"eval_{stem}.{suffix}.png")
-                pair.append(figure(f"img/eval_{stem}.{suffix}.png", f"{view['name']}: {suffix}"))
-        if pair:
-            blocks.append(f"<div class='pair'>{''.join(pair)}<p>PSNR {view['psnr']:.2f} dB, "
+                row.append(figure(f"img/eval_{stem}.{suffix}.png", f"{view['name']}: {caption}"))
+        if len(row) == 2:
+            rendered, photo = (read_png(renders / f"{stem}.{suffix}.png").astype(np.int32) for suffix in ("render", "gt"))
+            if rendered.shape == photo.shape:
+                difference = np.abs(rendered - photo)[..., :3] * ERROR_GAIN
+                write_png(run.img / f"eval_{stem}.error.png", np.clip(difference, 0, 255).astype(np.uint8))
+                row.append(figure(f"img/eval_{stem}.error.png", f"{view['name']}: difference x{ERROR_GAIN}"))
+        if row:
+            blocks.append(f"<div class='row'>{''.join(row)}<p>PSNR {view['psnr']:.2f} dB, "
                           f"SSIM {view['ssim']:.3f}</p></div>")
     return blocks
 
 
+def preview_views(views: list[Any], count: int) -> list[Any]:
+    """Up to ``count`` of ``views`` (each with a ``role``): every held-out one (up to half of ``count``), and
+    training views evenly spread over the capture for the rest, in the capture's order."""
+    heldout = [v for v in views if v.role == "heldout"]
+    heldout = [heldout[i] for i in np.linspace(0, len(heldout) - 1, min(len(heldout), count // 2)).round().astype(int)] \
+        if heldout else []
+    train = [v for v in views if v.role != "heldout"]
+    left = min(count - len(heldout), len(train))
+    spread = [train[i] for i in np.linspace(0, len(train) - 1, left).round().astype(int)] if left > 0 else []
+    chosen = {id(v) for v in heldout + spread}
+    return [v for v in views if id(v) in chosen]
+
+
 def depth(run: RunData) -> str | None:
-    """Disparity previews of up to ``MAX_DEPTH_PREVIEWS`` exported views, evenly spread."""
+    """Disparity previews of up to ``MAX_DEPTH_PREVIEWS`` exported views: the held-out ones and training views
+    evenly spread over the capture."""
     if "export_depth" not in run.results:
         return None
     from nerfpipe.export.depth import DepthIndex
@@ -120,8 +147,7 @@ def depth(run: RunData) -> str | None:
     views = DepthIndex.load(run.artifact("export_depth", "depth_index")).views
     previews = run.artifact("export_depth", "depth")
     figures = []
-    step = max(1, len(views) // MAX_DEPTH_PREVIEWS)
-    for view in views[::step][:MAX_DEPTH_PREVIEWS]:
+    for view in preview_views(views, MAX_DEPTH_PREVIEWS):
         source = previews / f"{view.stem}.preview.png"
         if source.exists():
             shutil.copy2(source, run.img / f"depth_{view.stem}.png")
@@ -169,11 +195,12 @@ def novel_views(run: RunData) -> str | None:
         return None
     body = paragraphs(run.describe("render"))
     frames = run.artifact("render", "frames")
-    for name, pattern in (("render_first.png", "rgb_*.png"), ("render_depth_first.png", "depth_*.png")):
+    for name, pattern, caption in (("render_first.png", "rgb_*.png", "the path's first frame"),
+                                   ("render_depth_first.png", "depth_*.png", "the path's first frame: its depth")):
         first = sorted(frames.glob(pattern))[:1]
         if first:
             shutil.copy2(first[0], run.img / name)
-            body += figure(f"img/{name}", "first frame")
+            body += figure(f"img/{name}", caption)
     videos = []
     for artifact, caption in (("video", "the field along the path"), ("depth_video", "its depth, red near to blue far")):
         path = run.artifact("render", artifact)
@@ -241,7 +268,26 @@ def stage_times(run: RunData) -> str:
                    + "<p>" + "; ".join(notes) + "</p>")
 
 
+def exports(run: RunData) -> str | None:
+    """A link to every file in ``RUN_DIR/exports`` (the folders' files counted, not listed)."""
+    import os
+
+    folder = run.run_dir / "exports"
+    if not folder.is_dir():
+        return None
+    rows = []
+    for path in sorted(folder.iterdir()):
+        href = html.escape(Path(os.path.relpath(path, run.folder)).as_posix(), quote=True)
+        if path.is_dir():
+            count = sum(1 for p in path.rglob("*") if p.is_file())
+            rows.append(f"<li><a href='{href}/'>{html.escape(path.name)}/</a> ({count} files)</li>")
+        else:
+            rows.append(f"<li><a href='{href}'>{html.escape(path.name)}</a> ({path.stat().st_size / 1e6:.1f} MB)</li>")
+    return section("Exports", f"<p>in <code>{html.escape(str(folder))}</code> (<code>nerfpipe export RUN_DIR --to "
+                   f"FOLDER</code> copies them)</p><ul>{''.join(rows)}</ul>")
+
+
 SECTIONS: tuple[Callable[[RunData], str | None], ...] = (
-    capture, structure_from_motion, scene_decisions, training, depth, mesh_and_points, novel_views, benchmark,
+    capture, structure_from_motion, scene_decisions, training, depth, mesh_and_points, novel_views, exports, benchmark,
     stage_times,
 )

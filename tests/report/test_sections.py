@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from nerfpipe.artifacts import Decision, SceneDecisions
@@ -60,7 +61,7 @@ def test_heldout_pairs_show_the_images_that_exist_with_their_scores(tmp_path):
 
     blocks = sections.heldout_pairs(run)
 
-    assert blocks == ["<div class='pair'><figure><img src=\"img/eval_val__r_0.render.png\" alt=\"val/r_0.png: render\">"
+    assert blocks == ["<div class='row'><figure><img src=\"img/eval_val__r_0.render.png\" alt=\"val/r_0.png: render\">"
                       "<figcaption>val/r_0.png: render</figcaption></figure><p>PSNR 25.13 dB, SSIM 0.900</p></div>"]
     assert (tmp_path / "report" / "img" / "eval_val__r_0.render.png").read_bytes() == b"png"
 
@@ -113,3 +114,55 @@ def test_a_benchmark_row_has_a_dash_where_the_budget_stopped_training_first():
     # no checkpoint at 60 s and not finished: "–"; 3 * 2^29 bytes = 1.5 GiB
     assert sections.benchmark_row(slow, [30.0, 60.0]) == (
         "slow", "20.00 dB / 0.200", "–", "12.3", "123,456", "–", "1.50 GiB")
+
+
+def test_a_heldout_row_is_render_photo_and_their_difference(tmp_path):
+    from nerfpipe.imaging.png import read_png, write_png
+
+    result = tmp_path / "train"
+    (result / "eval").mkdir(parents=True)
+    (result / "metrics.json").write_text('{"views": [{"name": "a.png", "psnr": 20.0, "ssim": 0.5}]}')
+    render, photo = np.full((4, 6, 3), 100, np.uint8), np.full((4, 6, 3), 100, np.uint8)
+    photo[1, 2] = (110, 40, 100)  # off by 10 and -60 in one pixel
+    write_png(result / "eval" / "a.render.png", render)
+    write_png(result / "eval" / "a.gt.png", photo)
+    (block,) = sections.heldout_pairs(run_data(tmp_path, {"train": Committed(result, {})}, stages={"train": TrainStage()}))
+    assert [c for c in ("a.png: render", "a.png: photo", f"a.png: difference x{sections.ERROR_GAIN}") if c in block] == [
+        "a.png: render", "a.png: photo", "a.png: difference x4"]
+    error = read_png(tmp_path / "report" / "img" / "eval_a.error.png")
+    expected = np.zeros((4, 6, 3), np.uint8)
+    expected[1, 2] = (40, 240, 0)  # |diff| x 4
+    assert np.array_equal(error, expected)
+
+
+def test_depth_previews_hold_the_heldout_views_and_spread_the_rest():
+    from types import SimpleNamespace
+
+    views = [SimpleNamespace(name=f"{i:02d}", role="heldout" if i % 8 == 0 else "train") for i in range(40)]
+    chosen = sections.preview_views(views, 12)
+    assert [v.name for v in chosen if v.role == "heldout"] == ["00", "08", "16", "24", "32"]
+    train = [int(v.name) for v in chosen if v.role == "train"]
+    assert len(chosen) == 12 and train[0] == 1 and train[-1] == 39  # from the first training view to the last
+    assert max(np.diff(train)) <= 2 * min(np.diff(train)) + 2  # evenly spread
+    assert [v.name for v in sections.preview_views(views[:3], 12)] == ["00", "01", "02"]
+
+
+def test_the_sfm_plot_frames_every_camera_and_the_bulk_of_the_points():
+    from nerfpipe.report.images import plot_frame
+
+    centers = np.array([[5.0, 0.0, 0.0], [-5.0, 0.0, 0.0], [0.0, 5.0, 1.0], [0.0, -5.0, -1.0]])
+    points = np.random.default_rng(0).normal(size=(1000, 3)) * 0.5
+    points[0] = (300.0, 0.0, 0.0)  # one point far off
+    mid, half = plot_frame(centers, points)
+    assert np.all(np.abs(centers - mid) <= half)  # no camera is cut off
+    assert half == pytest.approx(5.25, rel=0.02)  # and the far point does not shrink the scene
+
+
+def test_the_exports_section_links_every_file(tmp_path):
+    exports = tmp_path / "run" / "exports"
+    (exports / "depth").mkdir(parents=True)
+    (exports / "mesh.glb").write_bytes(b"x" * 2_000_000)
+    (exports / "depth" / "a.npy").write_bytes(b"x")
+    html = sections.exports(run_data(tmp_path, {}))
+    assert "<a href='../run/exports/depth/'>depth/</a> (1 files)" in html
+    assert "<a href='../run/exports/mesh.glb'>mesh.glb</a> (2.0 MB)" in html
