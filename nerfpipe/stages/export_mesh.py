@@ -1,12 +1,18 @@
-"""export_mesh: a coloured triangle mesh of the trained field, as PLY, OBJ and GLB in the original SfM frame.
+"""export_mesh: a coloured triangle mesh of the trained field, as PLY and OBJ in the original SfM frame and
+as a textured GLB (+Y up).
 
 Methods:
 
 - ``marching_cubes`` (default): the surface where the density crosses ``density_threshold``, on a grid of
   ``resolution`` voxels along the longest side of the scene box (of the NDC cube for forward-facing
   captures), evaluated block by block so memory stays bounded; vertex colours are rendered from the
-  field, looking at each vertex against its normal.
+  field, looking at each vertex against its normal, where no texture is baked.
 - ``tsdf``: TSDF fusion of the rendered depth and colour of the training views (Open3D).
+
+With ``texture`` (the default), the mesh is simplified to ``texture_faces`` triangles and textured from the
+training photos at their trained poses (``nerfpipe.export.texture``): that is the GLB, and the vertex
+colours of the PLY and OBJ are read off it. The textured mesh is rendered at the held-out views and scored
+against the same photos as the field, and its mean colour against theirs.
 
 With ``poisson``, a screened Poisson surface of the exported point cloud is written beside it
 (``mesh_poisson.*``). Every mesh loses its small disconnected pieces and is simplified to ``target_faces``.
@@ -14,6 +20,7 @@ With ``poisson``, a screened Poisson surface of the exported point cloud is writ
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,13 +48,15 @@ class ExportMeshParams:
     min_component: float = field(default=0.05, metadata={"help": "drop connected pieces with fewer triangles than this fraction of the largest"})
     region: Literal["box", "all"] = field(default="box", metadata={"help": "contracted scenes: mesh the scene box, or all of space out to where the contraction ends"})
     target_faces: int = field(default=200_000, metadata={"help": "simplify to at most this many triangles (0: keep all)"})
+    texture: int = field(default=2048, metadata={"help": "texture size in texels a side, baked from the training photos into mesh.glb (and the vertex colours); 0: vertex colours from the field"})
+    texture_faces: int = field(default=50_000, metadata={"help": "triangles of the textured mesh (the photos' detail is in the texture)"})
     device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
 
     def __post_init__(self) -> None:
         for name in ("resolution", "block", "poisson_depth"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("density_threshold", "truncation", "min_component", "target_faces"):
+        for name in ("density_threshold", "truncation", "min_component", "target_faces", "texture", "texture_faces"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not 0 <= self.acc_threshold <= 1:
@@ -58,14 +67,15 @@ class ExportMeshStage(Stage):
     """Triangle mesh (marching cubes or TSDF fusion; optional Poisson) as PLY, OBJ and GLB in the SfM frame."""
 
     name = "export_mesh"
-    version = 2  # 2: the GLB +Y up with a PBR material and linear vertex colours
+    version = 3  # 3: a texture from the photos, scored on the held-out views; 2: the GLB +Y up, PBR, linear colours
     Params = ExportMeshParams
     presets = {
         "preview": {"resolution": 128, "target_faces": 50_000},
         "fine": {"resolution": 512, "target_faces": 1_000_000},
         "tsdf": {"method": "tsdf"},
     }
-    requires = ("model", "model_json", "bounds", "depth", "depth_index", "points")
+    requires = ("model", "model_json", "bounds", "depth", "depth_index", "points", "cameras", "views", "metrics", "eval",
+                "images", "undistorted_images", "pinhole", "scene")
     provides = {"mesh": "mesh.ply", "mesh_obj": "mesh.obj", "mesh_glb": "mesh.glb"}
     budget_share = 0.04  # reserved under a job budget; the stage is bounded by its own sizes
     optional = True
@@ -78,6 +88,14 @@ class ExportMeshStage(Stage):
             return []
         lines = [f"{s['method']}: {s['faces']} triangles, {s['vertices']} vertices ({s['components_kept']} of "
                  f"{s['components']} pieces kept) at voxel {s['voxel']:.4g}, {s['seconds']:.0f} s"]
+        if "texture" in s:
+            t = s["texture"]
+            lines.append(f"texture: {t['size']} x {t['size']} texels on {t['faces']} triangles, from {t['photos']} "
+                         f"training photos in {t['seconds']:.0f} s (mesh.glb)")
+        if "heldout" in s:
+            h = s["heldout"]
+            lines.append(f"held-out views: the textured mesh {h['mesh_psnr']:.2f} dB, the field {h['field_psnr']:.2f} dB; "
+                         f"mean colour {100 * float(np.mean(h['colour_ratio'])):.0f} % of the photos'")
         if s.get("poisson_faces") is not None:
             lines.append(f"poisson: {s['poisson_faces']} triangles")
         return lines
@@ -106,6 +124,7 @@ class ExportMeshStage(Stage):
             vertex_normals,
             write_mesh,
         )
+        from nerfpipe.export.texture import colours_at, write_textured_glb
         from nerfpipe.nerf.model import RadianceModel
 
         started = time.perf_counter()
@@ -138,7 +157,11 @@ class ExportMeshStage(Stage):
                              + ("lower export_mesh.density_threshold" if params.method == "marching_cubes"
                                 else "lower export_mesh.acc_threshold") + " or train longer")
         mesh, report = clean(mesh, params.min_component, params.target_faces)
-        if params.method == "marching_cubes":
+        textured, scores = None, {}
+        if params.texture:
+            textured, scores = bake_and_score(inputs, mesh, params, ctx)
+            mesh.colors = colours_at(textured, mesh.vertices)
+        elif params.method == "marching_cubes":
             normals = vertex_normals(mesh)
             probe = slice(0, min(PROBE_POINTS // 16, len(mesh.vertices)))
             began = time.perf_counter()
@@ -149,13 +172,16 @@ class ExportMeshStage(Stage):
                 if probe.stop < len(mesh.vertices) else []
             mesh.colors = np.concatenate([first, *rest])
         in_sfm = transformed(mesh, bounds.to_sfm)
+        to_gltf = gltf_frame(bounds.to_world) @ np.asarray(bounds.to_sfm)  # from the world the mesh is in
         for suffix in FORMATS:
-            write_mesh(in_sfm if suffix != ".glb" else transformed(in_sfm, gltf_frame(bounds.to_world)),
-                       out / f"mesh{suffix}")
+            if suffix == ".glb" and textured is not None:
+                write_textured_glb(out / "mesh.glb", textured, to_gltf, GLB_UNITS)
+            else:
+                write_mesh(in_sfm if suffix != ".glb" else transformed(mesh, to_gltf), out / f"mesh{suffix}")
         summary: dict[str, Any] = {
             "method": params.method, "faces": mesh.faces, "vertices": len(mesh.vertices), "voxel": voxel,
             "components": report.components, "components_kept": report.components_kept,
-            "faces_before_cleaning": report.faces_before, "poisson_faces": None,
+            "faces_before_cleaning": report.faces_before, "poisson_faces": None, **scores,
         }
         if params.poisson:
             points = point_clouds.transformed(point_clouds.read_ply(inputs["points"]), bounds.to_world)
@@ -170,6 +196,62 @@ class ExportMeshStage(Stage):
         ctx.log.info("export_mesh: %d triangles, %d vertices -> mesh.ply, mesh.obj (SfM frame), mesh.glb (+Y up)", mesh.faces,
                      len(mesh.vertices))
         return summary
+
+
+GLB_UNITS = "arbitrary (the SfM frame's)"
+
+
+def bake_and_score(inputs: StageInputs, mesh: Any, params: ExportMeshParams, ctx: StageContext) -> tuple[Any, dict]:
+    """The mesh (normalized world) textured from the training photos at their trained poses, and how its
+    renders score on the held-out views beside the field's: PSNR against the same photos the train stage
+    scored on, and the mesh's mean colour over the pixels it covers as a share of the photos' there."""
+    from nerfpipe.artifacts import SceneDecisions, ViewSplit, view_file_stem
+    from nerfpipe.export.texture import Photo, bake, render
+    from nerfpipe.geometry.cameras import CameraSet
+    from nerfpipe.imaging.png import read_png
+    from nerfpipe.nerf.images import ImageLoader
+
+    began = time.perf_counter()
+    cameras = CameraSet.load(inputs["cameras"])
+    loader = ImageLoader(inputs["images"], inputs["undistorted_images"], inputs["pinhole"], cameras,
+                         Bounds.load(inputs["bounds"]), SceneDecisions.load(inputs["scene"]))
+    split = ViewSplit.load(inputs["views"])
+    frames = {f.name: f for f in cameras.frames}
+
+    def intrinsics(camera: Any) -> np.ndarray:
+        return np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])
+
+    photos = [Photo(np.round(np.clip(loader.image(frames[n]), 0, 1) * 255).astype(np.uint8),
+                    intrinsics(cameras.camera_of(frames[n])), np.asarray(frames[n].c2w)) for n in split.train if n in frames]
+    textured = bake(mesh, photos, params.texture_faces, params.texture)
+    seconds = time.perf_counter() - began
+    ctx.log.info("export_mesh: a %d x %d texture on %d triangles from %d training photos in %.0f s", params.texture,
+                 params.texture, textured.faces, len(photos), seconds)
+    metrics = json.loads(inputs["metrics"].read_text(encoding="utf-8"))
+    mesh_psnr, field_psnr, covered, seen = [], [], [], []
+    for view in metrics.get("views", []):
+        truth = inputs["eval"] / f"{view_file_stem(view['name'])}.gt.png"
+        if view["name"] not in frames or not truth.exists():
+            continue
+        photo = read_png(truth)[..., :3].astype(np.float64) / 255.0
+        camera = cameras.camera_of(frames[view["name"]])
+        camera = camera.scaled(photo.shape[1] / camera.width, photo.shape[0] / camera.height)
+        rgb, hit = render(textured, intrinsics(camera), np.asarray(frames[view["name"]].c2w), camera.width, camera.height,
+                          loader.background)
+        mesh_psnr.append(float(-10 * np.log10(max(np.mean((rgb - photo) ** 2), 1e-10))))
+        field_psnr.append(float(view["psnr"]))
+        covered.append(rgb[hit].sum(axis=0))
+        seen.append(photo[hit].sum(axis=0))
+    scores: dict[str, Any] = {"texture": {"size": params.texture, "faces": textured.faces, "photos": len(photos),
+                                          "seconds": round(seconds, 1)}}
+    if mesh_psnr:
+        ratio = np.sum(covered, axis=0) / np.maximum(np.sum(seen, axis=0), 1e-9)
+        scores["heldout"] = {"mesh_psnr": round(float(np.mean(mesh_psnr)), 3), "field_psnr": round(float(np.mean(field_psnr)), 3),
+                             "views": len(mesh_psnr), "colour_ratio": [round(float(r), 4) for r in ratio]}
+        ctx.log.info("export_mesh: the textured mesh on %d held-out views: PSNR %.2f dB (the field: %.2f dB); its mean "
+                     "colour %.0f %% of the photos' (r, g, b: %s)", len(mesh_psnr), np.mean(mesh_psnr),
+                     np.mean(field_psnr), 100 * float(np.mean(ratio)), ", ".join(f"{r:.3f}" for r in ratio))
+    return textured, scores
 
 
 PROBE_POINTS = 65_536  # density queries timed to predict what marching cubes costs (a sixteenth of them: colours)

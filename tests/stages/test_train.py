@@ -242,8 +242,13 @@ def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
     assert index.to_sfm == bounds["to_sfm"]
     assert len(read_ply(result_of("export_points") / "points.ply").xyz) > 0
     mesh_dir = result_of("export_mesh")
-    meshes = [read_mesh(mesh_dir / f"mesh{suffix}") for suffix in (".ply", ".obj", ".glb")]
-    assert meshes[0].faces > 0 and all(m.faces == meshes[0].faces for m in meshes)
+    meshes = [read_mesh(mesh_dir / f"mesh{suffix}") for suffix in (".ply", ".obj")]
+    assert meshes[0].faces > 0 and meshes[1].faces == meshes[0].faces
+    # the GLB: the mesh simplified and textured from the training photos, scored on the held-out views
+    glb = read_mesh(mesh_dir / "mesh.glb")
+    assert 0 < glb.faces <= min(meshes[0].faces, 50_000)
+    summary = json.loads((mesh_dir / "manifest.json").read_text())["summary"]
+    assert summary["texture"]["photos"] == 14 and summary["heldout"]["views"] == 2
     render = result_of("render")
     assert (render / "render.mp4").stat().st_size > 0 and (render / "depth.mp4").stat().st_size > 0
     exports = run_dir / "exports"  # what a user takes away, under stable names
