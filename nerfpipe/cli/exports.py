@@ -32,4 +32,6 @@ def refresh_exports(pipe: Pipeline) -> Exported:
                                       None)
         if any(path is None for path in images.values()):
             cameras, images = None, {}
-    return collect(pipe.run_dir, artifacts, cameras, images)
+    mesh = artifacts.get("mesh")
+    extra = tuple(sorted(p for p in mesh.parent.glob("mesh_*.*") if p.suffix in (".ply", ".obj", ".glb"))) if mesh else ()
+    return collect(pipe.run_dir, artifacts, cameras, images, extra)

@@ -1,7 +1,8 @@
 """``RUN_DIR/exports/``: what a user takes away from a run, in one place with stable names, rather than in
 the stages' hashed result folders.
 
-- ``mesh.glb``, ``mesh.ply``, ``mesh.obj``: the export_mesh stage's mesh;
+- ``mesh.glb``, ``mesh.ply``, ``mesh.obj``: the export_mesh stage's mesh (and ``mesh_watertight.*``,
+  ``mesh_poisson.*`` where it made them);
 - ``points.ply``: the export_points stage's point cloud;
 - ``render.mp4``, ``depth.mp4``: the render stage's videos;
 - ``depth/``: the export_depth stage's depth maps (``.npy``, 16-bit PNG, previews);
@@ -103,9 +104,10 @@ def quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
 
 
 def collect(run_dir: Path, artifacts: dict[str, Path | None], cameras: CameraSet | None,
-            images: dict[str, Path]) -> Exported:
+            images: dict[str, Path], extra: tuple[Path, ...] = ()) -> Exported:
     """Write ``run_dir/exports`` anew from ``artifacts`` (name -> path, None where its stage made nothing)
-    and the trained ``cameras`` in the SfM frame with each frame's photo (``images``: name -> file)."""
+    and the trained ``cameras`` in the SfM frame with each frame's photo (``images``: name -> file); the
+    ``extra`` files (optional outputs such as the watertight mesh) under their own names."""
     folder = run_dir / EXPORTS
     staging = run_dir / f".{EXPORTS}.new"
     shutil.rmtree(staging, ignore_errors=True)
@@ -118,6 +120,9 @@ def collect(run_dir: Path, artifacts: dict[str, Path | None], cameras: CameraSet
             continue
         _link_or_copy(source, staging / name)
         names.append(name)
+    for source in extra:
+        _link_or_copy(source, staging / source.name)
+        names.append(source.name)
     if cameras is not None and cameras.frames:
         paths = {}
         for frame in cameras.frames:

@@ -48,6 +48,8 @@ class ExportMeshParams:
     min_component: float = field(default=0.05, metadata={"help": "drop connected pieces with fewer triangles than this fraction of the largest"})
     region: Literal["box", "all"] = field(default="box", metadata={"help": "contracted scenes: mesh the scene box, or all of space out to where the contraction ends"})
     target_faces: int = field(default=200_000, metadata={"help": "simplify to at most this many triangles (0: keep all)"})
+    watertight: bool = field(default=False, metadata={"help": "also a closed, manifold remesh of the solid (mesh_watertight.*), for printing: tunnels closed, hollows filled, the largest piece kept"})
+    close_voxels: int = field(default=4, metadata={"help": "watertight: close tunnels and gaps up to about twice this many voxels wide"})
     texture: int = field(default=2048, metadata={"help": "texture size in texels a side, baked from the training photos into mesh.glb (and the vertex colours); 0: vertex colours from the field"})
     texture_faces: int = field(default=50_000, metadata={"help": "triangles of the textured mesh (the photos' detail is in the texture)"})
     device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
@@ -56,7 +58,8 @@ class ExportMeshParams:
         for name in ("resolution", "block", "poisson_depth"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("density_threshold", "truncation", "min_component", "target_faces", "texture", "texture_faces"):
+        for name in ("density_threshold", "truncation", "min_component", "target_faces", "texture", "texture_faces",
+                     "close_voxels"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not 0 <= self.acc_threshold <= 1:
@@ -183,6 +186,12 @@ class ExportMeshStage(Stage):
             "components": report.components, "components_kept": report.components_kept,
             "faces_before_cleaning": report.faces_before, "poisson_faces": None, **scores,
         }
+        if params.watertight:
+            grid = Grid.over(*mesh_box(model.ray_space, far, (lo, hi), params.region), params.resolution)
+            summary["watertight"] = write_watertight(out, model, grid, params, device, textured, bounds, to_gltf)
+            ctx.log.info("export_mesh: a watertight remesh of %(faces)d triangles, Euler number %(euler)d, watertight "
+                         "%(watertight)s, edge-manifold %(edge_manifold)s -> mesh_watertight.ply, .glb",
+                         summary["watertight"])
         if params.poisson:
             points = point_clouds.transformed(point_clouds.read_ply(inputs["points"]), bounds.to_world)
             surface = poisson(point_clouds.to_open3d(points), params.poisson_depth, box=(lo, hi))
@@ -199,6 +208,34 @@ class ExportMeshStage(Stage):
 
 
 GLB_UNITS = "arbitrary (the SfM frame's)"
+
+
+def write_watertight(out: Path, model: Any, grid: Any, params: ExportMeshParams, device: Any, textured: Any,
+                     bounds: Bounds, to_gltf: np.ndarray) -> dict[str, Any]:
+    """``mesh_watertight.ply`` (SfM frame) and ``.glb`` (+Y up): the solid where the density reaches the
+    threshold, remeshed closed and manifold (``nerfpipe.export.solid``), coloured from the texture if there
+    is one; returns what trimesh and Open3D say of it."""
+    import torch
+    import trimesh
+
+    from nerfpipe.export.mesh import to_open3d, transformed, write_mesh
+    from nerfpipe.export.solid import occupancy, solid_surface
+    from nerfpipe.export.texture import colours_at
+
+    field = model.fine if model.fine is not None else model.coarse
+    solid = occupancy(field.query_density, grid, params.density_threshold, params.block, device)
+    mesh = solid_surface(solid, grid.origin, grid.voxel, params.close_voxels)
+    if mesh.faces == 0:
+        raise StageError("export_mesh: the watertight remesh found no solid; lower export_mesh.density_threshold")
+    if model.ray_space.ndc or model.ray_space.contraction is not None:
+        mesh.vertices = model.ray_space.from_field(torch.as_tensor(mesh.vertices)).numpy()
+    if textured is not None:
+        mesh.colors = colours_at(textured, mesh.vertices)
+    write_mesh(transformed(mesh, bounds.to_sfm), out / "mesh_watertight.ply")
+    write_mesh(transformed(mesh, to_gltf), out / "mesh_watertight.glb")
+    checked = trimesh.Trimesh(mesh.vertices, mesh.triangles, process=False)
+    return {"faces": mesh.faces, "euler": int(checked.euler_number), "watertight": bool(checked.is_watertight),
+            "edge_manifold": bool(to_open3d(mesh).is_edge_manifold())}
 
 
 def bake_and_score(inputs: StageInputs, mesh: Any, params: ExportMeshParams, ctx: StageContext) -> tuple[Any, dict]:

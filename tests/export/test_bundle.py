@@ -75,9 +75,11 @@ def test_collect_links_the_results_and_writes_the_folder_anew(tmp_path):
     (results / "depth" / "a.depth.npy").write_bytes(b"\0" * 8)
     images = {name: TEMPLE / name for name in NAMES}
     artifacts = {"mesh_glb": results / "mesh.glb", "depth": results / "depth", "points": None}
-    first = collect(tmp_path / "run", artifacts, cameras(), images)
+    (results / "mesh_watertight.ply").write_bytes(b"ply")
+    first = collect(tmp_path / "run", artifacts, cameras(), images, (results / "mesh_watertight.ply",))
     folder = tmp_path / "run" / "exports"
-    assert first.folder == folder and set(first.names) == {"mesh.glb", "depth", "transforms.json", "images", "colmap"}
+    assert first.folder == folder and set(first.names) == {"mesh.glb", "depth", "mesh_watertight.ply",
+                                                           "transforms.json", "images", "colmap"}
     assert "points.ply" in first.missing and "render.mp4" in first.missing
     assert (folder / "mesh.glb").read_bytes() == b"glTF" and (folder / "depth" / "a.depth.npy").is_file()
     assert (folder / "mesh.glb").stat().st_ino == (results / "mesh.glb").stat().st_ino  # a link: no space taken

@@ -178,6 +178,7 @@ def test_nerfpipe_run_on_the_bundled_capture_trains_evaluates_and_exports(tmp_pa
             for a in tiny_cli_args()]
     # exports sized for a tiny field: its densities stay low, so the mesh threshold and opacity cut are too
     args += ["--set=export_mesh.resolution=64", "--set=export_mesh.density_threshold=2",
+             "--set=export_mesh.watertight=true",
              "--set=export_points.acc_threshold=0.5", "--set=render.frames=4"]
     port = free_port()
     result = run_cli("run", TEMPLE, "--out", run_dir, *args, "--view", "--port", str(port), timeout=1200)
@@ -249,6 +250,8 @@ def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
     assert 0 < glb.faces <= min(meshes[0].faces, 50_000)
     summary = json.loads((mesh_dir / "manifest.json").read_text())["summary"]
     assert summary["texture"]["photos"] == 14 and summary["heldout"]["views"] == 2
+    closed = summary["watertight"]  # the printable remesh, as trimesh and Open3D judge it
+    assert closed["watertight"] and closed["edge_manifold"] and (mesh_dir / "mesh_watertight.glb").is_file()
     render = result_of("render")
     assert (render / "render.mp4").stat().st_size > 0 and (render / "depth.mp4").stat().st_size > 0
     exports = run_dir / "exports"  # what a user takes away, under stable names
