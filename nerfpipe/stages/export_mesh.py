@@ -97,8 +97,10 @@ class ExportMeshStage(Stage):
                          f"training photos in {t['seconds']:.0f} s (mesh.glb)")
         if "heldout" in s:
             h = s["heldout"]
-            lines.append(f"held-out views: the textured mesh {h['mesh_psnr']:.2f} dB, the field {h['field_psnr']:.2f} dB; "
-                         f"mean colour {100 * float(np.mean(h['colour_ratio'])):.0f} % of the photos'")
+            covers = (f" ({h['covered_psnr']:.2f} dB over the {100 * h['coverage']:.0f} % of the pixels it covers)"
+                      if "coverage" in h else "")
+            lines.append(f"held-out views: the textured mesh {h['mesh_psnr']:.2f} dB{covers}, the field {h['field_psnr']:.2f} "
+                         f"dB; mean colour {100 * float(np.mean(h['colour_ratio'])):.0f} % of the photos'")
         if s.get("poisson_faces") is not None:
             lines.append(f"poisson: {s['poisson_faces']} triangles")
         return lines
@@ -210,6 +212,10 @@ class ExportMeshStage(Stage):
 GLB_UNITS = "arbitrary (the SfM frame's)"
 
 
+def psnr(rendered: np.ndarray, photo: np.ndarray) -> float:
+    return float(-10 * np.log10(max(float(np.mean((rendered - photo) ** 2)), 1e-10)))
+
+
 def write_watertight(out: Path, model: Any, grid: Any, params: ExportMeshParams, device: Any, textured: Any,
                      bounds: Bounds, to_gltf: np.ndarray) -> dict[str, Any]:
     """``mesh_watertight.ply`` (SfM frame) and ``.glb`` (+Y up): the solid where the density reaches the
@@ -265,7 +271,7 @@ def bake_and_score(inputs: StageInputs, mesh: Any, params: ExportMeshParams, ctx
     ctx.log.info("export_mesh: a %d x %d texture on %d triangles from %d training photos in %.0f s", params.texture,
                  params.texture, textured.faces, len(photos), seconds)
     metrics = json.loads(inputs["metrics"].read_text(encoding="utf-8"))
-    mesh_psnr, field_psnr, covered, seen = [], [], [], []
+    mesh_psnr, covered_psnr, coverage, field_psnr, covered, seen = [], [], [], [], [], []
     for view in metrics.get("views", []):
         truth = inputs["eval"] / f"{view_file_stem(view['name'])}.gt.png"
         if view["name"] not in frames or not truth.exists():
@@ -275,7 +281,9 @@ def bake_and_score(inputs: StageInputs, mesh: Any, params: ExportMeshParams, ctx
         camera = camera.scaled(photo.shape[1] / camera.width, photo.shape[0] / camera.height)
         rgb, hit = render(textured, intrinsics(camera), np.asarray(frames[view["name"]].c2w), camera.width, camera.height,
                           loader.background)
-        mesh_psnr.append(float(-10 * np.log10(max(np.mean((rgb - photo) ** 2), 1e-10))))
+        mesh_psnr.append(psnr(rgb, photo))
+        covered_psnr.append(psnr(rgb[hit], photo[hit]) if hit.any() else 0.0)
+        coverage.append(float(hit.mean()))
         field_psnr.append(float(view["psnr"]))
         covered.append(rgb[hit].sum(axis=0))
         seen.append(photo[hit].sum(axis=0))
@@ -284,10 +292,13 @@ def bake_and_score(inputs: StageInputs, mesh: Any, params: ExportMeshParams, ctx
     if mesh_psnr:
         ratio = np.sum(covered, axis=0) / np.maximum(np.sum(seen, axis=0), 1e-9)
         scores["heldout"] = {"mesh_psnr": round(float(np.mean(mesh_psnr)), 3), "field_psnr": round(float(np.mean(field_psnr)), 3),
-                             "views": len(mesh_psnr), "colour_ratio": [round(float(r), 4) for r in ratio]}
-        ctx.log.info("export_mesh: the textured mesh on %d held-out views: PSNR %.2f dB (the field: %.2f dB); its mean "
-                     "colour %.0f %% of the photos' (r, g, b: %s)", len(mesh_psnr), np.mean(mesh_psnr),
-                     np.mean(field_psnr), 100 * float(np.mean(ratio)), ", ".join(f"{r:.3f}" for r in ratio))
+                             "covered_psnr": round(float(np.mean(covered_psnr)), 3),
+                             "coverage": round(float(np.mean(coverage)), 4), "views": len(mesh_psnr),
+                             "colour_ratio": [round(float(r), 4) for r in ratio]}
+        ctx.log.info("export_mesh: the textured mesh on %d held-out views: PSNR %.2f dB (the field: %.2f dB); over the "
+                     "%.0f %% of the pixels it covers %.2f dB, its mean colour there %.0f %% of the photos' (r, g, b: %s)",
+                     len(mesh_psnr), np.mean(mesh_psnr), np.mean(field_psnr), 100 * float(np.mean(coverage)),
+                     np.mean(covered_psnr), 100 * float(np.mean(ratio)), ", ".join(f"{r:.3f}" for r in ratio))
     return textured, scores
 
 
