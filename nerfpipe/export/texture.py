@@ -58,7 +58,7 @@ def bake(mesh: Mesh, photos: Sequence[Photo], faces: int, size: int) -> Textured
         legacy = legacy.simplify_quadric_decimation(faces)
     legacy.remove_unreferenced_vertices()
     solid = o3d.t.geometry.TriangleMesh.from_legacy(legacy)
-    solid.compute_uvatlas(size=size, parallel_partitions=max(1, min(4, len(legacy.triangles) // 20_000)))
+    solid.compute_uvatlas(size=size, parallel_partitions=4)  # UVAtlas charts the parts in parallel (measured fastest)
     images = [o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(p.rgb[..., :3]))) for p in photos]
     # Open3D's pinhole model puts pixel centres at integers: half a pixel off ours
     intrinsics = [o3d.core.Tensor(p.K - np.array([[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0]])) for p in photos]
