@@ -256,7 +256,7 @@ def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
     assert (render / "render.mp4").stat().st_size > 0 and (render / "depth.mp4").stat().st_size > 0
     exports = run_dir / "exports"  # what a user takes away, under stable names
     assert f"exports: {exports} (mesh.glb, mesh.ply, mesh.obj, points.ply, render.mp4, depth.mp4, depth, " \
-           "transforms.json, images, colmap)" in run_stdout.replace("\n", "")
+           "mesh_watertight.glb, mesh_watertight.ply, transforms.json, images, colmap)" in run_stdout.replace("\n", "")
     transforms = json.loads((exports / "transforms.json").read_text())
     assert len(transforms["frames"]) == 16 and all((exports / f["file_path"]).is_file() for f in transforms["frames"])
     assert (exports / "render.mp4").read_bytes() == (render / "render.mp4").read_bytes()
