@@ -15,11 +15,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from nerfpipe.export.mesh import Mesh
+
+SMALLEST_PIECE = 20  # triangles: smaller pieces are dropped before charting
 
 
 @dataclass(frozen=True)
@@ -56,8 +58,7 @@ def bake(mesh: Mesh, photos: Sequence[Photo], faces: int, size: int) -> Textured
                                        o3d.utility.Vector3iVector(mesh.triangles))
     if len(mesh.triangles) > faces:
         legacy = legacy.simplify_quadric_decimation(faces)
-    legacy.remove_unreferenced_vertices()
-    solid = o3d.t.geometry.TriangleMesh.from_legacy(legacy)
+    solid = o3d.t.geometry.TriangleMesh.from_legacy(manifold(legacy))
     solid.compute_uvatlas(size=size, parallel_partitions=4)  # UVAtlas charts the parts in parallel (measured fastest)
     images = [o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(p.rgb[..., :3]))) for p in photos]
     # Open3D's pinhole model puts pixel centres at integers: half a pixel off ours
@@ -69,6 +70,19 @@ def bake(mesh: Mesh, photos: Sequence[Photo], faces: int, size: int) -> Textured
                         solid.triangle.indices.numpy().astype(np.int64),
                         solid.triangle.texture_uvs.numpy().astype(np.float64),
                         fill_gaps(texture, texture.max(axis=-1) > 0))
+
+
+def manifold(mesh: Any, smallest: int = SMALLEST_PIECE) -> Any:
+    """The Open3D ``mesh`` made edge-manifold, as UVAtlas needs: decimation and Poisson or TSDF surfaces can
+    fold an edge over, and a few of the triangles there are removed. Pieces of fewer than ``smallest``
+    triangles, which that leaves behind and which UVAtlas refuses to chart, are dropped too."""
+    mesh.remove_degenerate_triangles()
+    mesh.remove_duplicated_triangles()
+    mesh.remove_non_manifold_edges()
+    piece, sizes, _ = mesh.cluster_connected_triangles()
+    mesh.remove_triangles_by_mask(np.asarray(sizes)[np.asarray(piece)] < smallest)
+    mesh.remove_unreferenced_vertices()
+    return mesh
 
 
 def fill_gaps(texture: np.ndarray, known: np.ndarray) -> np.ndarray:

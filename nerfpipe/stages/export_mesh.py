@@ -3,10 +3,17 @@ as a textured GLB (+Y up).
 
 Methods:
 
-- ``marching_cubes`` (default): the surface where the density crosses ``density_threshold``, on a grid of
+- ``auto`` (default): ``marching_cubes`` for an object the photos show on a backdrop (the scene stage's
+  background decision is ``alpha`` or ``color``), ``poisson`` for a scene (background ``none``). A scene's
+  field holds its floor and walls as a thin fog more than as a sharp shell, so a density level set breaks
+  them into fragments, while depth maps that several views agree on hold them well.
+- ``marching_cubes``: the surface where the density crosses ``density_threshold``, on a grid of
   ``resolution`` voxels along the longest side of the scene box (of the NDC cube for forward-facing
   captures), evaluated block by block so memory stays bounded; vertex colours are rendered from the
   field, looking at each vertex against its normal, where no texture is baked.
+- ``poisson``: a screened Poisson surface (Kazhdan and Hoppe 2013) of the exported point cloud, whose
+  points are those neighbouring views' depth maps agree on, over the scene box: the region the cameras
+  look at.
 - ``tsdf``: TSDF fusion of the rendered depth and colour of the training views (Open3D).
 
 With ``texture`` (the default), the mesh is simplified to ``texture_faces`` triangles and textured from the
@@ -14,7 +21,7 @@ training photos at their trained poses (``nerfpipe.export.texture``): that is th
 colours of the PLY and OBJ are read off it. The textured mesh is rendered at the held-out views and scored
 against the same photos as the field, and its mean colour against theirs.
 
-With ``poisson``, a screened Poisson surface of the exported point cloud is written beside it
+With ``poisson_too``, a Poisson surface of the point cloud is also written beside another method's mesh
 (``mesh_poisson.*``). Every mesh loses its small disconnected pieces and is simplified to ``target_faces``.
 """
 
@@ -28,7 +35,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from nerfpipe.artifacts import Bounds
+from nerfpipe.artifacts import Bounds, SceneDecisions
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 
@@ -37,14 +44,14 @@ FORMATS = (".ply", ".obj", ".glb")
 
 @dataclass(frozen=True)
 class ExportMeshParams:
-    method: Literal["marching_cubes", "tsdf"] = field(default="marching_cubes", metadata={"help": "marching cubes on the density, or TSDF fusion of the rendered depth"})
+    method: Literal["auto", "marching_cubes", "poisson", "tsdf"] = field(default="auto", metadata={"help": "auto: marching cubes for an object on a backdrop, poisson for a scene; marching cubes on the density, a Poisson surface of the point cloud, or TSDF fusion of the rendered depth"})
     resolution: int = field(default=256, metadata={"help": "voxels along the longest side of the box (both methods)"})
     density_threshold: float = field(default=25.0, metadata={"help": "marching cubes: the density of the surface (per normalized unit)"})
     block: int = field(default=64, metadata={"help": "marching cubes: voxels per block side; memory grows with its cube, not the resolution's"})
     truncation: float = field(default=4.0, metadata={"help": "tsdf: truncation distance in voxels"})
     acc_threshold: float = field(default=0.9, metadata={"help": "tsdf: fuse pixels whose accumulated opacity reaches this"})
-    poisson: bool = field(default=False, metadata={"help": "also a screened Poisson surface of the point cloud (mesh_poisson.*)"})
-    poisson_depth: int = field(default=8, metadata={"help": "Poisson octree depth"})
+    poisson_too: bool = field(default=False, metadata={"help": "also a screened Poisson surface of the point cloud (mesh_poisson.*) beside another method's mesh"})
+    poisson_depth: int = field(default=7, metadata={"help": "poisson: octree depth, cells of 1/2^depth of the box's side (7 fills more of a noisy scene cloud than 8, in 0.4 the time)"})
     min_component: float = field(default=0.05, metadata={"help": "drop connected pieces with fewer triangles than this fraction of the largest"})
     region: Literal["box", "all"] = field(default="box", metadata={"help": "contracted scenes: mesh the scene box, or all of space out to where the contraction ends"})
     target_faces: int = field(default=200_000, metadata={"help": "simplify to at most this many triangles (0: keep all)"})
@@ -76,6 +83,7 @@ class ExportMeshStage(Stage):
         "preview": {"resolution": 128, "target_faces": 50_000},
         "fine": {"resolution": 512, "target_faces": 1_000_000},
         "tsdf": {"method": "tsdf"},
+        "poisson": {"method": "poisson"},
     }
     requires = ("model", "model_json", "bounds", "depth", "depth_index", "points", "cameras", "views", "metrics", "eval",
                 "images", "undistorted_images", "pinhole", "scene")
@@ -137,7 +145,9 @@ class ExportMeshStage(Stage):
         lo, hi = bounds.box()
         model = RadianceModel.load(inputs["model"].parent, device)
         far = max(f.far for f in bounds.frames)
-        if params.method == "marching_cubes":
+        scene = SceneDecisions.load(inputs["scene"])
+        method = chosen_method(params.method, scene)
+        if method == "marching_cubes":
             box = mesh_box(model.ray_space, far, (lo, hi), params.region)
             grid = Grid.over(box[0], box[1], params.resolution)
             field = model.fine if model.fine is not None else model.coarse
@@ -151,6 +161,16 @@ class ExportMeshStage(Stage):
                 mesh.vertices = model.ray_space.from_field(torch.as_tensor(mesh.vertices)).numpy()
             # NDC and contracted voxels vary in world size: the scene box's share stands in for them
             voxel = float((hi - lo).max()) / params.resolution if warped else grid.voxel
+        elif method == "poisson":
+            points = point_clouds.transformed(point_clouds.read_ply(inputs["points"]), bounds.to_world)
+            if not len(points):
+                raise StageError("export_mesh: the point cloud is empty, so there is no Poisson surface; see "
+                                 "export_points' log, or set export_mesh.method=marching_cubes")
+            box = (lo, hi) if scene.layout.value != "forward" else (points.xyz.min(axis=0), points.xyz.max(axis=0))
+            voxel = float((box[1] - box[0]).max()) / 2 ** params.poisson_depth
+            ctx.log.info("export_mesh: a Poisson surface of %d points at octree depth %d (cells of %.4g)", len(points),
+                         params.poisson_depth, voxel)
+            mesh = poisson(point_clouds.to_open3d(points), params.poisson_depth, box=box)
         else:
             index = DepthIndex.load(inputs["depth_index"])
             views = [(read_view(inputs["depth"], v), v.K(), np.asarray(v.c2w)) for v in index.views if v.role == "train"]
@@ -158,15 +178,13 @@ class ExportMeshStage(Stage):
             ctx.log.info("export_mesh: TSDF fusion of %d views at voxel %.4g", len(views), voxel)
             mesh = tsdf_fusion(views, (lo, hi), voxel, params.truncation * voxel, params.acc_threshold, far)
         if mesh.faces == 0:
-            raise StageError(f"export_mesh: {params.method} found no surface; "
-                             + ("lower export_mesh.density_threshold" if params.method == "marching_cubes"
-                                else "lower export_mesh.acc_threshold") + " or train longer")
+            raise StageError(f"export_mesh: {method} found no surface; " + NO_SURFACE[method] + " or train longer")
         mesh, report = clean(mesh, params.min_component, params.target_faces)
         textured, scores = None, {}
         if params.texture:
             textured, scores = bake_and_score(inputs, mesh, params, ctx)
             mesh.colors = colours_at(textured, mesh.vertices)
-        elif params.method == "marching_cubes":
+        elif method == "marching_cubes":
             normals = vertex_normals(mesh)
             probe = slice(0, min(PROBE_POINTS // 16, len(mesh.vertices)))
             began = time.perf_counter()
@@ -184,7 +202,7 @@ class ExportMeshStage(Stage):
             else:
                 write_mesh(in_sfm if suffix != ".glb" else transformed(mesh, to_gltf), out / f"mesh{suffix}")
         summary: dict[str, Any] = {
-            "method": params.method, "faces": mesh.faces, "vertices": len(mesh.vertices), "voxel": voxel,
+            "method": method, "faces": mesh.faces, "vertices": len(mesh.vertices), "voxel": voxel,
             "components": report.components, "components_kept": report.components_kept,
             "faces_before_cleaning": report.faces_before, "poisson_faces": None, **scores,
         }
@@ -194,7 +212,7 @@ class ExportMeshStage(Stage):
             ctx.log.info("export_mesh: a watertight remesh of %(faces)d triangles, Euler number %(euler)d, watertight "
                          "%(watertight)s, edge-manifold %(edge_manifold)s -> mesh_watertight.ply, .glb",
                          summary["watertight"])
-        if params.poisson:
+        if params.poisson_too and method != "poisson":
             points = point_clouds.transformed(point_clouds.read_ply(inputs["points"]), bounds.to_world)
             surface = poisson(point_clouds.to_open3d(points), params.poisson_depth, box=(lo, hi))
             surface, _ = clean(surface, params.min_component, params.target_faces)
@@ -210,6 +228,16 @@ class ExportMeshStage(Stage):
 
 
 GLB_UNITS = "arbitrary (the SfM frame's)"
+NO_SURFACE = {"marching_cubes": "lower export_mesh.density_threshold", "tsdf": "lower export_mesh.acc_threshold",
+              "poisson": "export_points kept no point (see its log)"}
+
+
+def chosen_method(method: str, scene: Any) -> str:
+    """The mesh method ``auto`` stands for: marching cubes on the density for an object on a backdrop (the
+    background decision ``alpha`` or ``color``), a Poisson surface of the agreed points for a scene."""
+    if method != "auto":
+        return method
+    return "poisson" if scene.background.value == "none" else "marching_cubes"
 
 
 def psnr(rendered: np.ndarray, photo: np.ndarray) -> float:
@@ -248,7 +276,7 @@ def bake_and_score(inputs: StageInputs, mesh: Any, params: ExportMeshParams, ctx
     """The mesh (normalized world) textured from the training photos at their trained poses, and how its
     renders score on the held-out views beside the field's: PSNR against the same photos the train stage
     scored on, and the mesh's mean colour over the pixels it covers as a share of the photos' there."""
-    from nerfpipe.artifacts import SceneDecisions, ViewSplit, view_file_stem
+    from nerfpipe.artifacts import ViewSplit, view_file_stem
     from nerfpipe.export.texture import Photo, bake, render
     from nerfpipe.geometry.cameras import CameraSet
     from nerfpipe.imaging.png import read_png

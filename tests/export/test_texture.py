@@ -102,3 +102,28 @@ def test_the_glb_carries_the_texture_in_a_dielectric_material(baked, tmp_path):
     assert np.allclose(solid.bounds, [[-1, -1, -1], [1, 1, 1]], atol=1e-5)  # the cube under to_gltf
     assert len(solid.faces) == baked.faces and solid.metadata["units"] == "metres"
     assert solid.visual.uv.shape == (len(solid.vertices), 2) and 0 <= solid.visual.uv.min() <= solid.visual.uv.max() <= 1
+
+
+def test_a_folded_edge_and_a_loose_sliver_are_cleaned_before_charting():
+    """UVAtlas refuses a mesh where three triangles share an edge (as Poisson and TSDF surfaces and their
+    decimation can leave) and stray pieces of a few triangles: the cube with a fin on one of its edges and a
+    lone triangle beside it still bakes, into a mesh with neither."""
+    import open3d as o3d
+
+    box = cube()
+    a, b = box.triangles[0, 0], box.triangles[0, 1]  # an edge of the cube: the fin is a third triangle on it
+    apex = box.vertices[[a, b]].mean(axis=0) * 1.6
+    loose = np.array([[2.0, 0.0, 0.0], [2.1, 0.0, 0.0], [2.0, 0.1, 0.0]])
+    v = len(box.vertices)
+    finned = Mesh(np.concatenate([box.vertices, apex[None], loose]),
+                  np.concatenate([box.triangles, [[a, b, v], [v + 1, v + 2, v + 3]]]))
+    legacy = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(finned.vertices),
+                                       o3d.utility.Vector3iVector(finned.triangles))
+    assert len(np.asarray(legacy.get_non_manifold_edges())) == 1
+    photos = [Photo(truth(c2w)[0], K, c2w) for c2w in around(4, 1.5)]
+    textured = bake(finned, photos, faces=10_000, size=128)
+    out = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(textured.vertices),
+                                    o3d.utility.Vector3iVector(textured.triangles))
+    assert len(np.asarray(out.get_non_manifold_edges())) == 0
+    assert textured.vertices[:, 0].max() < 1.0  # the lone triangle at x = 2 is gone
+    assert len(box.triangles) - 2 <= textured.faces <= len(box.triangles)
