@@ -3,10 +3,11 @@ end-to-end test in test_train.py, by both methods)."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from nerfpipe.pipeline.params import ParamError, build_params
-from nerfpipe.stages.export_mesh import ExportMeshParams, ExportMeshStage, chosen_method
+from nerfpipe.stages.export_mesh import ExportMeshParams, ExportMeshStage, chosen_method, spread
 from tests.nerf.scenes import scene_of
 
 
@@ -25,3 +26,12 @@ def test_the_default_is_auto_and_an_unknown_method_is_a_parameter_error() -> Non
     assert build_params("export_mesh", ExportMeshParams, ExportMeshStage.presets, "poisson", {}).method == "poisson"
     with pytest.raises(ParamError):
         build_params("export_mesh", ExportMeshParams, ExportMeshStage.presets, None, {"method": "voxels"})
+
+
+def test_the_texture_is_baked_from_photos_spread_over_the_capture() -> None:
+    names = [f"{i:03d}.jpg" for i in range(62)]
+    assert spread(names, 0) == names and spread(names[:14], 24) == names[:14]
+    chosen = spread(names, 24)
+    assert len(chosen) == 24 and chosen[0] == "000.jpg" and chosen[-1] == "061.jpg"
+    steps = np.diff([int(n[:3]) for n in chosen])
+    assert set(steps) <= {2, 3}  # 61 / 23 = 2.65 between neighbours: no gap, no clump
