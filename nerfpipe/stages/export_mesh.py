@@ -59,7 +59,7 @@ class ExportMeshParams:
     close_voxels: int = field(default=4, metadata={"help": "watertight: close tunnels and gaps up to about twice this many voxels wide"})
     texture: int = field(default=1024, metadata={"help": "texture size in texels a side, baked from the training photos into mesh.glb (and the vertex colours); 0: vertex colours from the field"})
     texture_faces: int = field(default=50_000, metadata={"help": "triangles of the textured mesh (the photos' detail is in the texture)"})
-    texture_photos: int = field(default=24, metadata={"help": "bake from at most this many training photos, spread evenly over them (0: all); each costs about 0.4 s on 50,000 triangles"})
+    texture_photos: int = field(default=24, metadata={"help": "bake from at most this many training photos, spread evenly over them (0: all); each costs about 0.8 s at 1024 texels"})
     device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
 
     def __post_init__(self) -> None:
@@ -78,7 +78,7 @@ class ExportMeshStage(Stage):
     """Triangle mesh (marching cubes or TSDF fusion; optional Poisson) as PLY, OBJ and GLB in the SfM frame."""
 
     name = "export_mesh"
-    version = 3  # 3: a texture from the photos, scored on the held-out views; 2: the GLB +Y up, PBR, linear colours
+    version = 4  # 4: a scene by Poisson, the blend of the photos corrected for those missing a texel; 3: a texture from the photos, scored on the held-out views; 2: the GLB +Y up, PBR, linear colours
     Params = ExportMeshParams
     presets = {
         "preview": {"resolution": 128, "target_faces": 50_000},
