@@ -75,7 +75,8 @@ class ExportMeshParams:
 
 
 class ExportMeshStage(Stage):
-    """Triangle mesh (marching cubes or TSDF fusion; optional Poisson) as PLY, OBJ and GLB in the SfM frame."""
+    """Triangle mesh (marching cubes, a Poisson surface of the points, or TSDF fusion) as PLY, OBJ and GLB in
+    the SfM frame."""
 
     name = "export_mesh"
     version = 4  # 4: a scene by Poisson, the blend of the photos corrected for those missing a texel; 3: a texture from the photos, scored on the held-out views; 2: the GLB +Y up, PBR, linear colours
@@ -163,10 +164,7 @@ class ExportMeshStage(Stage):
             # NDC and contracted voxels vary in world size: the scene box's share stands in for them
             voxel = float((hi - lo).max()) / params.resolution if warped else grid.voxel
         elif method == "poisson":
-            points = point_clouds.transformed(point_clouds.read_ply(inputs["points"]), bounds.to_world)
-            if not len(points):
-                raise StageError("export_mesh: the point cloud is empty, so there is no Poisson surface; see "
-                                 "export_points' log, or set export_mesh.method=marching_cubes")
+            points = agreed_points(inputs, bounds)
             box = (lo, hi) if scene.layout.value != "forward" else (points.xyz.min(axis=0), points.xyz.max(axis=0))
             voxel = float((box[1] - box[0]).max()) / 2 ** params.poisson_depth
             ctx.log.info("export_mesh: a Poisson surface of %d points at octree depth %d (cells of %.4g)", len(points),
@@ -214,8 +212,7 @@ class ExportMeshStage(Stage):
                          "%(watertight)s, edge-manifold %(edge_manifold)s -> mesh_watertight.ply, .glb",
                          summary["watertight"])
         if params.poisson_too and method != "poisson":
-            points = point_clouds.transformed(point_clouds.read_ply(inputs["points"]), bounds.to_world)
-            surface = poisson(point_clouds.to_open3d(points), params.poisson_depth, box=(lo, hi))
+            surface = poisson(point_clouds.to_open3d(agreed_points(inputs, bounds)), params.poisson_depth, box=(lo, hi))
             surface, _ = clean(surface, params.min_component, params.target_faces)
             surface = transformed(surface, bounds.to_sfm)
             for suffix in FORMATS:
@@ -233,7 +230,19 @@ NO_SURFACE = {"marching_cubes": "lower export_mesh.density_threshold", "tsdf": "
               "poisson": "export_points kept no point (see its log)"}
 
 
-def chosen_method(method: str, scene: Any) -> str:
+def agreed_points(inputs: StageInputs, bounds: Bounds) -> Any:
+    """The export_points stage's cloud (the points neighbouring views' depth maps agree on) in the
+    normalized world. Raises ``StageError`` when it holds no point."""
+    from nerfpipe.export import points as point_clouds
+
+    points = point_clouds.transformed(point_clouds.read_ply(inputs["points"]), bounds.to_world)
+    if not len(points):
+        raise StageError("export_mesh: the point cloud is empty, so there is no Poisson surface; see "
+                         "export_points' log, or set export_mesh.method=marching_cubes")
+    return points
+
+
+def chosen_method(method: str, scene: SceneDecisions) -> str:
     """The mesh method ``auto`` stands for: marching cubes on the density for an object on a backdrop (the
     background decision ``alpha`` or ``color``), a Poisson surface of the agreed points for a scene."""
     if method != "auto":
