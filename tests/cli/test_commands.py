@@ -159,4 +159,5 @@ def test_a_ten_second_run_of_the_demo_finishes_with_a_video(tmp_path):
     assert "Traceback" not in result.stderr and "error:" not in result.stderr
     assert len(list((tmp_path / "run" / "stages" / "render").glob("*/render.mp4"))) == 1
     meshes = list((tmp_path / "run" / "stages" / "export_mesh").glob("*/mesh.ply"))
-    assert meshes or "export_mesh skipped (" in result.stdout.replace("\n", "")
+    # with too little density for a surface the optional stage fails, and the run says why in its warnings
+    assert meshes or "export_mesh failed (export_mesh: marching_cubes found no surface" in result.stdout.replace("\n", "")
