@@ -9,9 +9,10 @@ two-layer colour MLP. So it answers the same question as ``NerfField`` -- (x, d)
 with the MLP's work moved into memory.
 
 Memory layout: each level is a (vertices, features) table, channels last, so one trilinear corner is one
-contiguous row: a forward pass is ``index_select`` of rows, the backward pass ``index_add_`` of rows
-(``_Trilinear``), both vectorized on CPU and GPU alike; ``F.grid_sample``'s channels-first volumes measured
-4-5x slower here, forward and backward.
+contiguous row: a forward pass is ``F.embedding_bag`` over each point's corners (gather and weighted sum in
+one pass: 2x faster than a gather and an ``einsum`` on the CPU, lego 100 px training 11 -> 12 steps/s), the
+backward pass ``index_add_`` of rows (``_Trilinear``), on CPU and GPU alike; ``F.grid_sample``'s
+channels-first volumes measured 4-5x slower here, forward and backward.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from nerfpipe.nerf.encoding import encoded_size, positional_encoding
@@ -50,26 +52,34 @@ class GridFieldConfig:
 
 
 class _Trilinear(torch.autograd.Function):
-    """sum_c w_c table[index_c]: forward by row gathers, backward by row scatter-adds into the table's gradient
-    (and by row gathers into the weights', when the points themselves train)."""
+    """sum_c w_c table[index_c]: forward by ``F.embedding_bag`` (each point's corners one weighted bag, the gather
+    and the weighted sum in one pass), backward by row scatter-adds into the table's gradient (and by row
+    gathers into the weights', when the points themselves train)."""
 
     @staticmethod
-    def forward(ctx, table: Tensor, index: Tensor, weights: Tensor) -> Tensor:  # (V, F), (L, 8, M) x 2 -> (M, L, F)
+    def forward(ctx, table: Tensor, index: Tensor, weights: Tensor) -> Tensor:  # (V, F), (L, C, M) x 2 -> (M, L, F)
+        levels, corners, m = index.shape
+        bags = index.permute(2, 0, 1).reshape(-1, corners)  # (M L, C): point-major, as the output is
+        bag_weights = weights.permute(2, 0, 1).reshape(-1, corners).to(table.dtype)
         ctx.rows = table.shape[0]
-        rows = table.index_select(0, index.reshape(-1)).view(*index.shape, table.shape[1])
-        # the points train too (camera refinement): keep the gathered rows, d out / d w_c = table[index_c]
-        ctx.save_for_backward(index, weights, rows if ctx.needs_input_grad[2] else None)
-        return torch.einsum("lcmf,lcm->mlf", rows, weights.to(rows.dtype))
+        # the points train too (camera refinement): d out / d w_c = table[index_c], gathered again in backward
+        ctx.save_for_backward(bags, bag_weights, table if ctx.needs_input_grad[2] else None)
+        ctx.shape, ctx.weights_dtype = (levels, corners, m), weights.dtype
+        out = F.embedding_bag(bags, table, per_sample_weights=bag_weights, mode="sum")
+        return out.view(m, levels, table.shape[1])
 
     @staticmethod
     def backward(ctx, grad: Tensor):  # (M, L, F)
-        index, weights, rows = ctx.saved_tensors
+        bags, bag_weights, table = ctx.saved_tensors
+        levels, corners, m = ctx.shape
+        per_bag = grad.reshape(-1, 1, grad.shape[-1])  # (M L, 1, F)
         table_grad = torch.zeros((ctx.rows, grad.shape[-1]), dtype=grad.dtype, device=grad.device)
-        contributions = torch.einsum("mlf,lcm->lcmf", grad, weights.to(grad.dtype)).reshape(-1, grad.shape[-1])
-        table_grad.index_add_(0, index.reshape(-1), contributions)
+        contributions = (per_bag * bag_weights.to(grad.dtype).unsqueeze(-1)).reshape(-1, grad.shape[-1])
+        table_grad.index_add_(0, bags.reshape(-1), contributions)
         weights_grad = None
         if ctx.needs_input_grad[2]:
-            weights_grad = torch.einsum("mlf,lcmf->lcm", grad, rows.to(grad.dtype)).to(weights.dtype)
+            rows = table.index_select(0, bags.reshape(-1)).view(*bags.shape, -1).to(grad.dtype)  # (M L, C, F)
+            weights_grad = (rows * per_bag).sum(-1).view(m, levels, corners).permute(1, 2, 0).to(ctx.weights_dtype)
         return table_grad, None, weights_grad
 
 

@@ -38,6 +38,15 @@ def test_the_scatter_backward_matches_numerical_gradients() -> None:
     assert torch.autograd.gradcheck(lambda t: _Trilinear.apply(t, index, weights), (table,))
 
 
+def test_the_weights_backward_matches_numerical_gradients() -> None:
+    """The points train too (camera refinement): d out / d w_c is the corner's row, for both inputs at once."""
+    table = torch.randn(3**3 + 5**3, 3, dtype=torch.float64, requires_grad=True)
+    u = torch.rand(30, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
+    index, weights = trilinear_corners(u, torch.tensor([2, 4]), torch.tensor([0, 27]))
+    weights.requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda t, w: _Trilinear.apply(t, index, w), (table, weights))
+
+
 def test_density_is_zero_outside_the_box_and_the_same_from_both_entry_points() -> None:
     torch.manual_seed(0)
     field = GridField((-1.0, -2.0, 0.0), (1.0, 2.0, 3.0), GridFieldConfig(levels=2, min_resolution=4, max_resolution=8))

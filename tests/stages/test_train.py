@@ -52,7 +52,7 @@ def test_paper_preset_has_the_papers_values() -> None:
 
 
 def test_bad_train_values_are_parameter_errors() -> None:
-    for overrides in ({"density_noise": "loud"}, {"steps": "0", "seconds": "0"}, {"steps": "-1"}, {"lr_final": "1"}, {"skip_after": "4", "depth": "4"},
+    for overrides in ({"density_noise": "loud"}, {"steps": "0", "seconds": "0"}, {"steps": "-1"}, {"lr_final": "0"}, {"skip_after": "4", "depth": "4"},
                       {"early_stop": "1"}, {"grid_min_resolution": "128", "grid_max_resolution": "64"},
                       {"occupancy": "maybe"}, {"field": "voxels"}, {"adam_beta2": "1"}, {"march_steps": "0"}):
         with pytest.raises(ParamError):
