@@ -84,6 +84,7 @@ def training_config(params: TrainSettings, layout: str) -> TrainConfig:
     o, p = params.optim, params.per_image
     return TrainConfig(
         steps=params.steps, seconds=params.seconds, batch_rays=o.batch_rays, lr=o.lr, lr_final=min(o.lr_final, o.lr),
+        mlp_lr_share=o.mlp_lr_share,
         adam_eps=o.adam_eps, adam_beta2=o.adam_beta2, batch_samples=o.batch_samples,
         density_noise=density_noise(params, layout), seed=params.seed, checkpoint_every=params.checkpoint_every,
         keep_checkpoints=params.keep_checkpoints, autocast=params.autocast, tf32=params.tf32,

@@ -106,18 +106,22 @@ def trilinear_corners(u: Tensor, resolutions: Tensor, offsets: Tensor) -> tuple[
         contiguous vector operation.
     """
     i0, f, n = grid_cells(u, resolutions)
-    base = [i0[:, 0] * (n * n) + offsets.view(-1, 1), i0[:, 1] * n, i0[:, 2]]  # (L, M) each
-    step = [n * n, n, 1]
-    index, weights = [], []
-    for dx in (0, 1):
-        wx = f[:, 0] if dx else 1.0 - f[:, 0]
-        for dy in (0, 1):
-            wxy = wx * (f[:, 1] if dy else 1.0 - f[:, 1])
-            ixy = base[0] + dx * step[0] + base[1] + dy * step[1]
-            for dz in (0, 1):
-                index.append(ixy + base[2] + dz)
-                weights.append(wxy * (f[:, 2] if dz else 1.0 - f[:, 2]))
-    return torch.stack(index, dim=1), torch.stack(weights, dim=1)
+    base = (i0[:, 0] * n + i0[:, 1]) * n + i0[:, 2] + offsets.view(-1, 1)  # (L, M): corner (0, 0, 0)
+    d = CORNERS.to(u.device)
+    step = (d[:, 0] * n + d[:, 1]) * n + d[:, 2]  # (L, 8): each corner's row after corner (0, 0, 0)'s
+    return base.unsqueeze(1) + step.unsqueeze(-1), corner_weights(f)
+
+
+CORNERS = torch.tensor([[dx, dy, dz] for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)])  # (8, 3): 4 dx + 2 dy + dz
+
+
+def corner_weights(f: Tensor) -> Tensor:
+    """Trilinear weights (L, 8, M) of the 8 corners (corner c = 4 dx + 2 dy + dz) of points a fraction
+    f (L, 3, M) across their cells: products of (1 - f) or f along each axis, by broadcasting (two
+    multiplications rather than a loop over the corners)."""
+    wx, wy, wz = (torch.stack([1.0 - f[:, a], f[:, a]], dim=1) for a in range(3))  # (L, 2, M) each
+    wxy = (wx.unsqueeze(2) * wy.unsqueeze(1)).flatten(1, 2)  # (L, 4, M): 2 dx + dy
+    return (wxy.unsqueeze(2) * wz.unsqueeze(1)).flatten(1, 2)
 
 
 class GridField(nn.Module):
@@ -180,6 +184,10 @@ class GridField(nn.Module):
             nn.Linear(config.geo_features + dir_dim, config.hidden), nn.ReLU(),
             nn.Linear(config.hidden, config.hidden), nn.ReLU(), nn.Linear(config.hidden, 3),
         )
+
+    def feature_tables(self) -> list[nn.Parameter]:
+        """The parameters that are feature tables (trained at their own rate, ``nerfpipe.nerf.trainer``)."""
+        return [self.table]
 
     def encode(self, x: Tensor) -> tuple[Tensor, Tensor]:
         """(M, 3) -> features (M, levels * features) and whether each point is inside the box (M,)."""

@@ -19,7 +19,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from nerfpipe.nerf.grid_field import GridField, GridFieldConfig, grid_cells
+from nerfpipe.nerf.grid_field import CORNERS, GridField, GridFieldConfig, corner_weights, grid_cells
 
 PRIMES = (1, 2654435761, 805459861)  # Instant-NGP's hash, one prime per axis (the first is 1 for coherence)
 
@@ -43,23 +43,14 @@ def hashed_corners(u: Tensor, resolutions: Tensor, offsets: Tensor, sizes: Tenso
         index: (L, 8, M) rows of the stacked table; weights: (L, 8, M), summing to 1 over the corners.
     """
     i0, f, n = grid_cells(u, resolutions)
-    hashed = (sizes < n.view(-1) ** 3).view(-1, 1)  # (L, 1)
-    mask = (sizes - 1).view(-1, 1)
-    offset = offsets.view(-1, 1)
-    index, weights = [], []
-    for dx in (0, 1):
-        x = i0[:, 0] + dx
-        wx = f[:, 0] if dx else 1.0 - f[:, 0]
-        for dy in (0, 1):
-            y = i0[:, 1] + dy
-            wxy = wx * (f[:, 1] if dy else 1.0 - f[:, 1])
-            dense_xy, hash_xy = (x * n + y) * n, torch.bitwise_xor(x * PRIMES[0], y * PRIMES[1])
-            for dz in (0, 1):
-                z = i0[:, 2] + dz
-                row = torch.where(hashed, torch.bitwise_and(torch.bitwise_xor(hash_xy, z * PRIMES[2]), mask), dense_xy + z)
-                index.append(row + offset)
-                weights.append(wxy * (f[:, 2] if dz else 1.0 - f[:, 2]))
-    return torch.stack(index, dim=1), torch.stack(weights, dim=1)
+    d = CORNERS.to(u.device).t().unsqueeze(-1)  # (3, 8, 1)
+    x, y, z = (i0[:, a].unsqueeze(1) + d[a] for a in range(3))  # (L, 8, M) each: the corners' vertices
+    n = n.unsqueeze(-1)  # (L, 1, 1)
+    dense = (x * n + y) * n + z
+    hashed = torch.bitwise_and(torch.bitwise_xor(torch.bitwise_xor(x * PRIMES[0], y * PRIMES[1]), z * PRIMES[2]),
+                               (sizes - 1).view(-1, 1, 1))
+    is_hashed = (sizes < n.view(-1) ** 3).view(-1, 1, 1)  # (L, 1, 1)
+    return torch.where(is_hashed, hashed, dense) + offsets.view(-1, 1, 1), corner_weights(f)
 
 
 class HashGridField(GridField):

@@ -149,7 +149,9 @@ class OccupancyGrid(nn.Module):
         self.density.copy_(torch.maximum(decayed, fresh))
         known = self.density >= 0
         mean = float((self.density[known] * step_size).mean()) if bool(known.any()) else 0.0
-        limit = min(threshold, mean)
+        # a hair below the limit: cells all at the mean (a field still near its initial constant, which bf16
+        # rounds to one value) stay occupied rather than all turning empty at once
+        limit = min(threshold, mean) * (1.0 - 1e-3)
         self.occupied.copy_((~known | (self.density * step_size > limit)) & self.seen)
 
 

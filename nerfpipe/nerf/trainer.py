@@ -29,6 +29,7 @@ class TrainConfig:
     batch_rays: int = 1024
     lr: float = 5e-4
     lr_final: float = 5e-5
+    mlp_lr_share: float = 1.0  # a grid field's MLPs learn at this share of lr (its feature tables at lr)
     adam_eps: float = 1e-7
     adam_beta2: float = 0.999
     batch_samples: int = 0  # with an occupancy grid: rays per batch adapt to about this many samples (0: fixed)
@@ -78,11 +79,17 @@ def learning_rate(config: TrainConfig, progress: float) -> float:
 
 
 def parameter_groups(model: RadianceModel, config: TrainConfig) -> list[dict]:
-    """Adam's parameter groups: the fields at ``lr``; the per-image exposure gains at ``appearance_lr`` and
-    camera corrections at ``pose_lr``, when the model has them. Each group's ``base_lr`` decays exponentially to
-    ``final`` times itself (the fields' and the gains' to lr_final / lr); a group with a ``warmup`` w (a share of
-    training) learns nothing before w and ramps up linearly until 2 w."""
-    groups = [{"params": [p for f in model.fields() for p in f.parameters()], "base_lr": config.lr, "warmup": 0}]
+    """Adam's parameter groups: the fields at ``lr`` (a grid field's MLPs at ``mlp_lr_share`` of it); the per-image
+    exposure gains at ``appearance_lr`` and camera corrections at ``pose_lr``, when the model has them. Each group's
+    ``base_lr`` decays exponentially to ``final`` times itself (the fields' and the gains' to lr_final / lr); a group
+    with a ``warmup`` w (a share of training) learns nothing before w and ramps up linearly until 2 w."""
+    groups = []
+    for f in model.fields():
+        tables = list(getattr(f, "feature_tables", list)())
+        rest = [p for p in f.parameters() if all(p is not t for t in tables)]
+        if tables:  # a table's rows each see a few samples a step, its MLPs' weights every one: they take smaller steps
+            groups.append({"params": tables, "base_lr": config.lr, "warmup": 0})
+        groups.append({"params": rest, "base_lr": config.lr * (config.mlp_lr_share if tables else 1.0), "warmup": 0})
     if model.appearance is not None:
         groups.append({"params": list(model.appearance.parameters()), "base_lr": config.appearance_lr, "warmup": 0})
     if model.refinement is not None:  # a field that shows nothing yet would move the cameras anywhere

@@ -43,7 +43,9 @@ def parse_duration(text: str, what: str = "--budget") -> float | str | None:
 
 def format_duration(seconds: float) -> str:
     minutes, rest = divmod(round(seconds), 60)
-    return f"{minutes} min {rest} s" if minutes else f"{rest} s"
+    if not minutes:
+        return f"{rest} s"
+    return f"{minutes} min {rest} s" if rest else f"{minutes} min"
 
 
 @dataclass

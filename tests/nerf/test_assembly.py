@@ -169,7 +169,7 @@ def test_training_config_carries_the_schedule_noise_and_precision() -> None:
     assert not default.tf32 and (default.steps, default.seconds) == (0, 120.0)  # trained by time
     # a learning rate set below the default final one trains at that rate throughout, not upwards
     assert training_config(train_params({"optim.lr": 1e-3}), "forward").lr_final == 1e-3
-    assert (default.lr, default.lr_final) == (2e-2, 6e-3)
+    assert (default.lr, default.lr_final, default.mlp_lr_share) == (3e-2, 9e-3, 0.33)
     assert density_noise(TrainParams(), "forward") == 0.0  # the grid field has no raw-density regularizer
     assert density_noise(train_params({"field.kind": "mlp", "optim.density_noise": "0.5"}), "inward360") == 0.5
     # the distortion loss: off unless asked for (measured on beer, it cost more than it gave)

@@ -66,6 +66,12 @@ def test_update_keeps_a_decaying_maximum_and_thresholds_optical_depth() -> None:
     faint = OccupancyGrid(*BOX, resolution=2)
     faint.update(density, step_size=0.01, threshold=0.01, all_cells=True)
     assert faint.occupied.tolist() == [False] * 7 + [True]
+    # one faint density everywhere (a new field, which bf16 rounds to a single value) keeps every cell occupied,
+    # where "above the mean" would have emptied the grid and stopped training (it did under bf16 autocast)
+    table = torch.full((8,), 1e-3)
+    even = OccupancyGrid(*BOX, resolution=2)
+    even.update(density, step_size=0.01, threshold=0.01, all_cells=True)
+    assert even.occupancy() == 1.0
 
 
 def test_partial_updates_leave_unvisited_cells_occupied_until_seen() -> None:

@@ -204,3 +204,22 @@ def test_each_group_decays_to_its_own_final_rate_and_the_cameras_far_below_the_f
     # the fields and the gains end at lr_final / lr of their rates, the cameras at 1/100 of theirs, whatever lr_final
     assert [g["final"] for g in groups] == pytest.approx([0.3, 0.3, 1 / 100])
     assert groups[2]["warmup"] == config.pose_warmup and groups[0]["warmup"] == 0
+
+
+def test_a_grid_fields_tables_learn_at_lr_and_its_mlps_at_their_share() -> None:
+    from types import SimpleNamespace
+
+    from nerfpipe.nerf.field import FieldConfig, NerfField
+    from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
+    from nerfpipe.nerf.trainer import parameter_groups
+
+    grid = GridField((0, 0, 0), (1, 1, 1), GridFieldConfig(levels=2, min_resolution=4, max_resolution=8, hidden=8))
+    mlp = NerfField(FieldConfig(depth=2, width=8, skips=(), view_width=8, pos_freqs=2, dir_freqs=1))
+    config = TrainConfig(lr=3e-2, lr_final=9e-3, mlp_lr_share=0.25)
+    groups = parameter_groups(SimpleNamespace(fields=lambda: [grid, mlp], appearance=None, refinement=None), config)
+    assert [g["base_lr"] for g in groups] == pytest.approx([3e-2, 3e-2 * 0.25, 3e-2])  # the MLP field: all at lr
+    assert groups[0]["params"] == [grid.table]
+    # every parameter in exactly one group, and each group decaying by lr_final / lr
+    grouped = [p for g in groups for p in g["params"]]
+    assert len(grouped) == len({id(p) for p in grouped}) == len(list(grid.parameters())) + len(list(mlp.parameters()))
+    assert [g["final"] for g in groups] == pytest.approx([0.3] * 3)

@@ -10,7 +10,7 @@ from typing import ClassVar
 import pytest
 
 from nerfpipe.pipeline import ParamError, Pipeline, Stage, StageError
-from nerfpipe.pipeline.budget import Allotment, JobBudget, parse_duration, takes_part
+from nerfpipe.pipeline.budget import Allotment, JobBudget, format_duration, parse_duration, takes_part
 from nerfpipe.stages.ingest import IngestStage
 
 
@@ -18,6 +18,10 @@ from nerfpipe.stages.ingest import IngestStage
                                            ("2 min", 120.0), (" 4M ", 240.0), ("auto", "auto"), ("off", None)])
 def test_durations_read_as_users_write_them(text, seconds):
     assert parse_duration(text) == seconds
+
+
+def test_durations_read_as_people_say_them():
+    assert [format_duration(s) for s in (44.4, 60, 205, 600)] == ["44 s", "1 min", "3 min 25 s", "10 min"]
 
 
 @pytest.mark.parametrize("text", ["ten minutes", "0", "-5m", "5d", "", "1e9999"])

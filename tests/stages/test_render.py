@@ -190,7 +190,7 @@ def test_frames_shrink_to_fit_the_stages_share_of_a_job_budget(tmp_path: Path, m
     caplog.set_level(logging.INFO, "test")
     _, summary, _ = run_render(tmp_path / "roomy", "inward360", allotment=Allotment(600.0, 6000.0))
     assert summary["resolution"] == [32, 24]
-    assert "about 44 s to fit its 10 min 0 s (10% of the 100 min 0 s budget)" in caplog.text
+    assert "about 44 s to fit its 10 min (10% of the 100 min budget)" in caplog.text
     _, summary, _ = run_render(tmp_path / "tight", "inward360", allotment=Allotment(11.0, 110.0))
     # 11 s of 44 s: half of each side, less the few milliseconds spent loading the model
     assert summary["resolution"] in ([16, 12], [14, 10])
