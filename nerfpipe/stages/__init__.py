@@ -24,7 +24,7 @@ log = logging.getLogger("nerfpipe")
 
 # ``nerfpipe run``'s default budget for the whole job: a base, and more for each megapixel of photos to fit
 # (after ingest's resizing), within these bounds. The demo (16 photos of 640 x 480) gets 3 min 45 s (its held-out
-# views: 27.39 dB in 3 min 20 s), a phone capture of 71 frames of 720 x 1280 about 7.8 minutes.
+# views: 27.55 dB in 3 min 32 s), a phone capture of 71 frames of 720 x 1280 about 7.8 minutes.
 BUDGET_BASE_SECONDS = 205.0
 BUDGET_SECONDS_PER_MEGAPIXEL = 4.0
 BUDGET_RANGE_SECONDS = (205.0, 600.0)
