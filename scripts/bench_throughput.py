@@ -90,7 +90,8 @@ def measure(args: argparse.Namespace) -> None:
     ctx = StageContext(log=logging.getLogger("bench"))
     with tempfile.TemporaryDirectory() as frames:
         started = time.perf_counter()
-        render_frames(model, poses, scaled, (bounds.near, bounds.far), Path(frames), render.chunk, ctx)
+        render_frames(model, poses, [scaled] * len(poses), [(bounds.near, bounds.far)] * len(poses), Path(frames),
+                      render.chunk, ctx)
         render_seconds = time.perf_counter() - started
     render_rays = len(poses) * width * height
 

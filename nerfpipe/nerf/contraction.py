@@ -69,6 +69,17 @@ class Contraction:
         _, half = self._center_half(directions)
         return torch.linalg.vector_norm(directions / half, dim=-1)
 
+    def box_rays(self, origins: Tensor, directions: Tensor) -> tuple[Tensor, Tensor]:
+        """Rays (R, 3) in the units where the box is [-1, 1]^3 (before contraction): origins and directions."""
+        center, half = self._center_half(origins)
+        return (origins - center) / half, directions / half
+
+    @staticmethod
+    def step_scale_at(norm: Tensor) -> Tensor:
+        """``step_scale`` from the L-infinity norm n of a point in the box's units before contraction: 1 inside
+        the box, n^2 beyond (1 / (2 - m)^2 with m = 2 - 1 / n), without contracting the point first."""
+        return norm.clamp(1.0, 1e6).square()  # 1e6: step_scale's cap, m <= 2 - 1e-6
+
     @staticmethod
     def step_scale(field_points: Tensor) -> Tensor:
         """By how much a world step must grow at contracted points (..., 3) to stay the same length in

@@ -52,6 +52,18 @@ def test_the_scene_box_maps_to_the_unit_cube():
     torch.testing.assert_close(c.from_field(c.to_field(corners)), corners)
 
 
+def test_the_step_scale_from_the_uncontracted_norm_is_the_one_from_the_contracted_point():
+    c = Contraction((-1.0, -0.5, -0.8), (1.0, 0.5, 0.8))
+    world = torch.tensor([[0.2, 0.1, -0.3], [1.5, 0.0, 0.0], [-4.0, 1.0, 2.0], [0.0, 0.0, 3e4], [1e9, 0.0, 0.0]])
+    x0, dx = c.box_rays(world, torch.zeros_like(world))
+    assert torch.equal(dx, torch.zeros_like(world))
+    # 1 inside, the squared L-infinity norm in the box's units beyond (1.5, 4 / 1, 3e4 / 0.8), capped at 1e12
+    expected = torch.tensor([1.0, 2.25, 16.0, (3e4 / 0.8) ** 2, 1e12])
+    torch.testing.assert_close(Contraction.step_scale_at(x0.abs().amax(dim=-1)), expected)
+    # the round trip through the contracted point agrees near the box; far out (3e4) its 2 - 1 / n has lost digits
+    torch.testing.assert_close(Contraction.step_scale(c.to_field(world))[:3], expected[:3], rtol=1e-5, atol=0)
+
+
 def test_steps_are_even_in_contracted_space_and_grow_in_the_world():
     c = Contraction((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
     o = torch.zeros((1, 3))
