@@ -86,4 +86,4 @@ class Contraction:
         contracted space, along a ray leaving the centre: 1 inside the box, the squared world norm
         1 / (2 - m)^2 beyond it (contraction shrinks radial distances by its derivative 1 / ||x||^2)."""
         m = field_points.abs().amax(dim=-1).clamp(max=BOUND - 1e-6)
-        return torch.where(m > 1.0, 1.0 / (2.0 - m) ** 2, torch.ones_like(m))
+        return Contraction.step_scale_at(1.0 / (2.0 - m))  # the norm before contraction: m = 2 - 1 / n

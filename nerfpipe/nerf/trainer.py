@@ -85,7 +85,7 @@ def parameter_groups(model: RadianceModel, config: TrainConfig) -> list[dict]:
     with a ``warmup`` w (a share of training) learns nothing before w and ramps up linearly until 2 w."""
     groups = []
     for f in model.fields():
-        tables = list(getattr(f, "feature_tables", list)())
+        tables = list(getattr(f, "feature_tables", list)())  # optional: a field without tables (an MLP) has none
         rest = [p for p in f.parameters() if all(p is not t for t in tables)]
         if tables:  # a table's rows each see a few samples a step, its MLPs' weights every one: they take smaller steps
             groups.append({"params": tables, "base_lr": config.lr, "warmup": 0})
