@@ -317,15 +317,16 @@ def bounds_figures(outcome) -> dict[str, np.ndarray]:
 def test_beer_triangulated_with_its_own_poses_gives_the_bounds_of_its_own_points(tmp_path):
     """The Beer capture's COLMAP model (71 phone frames, 4414 points), its points ignored and triangulated
     again with its poses fixed: near/far (medians over the images) and the scene box's extent per axis
-    agree within 10 % with those of the model's own points (640 px frames, sequential matching of the video
-    frames: under a minute on 2 cores).
+    agree with those of the model's own points (640 px frames, sequential matching of the video frames: under
+    a minute on 2 cores): near/far and the vertical extent within 10 %, the horizontal extents within 15 %.
 
     Near/far and the vertical extent agree within 4 % at every size and matcher tried. The horizontal
     extents are fragile: the bounds stage's robust box ends in the sparse tail of this capture's background
     points, where it moves by up to 13 % when a random 10 % of the model's own points is left out, and
-    triangulations at 960 px or full size, or with exhaustive matching, land 12-58 % off on x or y. So a
-    failure of the last assertion after a COLMAP upgrade says more about the box estimator than about
-    the triangulation."""
+    triangulations at 960 px or full size, or with exhaustive matching, land 12-58 % off on x or y. COLMAP's
+    threaded matching does not repeat itself run to run either (2611-2656 points, y off by 6-10 % in five
+    runs), so x and y are held to the box estimator's own spread, 15 %, and a failure of that assertion
+    after a COLMAP upgrade says more about the box estimator than about the triangulation."""
     beer = shared("colmap_beer_yhuoyuh")
     run_dir = tmp_path / "run"
     ingest, sfm = {"max_size": "640"}, {"matcher": "sequential"}
@@ -341,4 +342,4 @@ def test_beer_triangulated_with_its_own_poses_gives_the_bounds_of_its_own_points
           + ", ".join(f"{k} {np.round(v, 3)}" for k, v in error.items()))
     assert error["near"] < 0.1 and error["far"] < 0.1
     assert error["extent"][2] < 0.1  # z: up
-    assert np.all(error["extent"][:2] < 0.1)
+    assert np.all(error["extent"][:2] < 0.15)  # x, y: the box estimator's own spread (see above)
