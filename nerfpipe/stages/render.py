@@ -53,7 +53,7 @@ class RenderParams:
         default="auto", metadata={"help": "camera path: auto, spiral, orbit, sweep, or a camera_path.json (keyframes "
                                           "recorded in `nerfpipe view --web`; its frames and fps apply); auto: "
                                           "spiral for forward-facing scenes, orbit around the world's up for 360° "
-                                          "ones whose cameras go all round (270° or more), else a sweep out and "
+                                          "ones whose cameras go all round (300° or more), else a sweep out and "
                                           "back along the cameras"}
     )
     n_rotations: float = field(default=2.0, metadata={"help": "spiral: turns around the mean camera (LLFF: 2)"})
@@ -118,7 +118,7 @@ class RenderStage(Stage):
     """Render novel views along a spiral (forward-facing) or an orbit (360°): PNG frames, MP4s, the path."""
 
     name = "render"
-    version = 5  # 5: keyframe paths, a fov per frame in camera_path.json; 4: sweeps over the middle 80 % of the azimuths
+    version = 6  # 6: orbits from 300 deg of azimuth (270 before); 5: keyframe paths, a fov per frame
     Params = RenderParams
     presets = {
         "preview": PREVIEW,

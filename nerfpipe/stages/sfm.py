@@ -55,9 +55,8 @@ class SfmParams:
     triangulate: Literal["auto", "true", "false"] = field(
         default="auto",
         metadata={"help": "imported poses: triangulate sparse points from SIFT matches with the poses fixed; auto when "
-                          "the pose file has neither points nor near/far and the photos have no alpha (renders of an "
-                          "object inside the camera ring, which the rig box holds); true also replaces a model's own "
-                          "points; false never"},
+                          "the pose file has no points and the photos have no alpha (renders of an object inside the "
+                          "camera ring, which the rig box holds); true also replaces a model's own points; false never"},
     )
     min_triangulated_points: int = field(
         default=100, metadata={"help": "fewer triangulated points than this: keep none and say so (bounds then use "
@@ -81,7 +80,7 @@ class SfmStage(Stage):
     """Camera poses + sparse points: COLMAP SfM through pycolmap, or the capture's own pose files."""
 
     name = "sfm"
-    version = 4  # 4: known poses matched with their nearest cameras; 3: triangulated points for imported poses
+    version = 5  # 5: LLFF poses triangulated too; 4: known poses matched with their nearest cameras; 3: triangulated points
     Params = SfmParams
     presets = {
         "draft": {"max_image_size": 800, "max_features": 4096},
@@ -144,11 +143,16 @@ def points_line(s: dict[str, Any]) -> str:
 
 
 def needs_points(cameras: CameraSet, records: list[dict]) -> bool:
-    """Whether imported poses call for triangulated points: the pose file has no points and no near/far
-    (LLFF's come from COLMAP's points), and the photos are no alpha renders (a synthetic object inside
-    the camera ring, which the bounds stage's rig box holds)."""
+    """Whether imported poses call for triangulated points: the pose file has no points, and the photos are
+    no alpha renders (a synthetic object inside the camera ring, which the bounds stage's rig box holds).
+
+    An LLFF file's near/far too: they bound each view's depths but not the scene, and the box of their
+    frusta is several times the object's size. On the cup (77 photos 800x600) it was 5.8 x 5.0 x 4.8 times
+    the cameras' distance from the centre, the triangulated points' box 1.0 x 1.5 x 1.1 times it, so the
+    grids spend 3-5 times the cells a side on the cup: held-out views scored 25.3 dB against 24.1 after
+    150 s of training, for 22 s of triangulation."""
     has_alpha = bool(records) and all(r.get("has_alpha") for r in records)
-    return cameras.points is None and not cameras.hints.llff_bounds and not has_alpha
+    return cameras.points is None and not has_alpha
 
 
 def aabb_hint(scale: float) -> str:

@@ -142,7 +142,7 @@ class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
     name = "train"
-    version = 9  # 9: a grid field's MLPs at their own rate; 8: held-out views scored at a size within eval_budget; 7: parameter groups; 6: visual hull
+    version = 10  # 10: poses refined beyond 2 px (1 px before); 9: a grid field's MLPs at their own rate
     Params = TrainParams
     presets = PRESETS
     requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")

@@ -263,8 +263,20 @@ def test_the_demo_orbit_stays_at_the_height_of_its_cameras(tmp_path) -> None:
     assert np.all(poses[:, :3, 1] @ [0, 0, 1] < 0)  # upright
 
 
+def test_a_walk_three_quarters_round_sweeps_rather_than_orbit_through_its_gap() -> None:
+    # 19 cameras on 270 deg of azimuth, as the cup's photos cover: an orbit would spend 90 deg of its turn
+    # where no photo was taken, so the path sweeps along the cameras and never enters the gap
+    eyes = [np.array([2 * np.cos(a), 2 * np.sin(a), 0.5]) for a in np.radians(np.arange(0.0, 271.0, 15.0))]
+    c2ws = np.stack([look_at(e, np.zeros(3)) for e in eyes])
+    poses, text = path_for_scene("inward360", c2ws, 0.5, 5.0, np.zeros(3), 12)
+    assert text.startswith("sweep (inward360 scene, cameras on 270 deg of azimuth)"), text
+    azimuth = np.degrees(np.arctan2(poses[:, 1, 3], poses[:, 0, 3])) % 360.0
+    assert np.all(azimuth <= 270.0 + 1e-6), azimuth.round(1)  # none in the gap from 270 to 360 deg
+    assert_rotations(poses)
+
+
 def test_cameras_all_round_with_gaps_orbit_rather_than_fail() -> None:
-    # seven cameras round the centre with a 105 deg gap (coverage 255 < 270: a sweep would be chosen), yet all
+    # seven cameras round the centre with a 105 deg gap (coverage 255 < 300: a sweep would be chosen), yet all
     # round it (their mean direction from it is 0.17 long), so no sweep exists: an orbit, not an error
     eyes = [np.array([2 * np.cos(a), 2 * np.sin(a), 0.5]) for a in np.radians([0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 255.0])]
     c2ws = np.stack([look_at(e, np.zeros(3)) for e in eyes])

@@ -79,9 +79,12 @@ def test_status_shows_the_scene_decisions_and_an_override(tmp_path):
 
 
 def test_cup_llff_import_keeps_its_near_far(tmp_path):
+    """Without triangulated points (sfm.triangulate=false; auto triangulates LLFF poses) the bounds are
+    the pose file's own near/far, rescaled with the scene."""
     cup = shared("llff_cup_kwrous")
     run_dir = tmp_path / "run"
-    Pipeline(default_stages(), cup, run_dir, overrides={"ingest": {"max_size": "100"}}).run(until="bounds")
+    overrides = {"ingest": {"max_size": "100"}, "sfm": {"triangulate": "false"}}
+    Pipeline(default_stages(), cup, run_dir, overrides=overrides).run(until="bounds")
     bounds = json.loads((result(run_dir, "bounds") / "bounds.json").read_text())
     assert bounds["method"] == "pose_file" and len(bounds["frames"]) == 77
     poses = np.load(cup / "poses_bounds.npy")

@@ -207,6 +207,31 @@ def test_temple_par_file_gets_triangulated_points_and_its_tight_box(tmp_path):
     assert Bounds.load(rig[-1].path / "bounds.json").method == "rig"
 
 
+def test_llff_poses_get_triangulated_points_and_a_box_the_size_of_the_object(tmp_path):
+    """The LLFF cup: its poses_bounds.npy has near/far and no points. By default its points are triangulated
+    with the poses fixed, and the scene box they give is the object's, about the cameras' distance from the
+    centre a side; the box of the file's near/far frusta is 3-5 times that (320 px photos, 4 s)."""
+    from nerfpipe.artifacts import Bounds
+
+    cup = shared("llff_cup_kwrous")
+    ingest = {"max_size": "320"}
+    auto = to_bounds(cup, tmp_path / "run", ingest=ingest)
+    s = auto[1].summary
+    assert s["points_from"] == "triangulated" and s["triangulation"]["max_pose_change"] < 1e-9
+    assert s["points"] > 1000 and s["triangulation"]["mean_reprojection_error_px"] < 2.0
+    near_far = to_bounds(cup, tmp_path / "run", ingest=ingest, sfm={"triangulate": "false"})
+    sizes = {}
+    for name, outcomes in (("points", auto), ("pose_file", near_far)):
+        bounds = Bounds.load(outcomes[-1].path / "bounds.json")
+        assert bounds.method == name
+        world = CameraSet.load(outcomes[-1].path / "world")
+        radius = float(np.median(np.linalg.norm(np.asarray(world.centers()), axis=1)))
+        lo, hi = np.asarray(bounds.scene_box)
+        sizes[name] = (hi - lo) / radius  # the box a side, in the cameras' distances from the centre
+    print("cup scene box in camera distances:", {k: v.round(2).tolist() for k, v in sizes.items()})
+    assert np.all(sizes["points"] < 2.0) and np.all(sizes["pose_file"] > 2.0 * sizes["points"])
+
+
 def flat_capture(folder: Path, n: int = 4) -> Path:
     """``n`` textureless photos around the origin with a transforms.json carrying instant-ngp's aabb_scale."""
     from tests.helpers import look_at
