@@ -130,7 +130,7 @@ def contracted_steps(origins: Tensor, directions: Tensor, near: Tensor, far: Ten
     than 25 through the contracted point: beer trains 10-15 % faster). Returns starts and ends (R, S); S is at
     most ``most``."""
     x0, dx = contraction.box_rays(origins, directions)
-    base = step / torch.linalg.vector_norm(dx, dim=-1).clamp_min(1e-12)  # contraction.field_length(directions)
+    base = step / torch.linalg.vector_norm(dx, dim=-1).clamp_min(1e-12)  # |dx| is field_length, from box_rays' dx
     t = near.clone()
     edges = [t]
     for _ in range(most):
