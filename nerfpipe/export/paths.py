@@ -19,7 +19,7 @@ import numpy as np
 # the mean camera of the train stage, so the spiral circles the very frame a forward model's NDC rays use
 from nerfpipe.geometry.cameras import look_at, mean_camera
 from nerfpipe.geometry.normalize import WORLD_UP, Similarity
-from nerfpipe.geometry.rig import axis_angles_to, azimuth_coverage, look_at_center, unit
+from nerfpipe.geometry.rig import OVERHEAD_SHARE, axis_angles_to, azimuth_coverage, look_at_center, unit
 
 # (``dt = .75`` in its ``load_llff_data``), a depth a little behind the nearest content.
 FOCUS_DISPARITY_WEIGHT = 0.75
@@ -207,9 +207,13 @@ class Sweep:
 
 
 def sweep_of(c2ws: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP, spread: float = 10.0) -> Sweep:
-    """The sweep of azimuths a capture covers around ``target``: from the ``spread`` to the 100 - ``spread``
-    percentile of the cameras' azimuths about the circular mean of their directions, so the path stays
-    where photos were taken. Raises ``ValueError`` for cameras all round the target (an orbit suits them)."""
+    """The sweep of azimuths a capture covers around ``target``, framed on the largest gap between the
+    cameras' azimuths (where no photo was taken): azimuths count from the direction opposite the gap's
+    middle, and the sweep runs from their ``spread`` to their 100 - ``spread`` percentile, so the path stays
+    where photos were taken and never crosses the gap. Cameras nearly above the target do not make or close
+    a gap (``geometry.rig.azimuth_coverage`` leaves them out too). Raises ``ValueError`` for cameras spread
+    evenly all round the target, whose largest gap is not ``GAP_STANDS_OUT`` times their next largest (an
+    orbit suits them)."""
     c2ws = _check_poses(c2ws)
     target = np.asarray(target, dtype=np.float64).reshape(3)
     up = _unit_up(up)
@@ -219,11 +223,12 @@ def sweep_of(c2ws: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP, sp
     r = np.linalg.norm(horizontal, axis=1)
     if np.median(r) <= 1e-9:
         raise ValueError("the cameras stand above the target; no sweep around it")
-    mean = (horizontal / np.maximum(r, 1e-12)[:, None]).mean(axis=0)
-    if np.linalg.norm(mean) < 0.2:
-        raise ValueError("the cameras stand all round the target; an orbit suits them")
-    e1 = mean / np.linalg.norm(mean)
+    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
     e2 = np.cross(up, e1)
+    around = (r > 1e-12) & (r >= OVERHEAD_SHARE * np.median(r))
+    opposite = _opposite_largest_gap(np.arctan2(horizontal[around] @ e2, horizontal[around] @ e1))
+    e1, e2 = np.cos(opposite) * e1 + np.sin(opposite) * e2, np.cos(opposite) * e2 - np.sin(opposite) * e1
     azimuth = np.arctan2(horizontal @ e2, horizontal @ e1)
     degree = min(2, len(np.unique(np.round(azimuth, 6))) - 1)
     radius = np.polyfit(azimuth, r, degree) if degree > 0 else np.array([np.median(r)])
@@ -231,6 +236,25 @@ def sweep_of(c2ws: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP, sp
     lo, hi = np.percentile(azimuth, [spread, 100.0 - spread])
     return Sweep(target, up, e1, e2, float(lo), float(hi), radius, height,
                  (float(r.min()), float(r.max())), (float(heights.min()), float(heights.max())))
+
+
+# a capture is a sweep with a gap in it when its largest gap between azimuths is this many times its next largest
+GAP_STANDS_OUT = 1.5
+
+
+def _opposite_largest_gap(azimuth: np.ndarray) -> float:
+    """The azimuth (radians) opposite the middle of the largest gap between ``azimuth`` (N,) round the circle.
+    Raises ``ValueError`` where no gap stands out (``GAP_STANDS_OUT``). By hand, cameras at 0, 90 and 180 deg:
+    the gap from 180 to 360 is the largest, its middle at 270, so the sweep centres on 90 deg."""
+    az = np.sort(np.mod(azimuth, 2.0 * np.pi))
+    if len(az) < 2:
+        return float(az[0]) if len(az) else 0.0
+    gaps = np.diff(np.concatenate([az, az[:1] + 2.0 * np.pi]))
+    order = np.argsort(gaps)
+    if gaps[order[-1]] < GAP_STANDS_OUT * gaps[order[-2]]:
+        raise ValueError("the cameras stand all round the target; an orbit suits them")
+    largest = order[-1]
+    return float(az[largest] + gaps[largest] / 2.0 + np.pi)
 
 
 def sweep_path(c2ws: np.ndarray, target: np.ndarray, n_frames: int, up: np.ndarray = WORLD_UP) -> np.ndarray:

@@ -118,7 +118,7 @@ class RenderStage(Stage):
     """Render novel views along a spiral (forward-facing) or an orbit (360°): PNG frames, MP4s, the path."""
 
     name = "render"
-    version = 6  # 6: orbits from 300 deg of azimuth (270 before); 5: keyframe paths, a fov per frame
+    version = 7  # 7: sweeps framed on the largest gap; 6: orbits from 300 deg of azimuth (270 before); 5: keyframe paths
     Params = RenderParams
     presets = {
         "preview": PREVIEW,

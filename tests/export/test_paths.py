@@ -275,11 +275,46 @@ def test_a_walk_three_quarters_round_sweeps_rather_than_orbit_through_its_gap() 
     assert_rotations(poses)
 
 
-def test_cameras_all_round_with_gaps_orbit_rather_than_fail() -> None:
-    # seven cameras round the centre with a 105 deg gap (coverage 255 < 300: a sweep would be chosen), yet all
-    # round it (their mean direction from it is 0.17 long), so no sweep exists: an orbit, not an error
+def test_a_walk_with_one_wide_gap_sweeps_and_never_enters_it() -> None:
+    # seven cameras round the centre with a 105 deg gap (coverage 255 < 300), their mean direction from it
+    # only 0.17 long: framed on the gap rather than on that mean, the sweep stays on the photos' side of it
     eyes = [np.array([2 * np.cos(a), 2 * np.sin(a), 0.5]) for a in np.radians([0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 255.0])]
     c2ws = np.stack([look_at(e, np.zeros(3)) for e in eyes])
     poses, text = path_for_scene("inward360", c2ws, 0.5, 5.0, np.zeros(3), 8)
-    assert text.startswith("orbit (inward360 scene, cameras on 255 deg of azimuth but all round the centre)")
+    assert text.startswith("sweep (inward360 scene, cameras on 255 deg of azimuth)"), text
+    azimuth = np.degrees(np.arctan2(poses[:, 1, 3], poses[:, 0, 3])) % 360.0
+    assert np.all(azimuth <= 255.0 + 1e-6), azimuth.round(1)
     assert_rotations(poses)
+
+
+def test_a_walk_290_degrees_round_across_zero_sweeps_out_of_its_gap() -> None:
+    # 30 cameras every 10 deg from 200 deg on round past 0 to 130 deg: coverage 290 < 300, yet their mean
+    # direction is 0.24 long, short enough that a test on it would have called them all round; the gap from
+    # 130 to 200 deg is 7 times the others, and the sweep keeps to the photos' side of it
+    eyes = [np.array([2 * np.cos(a), 2 * np.sin(a), 0.5]) for a in np.radians(200.0 + np.arange(30) * 10.0)]
+    c2ws = np.stack([look_at(e, np.zeros(3)) for e in eyes])
+    poses, text = path_for_scene("inward360", c2ws, 0.5, 5.0, np.zeros(3), 20)
+    assert text.startswith("sweep (inward360 scene, cameras on 290 deg of azimuth)"), text
+    azimuth = np.degrees(np.arctan2(poses[:, 1, 3], poses[:, 0, 3])) % 360.0
+    assert not np.any((azimuth > 130.0 + 1e-6) & (azimuth < 200.0 - 1e-6)), azimuth.round(1)
+    assert np.ptp((azimuth - 345.0 + 180.0) % 360.0) > 200.0  # most of the 290 deg, centred on 345 deg
+    assert_rotations(poses)
+
+
+def test_a_few_cameras_evenly_all_round_orbit() -> None:
+    # five cameras 72 deg apart: coverage 288 < 300, but no gap stands out from the others, so no side of the
+    # object is the one the photos missed: an orbit, not a sweep, and no error
+    eyes = [np.array([2 * np.cos(a), 2 * np.sin(a), 0.5]) for a in np.radians(np.arange(5) * 72.0 + 10.0)]
+    c2ws = np.stack([look_at(e, np.zeros(3)) for e in eyes])
+    poses, text = path_for_scene("inward360", c2ws, 0.5, 5.0, np.zeros(3), 8)
+    assert text.startswith("orbit (inward360 scene, cameras on 288 deg of azimuth but all round the centre)"), text
+    assert_rotations(poses)
+
+
+def test_the_sweep_centres_opposite_the_largest_gap() -> None:
+    # by hand: cameras at 0, 90 and 180 deg; the gap 180 .. 360 is the largest, its middle at 270, so the
+    # sweep's azimuths count from 90 deg and run from -90 to +90
+    eyes = [np.array([2 * np.cos(a), 2 * np.sin(a), 0.0]) for a in np.radians([0.0, 90.0, 180.0])]
+    sweep = sweep_of(np.stack([look_at(e, np.zeros(3)) for e in eyes]), np.zeros(3), spread=0.0)
+    assert np.allclose(sweep.e1, [0.0, 1.0, 0.0], atol=1e-9)
+    assert sweep.lo == pytest.approx(-np.pi / 2) and sweep.hi == pytest.approx(np.pi / 2)
