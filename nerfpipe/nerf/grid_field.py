@@ -4,9 +4,10 @@ The field of Instant-NGP (Mueller et al. 2022, Sections 3-4) with its hash table
 grids: at the resolutions a CPU can train (up to 128^3), a dense grid is a hash table without collisions.
 Each level holds ``features`` values per grid vertex, trilinearly interpolated; the levels' features go
 through a one-layer density MLP (density = exp of its first output, Instant-NGP's activation), whose other
-outputs and the encoded viewing direction (Eq. 4 of the NeRF paper, L = ``dir_freqs``) go through a
-two-layer colour MLP. So it answers the same question as ``NerfField`` -- (x, d) -> (c, sigma), Section 3 --
-with the MLP's work moved into memory.
+outputs and the viewing direction go through a two-layer colour MLP: d itself by default, or Eq. 4 of the
+NeRF paper with L = ``dir_freqs`` > 0, whose sines let the colour of sparse photos fit each photo's own
+direction (the temple's 14, 22 degrees apart: 1.9 dB lower held out at L = 4). So it answers the same
+question as ``NerfField`` -- (x, d) -> (c, sigma), Section 3 -- with the MLP's work moved into memory.
 
 Memory layout: each level is a (vertices, features) table, channels last, so one trilinear corner is one
 contiguous row: a forward pass is ``F.embedding_bag`` over each point's corners (gather and weighted sum in
@@ -40,7 +41,7 @@ class GridFieldConfig:
     features: int = 4
     hidden: int = 64
     geo_features: int = 15
-    dir_freqs: int = 4
+    dir_freqs: int = 0
     view_dependent: bool = True
     init_scale: float = 1e-4
 

@@ -105,14 +105,14 @@ PAPER = {
     "optim.batch_samples": 0, "sampler.n_coarse": 64, "sampler.n_fine": 128, "field.fine_network": True,
     "field.depth": 8, "field.width": 256, "field.view_width": 128, "field.skip_after": 5, "field.include_input": False,
     "field.density_activation": "relu", "optim.lr": 5e-4, "optim.lr_final": 5e-5, "optim.adam_eps": 1e-7,
-    "optim.adam_beta2": 0.999, "checkpoint_every": 10_000,
+    "optim.adam_beta2": 0.999, "checkpoint_every": 10_000, "field.dir_freqs": 4,
 }
 # the optimizer of the CPU-scale NeRF (4x128 MLP, softplus density, 512 rays a step, lr 3e-3 over 1500
 # steps); ``nerfpipe bench``'s Table 2 ablations and the ``balanced`` preset start from it
 MLP_CPU = {
     "field.kind": "mlp", "sampler.kind": "hierarchical", "steps": 1500, "optim.batch_rays": 512,
     "optim.batch_samples": 0, "optim.lr": 3e-3, "optim.lr_final": 5e-5, "optim.adam_eps": 1e-7,
-    "optim.adam_beta2": 0.999,
+    "optim.adam_beta2": 0.999, "field.dir_freqs": 4,
 }
 PRESETS = {
     # lego at 100 px on 2 CPU cores (``nerfpipe bench``): 500 steps in under a minute, 22.9 dB; its rate decays
@@ -142,7 +142,7 @@ class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
     name = "train"
-    version = 10  # 10: poses refined beyond 2 px (1 px before); 9: a grid field's MLPs at their own rate
+    version = 11  # 11: directions into the colour MLP as they are (L = 0; 4 before); 10: poses refined beyond 2 px
     Params = TrainParams
     presets = PRESETS
     requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")

@@ -49,7 +49,7 @@ def train_params(values: dict) -> TrainParams:
     ],
 )
 def test_ablation_switches_build_the_tables_models(overrides, first_in, view_in, n_fine, fine) -> None:
-    params = train_params({"field.kind": "mlp", **overrides})
+    params = train_params({"field.kind": "mlp", "field.dir_freqs": 4, **overrides})  # Section 5.1's L = 4 for d
     model, _ = build_model(params, scene_of("inward360"), world_of_one_camera(), bounds_of(), CPU)
     assert model.coarse.trunk[0].in_features == first_in
     assert model.coarse.view.in_features == view_in
@@ -122,6 +122,8 @@ def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:
     assert inward.sampler.occupied_share() is not None and inward.sampler.grid.resolution == 64
     assert inward.sampler.grid.lo.tolist() == [-1] * 3 and inward.coarse.hi.tolist() == [1] * 3
     assert said[1] == "grid field: 3 levels of [32, 64, 128] cells a side, 4 features each, and a 64-wide MLP"
+    # colour reads the 15 geometric features and the unit direction d itself, no sines of it (L = 0)
+    assert inward.coarse.color_net[0].in_features == 15 + 3
     assert said[2].startswith("empty-space skipping: a 64^3 occupancy grid over the field box")
     forward, said = build_model(TrainParams(), scene_of("forward"), world, bounds, CPU)
     # NDC's [-1, 1]^2 x [-1, 1 - 2 near / far]: the frustum out to the farthest bound
