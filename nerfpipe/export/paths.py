@@ -19,7 +19,7 @@ import numpy as np
 # the mean camera of the train stage, so the spiral circles the very frame a forward model's NDC rays use
 from nerfpipe.geometry.cameras import look_at, mean_camera
 from nerfpipe.geometry.normalize import WORLD_UP, Similarity
-from nerfpipe.geometry.rig import OVERHEAD_SHARE, axis_angles_to, azimuth_coverage, look_at_center, unit
+from nerfpipe.geometry.rig import axis_angles_to, azimuth_coverage, azimuth_gaps, look_at_center, unit
 
 # (``dt = .75`` in its ``load_llff_data``), a depth a little behind the nearest content.
 FOCUS_DISPARITY_WEIGHT = 0.75
@@ -211,9 +211,8 @@ def sweep_of(c2ws: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP, sp
     cameras' azimuths (where no photo was taken): azimuths count from the direction opposite the gap's
     middle, and the sweep runs from their ``spread`` to their 100 - ``spread`` percentile, so the path stays
     where photos were taken and never crosses the gap. Cameras nearly above the target do not make or close
-    a gap (``geometry.rig.azimuth_coverage`` leaves them out too). Raises ``ValueError`` for cameras spread
-    evenly all round the target, whose largest gap is not ``GAP_STANDS_OUT`` times their next largest (an
-    orbit suits them)."""
+    a gap (``geometry.rig.azimuth_gaps``). Raises ``ValueError`` for cameras spread evenly all round the
+    target, whose largest gap is not ``GAP_STANDS_OUT`` times their next largest (an orbit suits them)."""
     c2ws = _check_poses(c2ws)
     target = np.asarray(target, dtype=np.float64).reshape(3)
     up = _unit_up(up)
@@ -223,12 +222,10 @@ def sweep_of(c2ws: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP, sp
     r = np.linalg.norm(horizontal, axis=1)
     if np.median(r) <= 1e-9:
         raise ValueError("the cameras stand above the target; no sweep around it")
-    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(up, e1)
-    around = (r > 1e-12) & (r >= OVERHEAD_SHARE * np.median(r))
-    opposite = _opposite_largest_gap(np.arctan2(horizontal[around] @ e2, horizontal[around] @ e1))
-    e1, e2 = np.cos(opposite) * e1 + np.sin(opposite) * e2, np.cos(opposite) * e2 - np.sin(opposite) * e1
+    frame = _up_frame(up)
+    opposite = np.radians(_opposite_largest_gap(_in_frame(c2ws, target, frame)))
+    c, s = np.cos(opposite), np.sin(opposite)
+    e1, e2 = c * frame[0] + s * frame[1], c * frame[1] - s * frame[0]
     azimuth = np.arctan2(horizontal @ e2, horizontal @ e1)
     degree = min(2, len(np.unique(np.round(azimuth, 6))) - 1)
     radius = np.polyfit(azimuth, r, degree) if degree > 0 else np.array([np.median(r)])
@@ -242,19 +239,20 @@ def sweep_of(c2ws: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP, sp
 GAP_STANDS_OUT = 1.5
 
 
-def _opposite_largest_gap(azimuth: np.ndarray) -> float:
-    """The azimuth (radians) opposite the middle of the largest gap between ``azimuth`` (N,) round the circle.
+def _opposite_largest_gap(local: np.ndarray) -> float:
+    """The azimuth (degrees) opposite the middle of the largest gap between the azimuths of the cameras ``local``
+    (N, 4, 4), in a frame whose +z is up and whose origin is the target (``geometry.rig.azimuth_gaps``).
     Raises ``ValueError`` where no gap stands out (``GAP_STANDS_OUT``). By hand, cameras at 0, 90 and 180 deg:
     the gap from 180 to 360 is the largest, its middle at 270, so the sweep centres on 90 deg."""
-    az = np.sort(np.mod(azimuth, 2.0 * np.pi))
-    if len(az) < 2:
-        return float(az[0]) if len(az) else 0.0
-    gaps = np.diff(np.concatenate([az, az[:1] + 2.0 * np.pi]))
+    az, gaps = azimuth_gaps(local, np.zeros(3))
+    if not len(gaps):  # fewer than two cameras round the target: centre on where they stand
+        mean = local[:, :2, 3].mean(axis=0)
+        return float(np.degrees(np.arctan2(mean[1], mean[0])))
     order = np.argsort(gaps)
     if gaps[order[-1]] < GAP_STANDS_OUT * gaps[order[-2]]:
         raise ValueError("the cameras stand all round the target; an orbit suits them")
     largest = order[-1]
-    return float(az[largest] + gaps[largest] / 2.0 + np.pi)
+    return float(az[largest] + gaps[largest] / 2.0 + 180.0)
 
 
 def sweep_path(c2ws: np.ndarray, target: np.ndarray, n_frames: int, up: np.ndarray = WORLD_UP) -> np.ndarray:
@@ -333,15 +331,25 @@ def _focus(c2ws: np.ndarray, target: np.ndarray) -> np.ndarray:
     return focus
 
 
+def _up_frame(up: np.ndarray) -> np.ndarray:
+    """(3, 3) rows: two horizontal unit axes and ``up`` (unit), a right-handed frame with up along z."""
+    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(up, e1), up])
+
+
+def _in_frame(c2ws: np.ndarray, target: np.ndarray, frame: np.ndarray) -> np.ndarray:
+    """The poses' centres in ``frame`` (``_up_frame``) about ``target``: what ``geometry.rig``'s azimuth
+    functions, which measure about +z, take."""
+    local = np.array(c2ws, dtype=np.float64)
+    local[:, :3, 3] = (c2ws[:, :3, 3] - target) @ frame.T
+    return local
+
+
 def _coverage(c2ws: np.ndarray, target: np.ndarray, up: np.ndarray) -> float:
     """Degrees of azimuth about ``up`` through ``target`` the cameras cover (``geometry.rig.azimuth_coverage``
     in the frame whose +z is ``up``)."""
-    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    frame = np.stack([e1, np.cross(up, e1), up])  # rows: the axes of a frame with up along z
-    local = np.array(c2ws, dtype=np.float64)
-    local[:, :3, 3] = (c2ws[:, :3, 3] - target) @ frame.T
-    return azimuth_coverage(local, np.zeros(3))
+    return azimuth_coverage(_in_frame(c2ws, target, _up_frame(up)), np.zeros(3))
 
 
 def _shown(point: np.ndarray) -> str:

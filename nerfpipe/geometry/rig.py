@@ -89,18 +89,24 @@ def rig_radius(c2ws: np.ndarray, center: np.ndarray, fraction: float = 0.5) -> f
 OVERHEAD_SHARE = 0.5
 
 
-def azimuth_coverage(c2ws: np.ndarray, center: np.ndarray) -> float:
-    """Degrees of azimuth about +z (world up) through ``center`` that the cameras cover: 360 minus the
-    largest gap between the sorted camera azimuths (360 for a full ring). Cameras nearly above the centre
-    (nearer its vertical axis than half the cameras' median distance from it) are left out: their azimuth
-    says little about where the photographer walked, and a few shots from overhead would otherwise close
-    the gap of a walk part way round."""
+def azimuth_gaps(c2ws: np.ndarray, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cameras' azimuths about +z (world up) through ``center``, sorted, in degrees, and the gap after
+    each to the next round the circle (they sum to 360). Cameras nearly above the centre (nearer its vertical
+    axis than ``OVERHEAD_SHARE`` of the cameras' median distance from it) are left out: their azimuth says
+    little about where the photographer walked, and a few shots from overhead would otherwise close the gap
+    of a walk part way round. Fewer than two cameras left: two empty arrays."""
     c2ws = np.asarray(c2ws, dtype=np.float64)
     offset = c2ws[:, :2, 3] - np.asarray(center, dtype=np.float64)[:2]
     radius = np.linalg.norm(offset, axis=1)
     keep = (radius > 1e-12) & (radius >= OVERHEAD_SHARE * np.median(radius))
     if keep.sum() < 2:
-        return 0.0
+        return np.zeros(0), np.zeros(0)
     az = np.sort(np.degrees(np.arctan2(offset[keep, 1], offset[keep, 0])))
-    gaps = np.diff(np.concatenate([az, az[:1] + 360.0]))
-    return float(360.0 - gaps.max())
+    return az, np.diff(np.concatenate([az, az[:1] + 360.0]))
+
+
+def azimuth_coverage(c2ws: np.ndarray, center: np.ndarray) -> float:
+    """Degrees of azimuth about +z (world up) through ``center`` that the cameras cover: 360 minus the
+    largest of their ``azimuth_gaps`` (360 for a full ring; 0 for fewer than two cameras round it)."""
+    _, gaps = azimuth_gaps(c2ws, center)
+    return float(360.0 - gaps.max()) if len(gaps) else 0.0
