@@ -1,0 +1,30 @@
+"""The probe that predicts what rendering whole views costs: timed on at least one chunk of rays."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from nerfpipe.nerf import throughput
+from nerfpipe.nerf.assembly import build_model
+from nerfpipe.stages.train import TrainParams
+from tests.helpers import look_at
+from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
+
+
+@pytest.mark.parametrize("size, chunk, rays, timed", [
+    ((200, 100), 8192, 4096, 8192),  # a chunk larger than the probe: a whole chunk is timed
+    ((200, 100), 1024, 4096, 4096),  # smaller: the probe as asked
+    ((50, 40), 8192, 4096, 2000),  # a view smaller than either: all its pixels
+])
+def test_the_probe_times_at_least_one_chunk_of_the_views_rays(size, chunk, rays, timed, monkeypatch) -> None:
+    model, _ = build_model(TrainParams(), scene_of("inward360"), world_of_one_camera(), bounds_of(), torch.device("cpu"))
+    seen = []
+    render = model.render_batch
+    monkeypatch.setattr(model, "render_batch", lambda batch, c: (seen.append((len(batch), c)), render(batch, c))[1])
+    w, h = size
+    c2w = look_at(np.array([0.0, -3.0, 0.5]), np.zeros(3))
+    per_ray = throughput.seconds_per_ray(model, (w / 1.2, w / 1.2, w / 2, h / 2), c2w, w, h, 1.0, 5.0, chunk, rays)
+    assert per_ray > 0
+    assert seen == [(min(throughput.WARM_UP_RAYS, timed), chunk), (timed, chunk)]  # warm-up, then the timed rays
