@@ -19,6 +19,13 @@ def resolve_device(choice: str, param: str) -> torch.device:
     return torch.device("cuda" if choice == "cuda" or (choice == "auto" and torch.cuda.is_available()) else "cpu")
 
 
+def synchronize(device: torch.device) -> None:
+    """Wait for the work queued on ``device``, before reading a clock: CUDA runs kernels after the calls that
+    queue them return. Nothing to wait for on the CPU."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
 @contextlib.contextmanager
 def rendering_device(choice: str, param: str) -> Iterator[torch.device]:
     """The device a stage that renders a trained field computes on (``resolve_device``), with the CPU

@@ -8,17 +8,12 @@ import time
 import numpy as np
 import torch
 
+from nerfpipe.nerf.device import synchronize
 from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.rays import pixel_centers
 
 PROBE_RAYS = 4096  # rays timed to predict what rendering whole views costs
 WARM_UP_RAYS = 256
-
-
-def _synchronize(device: torch.device) -> None:
-    """Wait for the work queued on ``device``: CUDA runs kernels after the calls that queue them return."""
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
 
 
 def _probe(model: RadianceModel, intrinsics: tuple[float, float, float, float], c2w: np.ndarray, width: int,
@@ -44,10 +39,10 @@ def seconds_per_ray(model: RadianceModel, intrinsics: tuple[float, float, float,
     untimed: the first call of a process pays for warming up what every later one reuses."""
     batch = _probe(model, intrinsics, c2w, width, height, near, far, max(rays, chunk))
     model.render_batch(batch.slice(0, WARM_UP_RAYS), chunk)
-    _synchronize(model.device)
+    synchronize(model.device)
     started = time.perf_counter()
     model.render_batch(batch, chunk)
-    _synchronize(model.device)
+    synchronize(model.device)
     return (time.perf_counter() - started) / max(len(batch), 1)
 
 
@@ -58,7 +53,7 @@ def seconds_per_view(model: RadianceModel, intrinsics: tuple[float, float, float
     a chunk of neighbouring pixels marches alike, where a probe of pixels spread over the view pays for the
     ray with the most samples in each chunk."""
     model.render_batch(_probe(model, intrinsics, c2w, width, height, near, far, WARM_UP_RAYS), chunk)
-    _synchronize(model.device)
+    synchronize(model.device)
     started = time.perf_counter()
     model.render_image(intrinsics, c2w, width, height, near, far, chunk)
     return time.perf_counter() - started

@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 
 from nerfpipe.nerf.checkpoints import load_latest_checkpoint, save_checkpoint
+from nerfpipe.nerf.device import synchronize
 from nerfpipe.nerf.model import Field, RadianceModel
 from nerfpipe.nerf.stall import StallGuard, mean_colour_psnr, mse_to_psnr
 
@@ -335,8 +336,7 @@ class Trainer:
                 rays = self.rays
                 if not math.isfinite(loss):
                     raise FloatingPointError(f"training loss became {loss} at step {self.step}")
-                if self.device.type == "cuda":
-                    torch.cuda.synchronize(self.device)
+                synchronize(self.device)
                 self.step += 1
                 now = self.clock()
                 self.elapsed += now - started
