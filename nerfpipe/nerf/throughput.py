@@ -11,13 +11,14 @@ import torch
 from nerfpipe.nerf.device import synchronize
 from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.rays import pixel_centers
+from nerfpipe.nerf.renderer import RayBatch
 
 PROBE_RAYS = 4096  # rays timed to predict what rendering whole views costs
 WARM_UP_RAYS = 256
 
 
 def _probe(model: RadianceModel, intrinsics: tuple[float, float, float, float], c2w: np.ndarray, width: int,
-           height: int, near: float, far: float, rays: int):
+           height: int, near: float, far: float, rays: int) -> RayBatch:
     """The rays of ``rays`` pixels of the pinhole view, spread evenly over it."""
     device = model.device
     uv = pixel_centers(width, height, device)
