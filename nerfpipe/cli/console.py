@@ -140,7 +140,7 @@ def batch_progress(total: int) -> Iterator[Callable]:
         yield lambda states: live.update(render(states))
 
 
-def serve_web(pipe: Pipeline, host: str, port: int) -> None:
+def serve_web(pipe: Pipeline, host: str, port: int, share: bool = False) -> None:
     """`view --web`: gather the run's results, serve them until Ctrl-C."""
     import time
 
@@ -155,7 +155,7 @@ def serve_web(pipe: Pipeline, host: str, port: int) -> None:
         points_ply=pipe.optional_artifact("points"),
         run_dir=pipe.run_dir,
     )
-    viewer = serve(scene, host=host, port=port)
+    viewer = serve(scene, host=host, port=port, share=share)
     held = [f"{len(scene.frames)} cameras with their photos"]
     held += [f"a mesh of {scene.mesh.faces:,} triangles"] if scene.mesh is not None else []
     held += [f"{len(scene.points.xyz):,} points"] if scene.points is not None else []

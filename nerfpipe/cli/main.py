@@ -55,7 +55,7 @@ DebugOption = typer.Option(False, "--debug", help="Show tracebacks and debug log
 PresetOption = typer.Option(None, "--preset", "-p", help="Named preset applied to every stage that has it.")
 SetOption = typer.Option([], "--set", "-s", help="Override one parameter: STAGE.PARAM=VALUE (repeatable).")
 HostOption = typer.Option("127.0.0.1", "--host", show_default=True, help="The web viewer's address: this machine only by default; "
-                          "0.0.0.0 shows the run's photos to anyone on the network.")
+                          "0.0.0.0 shows the run's photos to anyone on the network who has the printed URL (its token).")
 
 
 @app.command()
@@ -172,6 +172,8 @@ def view(
                              "photos, and a live render of the field from the browser's viewpoint."),
     port: int = typer.Option(8080, "--port", help="--web: the port to serve on."),
     host: str = HostOption,
+    share: bool = typer.Option(False, "--share", help="--web: show viser's share button, which publishes the viewer, "
+                               "the run's photos included, on a public URL through viser's tunnel service."),
     debug: bool = DebugOption,
 ) -> None:
     """Look at a run's mesh, point cloud or cameras; with no display, write RUN_DIR/view_<kind>.png instead."""
@@ -190,7 +192,7 @@ def view(
             from nerfpipe.export.web import check_address
 
             check_address(host, port)
-            serve_web(pipe, host, port)
+            serve_web(pipe, host, port, share)
             return
         from nerfpipe.export import screenshot as shot
         from nerfpipe.export.views import cameras_of
@@ -294,6 +296,7 @@ def batch(
     if not debug:
         logging.getLogger("nerfpipe").handlers[0].setLevel(logging.ERROR)  # each capture's log file has the rest
     from nerfpipe.pipeline.batch import SUMMARY, Batch, BatchSettings, find_captures
+    from nerfpipe.pipeline import InputError
     from nerfpipe.pipeline.executors import LocalExecutor, RayExecutor
 
     with user_errors(debug):
@@ -303,6 +306,8 @@ def batch(
             raise typer.BadParameter(f"must be 0 or more, got {max_parallel}", param_hint="--max-parallel")
         if address is not None and executor != "ray":
             raise typer.BadParameter("only with --executor ray", param_hint="--address")
+        if out.exists() and not out.is_dir():
+            raise InputError(out, "is a file, not a folder", "pass --out a folder for the run directories")
         root, runs = captures_root.resolve(), out.resolve()
         if runs == root or root in runs.parents:
             raise typer.BadParameter(f"{out} lies inside the captures folder {captures_root}, whose every folder is "
@@ -367,7 +372,7 @@ def export(
 
     with user_errors(debug):
         exported = refresh_exports(Pipeline.from_run_dir(default_stages(), run_dir))
-        copied = copy_exports(exported.folder, to)
+        copied = copy_exports(exported.folder, to, run_dir)
     out_console.print(f"copied {', '.join(exported.names)} ({copied / 1e6:.1f} MB) to {escape(str(to))}"
                       + (f"; not made by this run: {', '.join(exported.missing)}" if exported.missing else ""),
                       highlight=False, soft_wrap=True)

@@ -11,13 +11,17 @@ the stages' hashed result folders.
 - ``colmap/``: the same cameras as a COLMAP text model (``cameras.txt``, ``images.txt``, an empty
   ``points3D.txt``).
 
-Everything is in the SfM frame, as the stages write it (the GLB alone is +Y up). The files are hard links
-to the results where the filesystem allows (no space taken, and a later ``nerfpipe clean`` cannot break
-them), copies otherwise; ``collect`` writes the folder anew, so it always holds the latest run's results.
+Everything is in the SfM frame, as the stages write it (the GLB alone is +Y up). The files are copies of the
+results, never links: editing or deleting one cannot reach the cache. ``collect`` writes the folder anew, so it
+always holds the latest run's results, and only inside a run directory nerfpipe made.
+
+``copy_exports`` (``nerfpipe export --to``) writes a folder of the user's choosing, and so overwrites only what
+an earlier export wrote there (``.nerfpipe-export.json`` lists it, with each file's sha256).
 """
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from dataclasses import dataclass
@@ -27,6 +31,9 @@ from typing import Any
 import numpy as np
 
 from nerfpipe.geometry.cameras import OPENGL_TO_OPENCV, CameraSet
+from nerfpipe.pipeline.errors import InputError
+from nerfpipe.pipeline.hashing import sha256_file
+from nerfpipe.pipeline.store import RUN_MARKER, is_run_dir, require_run_dir, write_json_atomic
 
 EXPORTS = "exports"
 # (artifact, name in exports/): the files and folders ``collect`` takes from the stages' results
@@ -108,6 +115,7 @@ def collect(run_dir: Path, artifacts: dict[str, Path | None], cameras: CameraSet
     """Write ``run_dir/exports`` anew from ``artifacts`` (name -> path, None where its stage made nothing)
     and the trained ``cameras`` in the SfM frame with each frame's photo (``images``: name -> file); the
     ``extra`` files (optional outputs such as the watertight mesh) under their own names."""
+    require_run_dir(run_dir, "exports/")
     folder = run_dir / EXPORTS
     staging = run_dir / f".{EXPORTS}.new"
     shutil.rmtree(staging, ignore_errors=True)
@@ -118,18 +126,16 @@ def collect(run_dir: Path, artifacts: dict[str, Path | None], cameras: CameraSet
         if source is None or not source.exists():
             missing.append(name)
             continue
-        _link_or_copy(source, staging / name)
+        _copy(source, staging / name)
         names.append(name)
     for source in extra:
-        _link_or_copy(source, staging / source.name)
+        _copy(source, staging / source.name)
         names.append(source.name)
     if cameras is not None and cameras.frames:
         paths = {}
         for frame in cameras.frames:
-            _link_or_copy(images[frame.name], staging / "images" / frame.name)
+            _copy(images[frame.name], staging / "images" / frame.name)
             paths[frame.name] = f"images/{frame.name}"
-        from nerfpipe.pipeline.store import write_json_atomic
-
         write_json_atomic(staging / "transforms.json", transforms_json(cameras, paths))
         colmap_text(cameras, staging / "colmap")
         names += ["transforms.json", "images", "colmap"]
@@ -144,27 +150,78 @@ def collect(run_dir: Path, artifacts: dict[str, Path | None], cameras: CameraSet
     return Exported(folder, tuple(names), tuple(missing))
 
 
-def copy_exports(folder: Path, target: Path) -> int:
-    """Copy an exports folder to ``target`` (created; files it already holds are replaced), links resolved
-    to their files; returns the bytes copied."""
-    copied = 0
+EXPORT_LIST = ".nerfpipe-export.json"
+# what marks a folder as a capture, which an export must not write into (its photos would change how it is read)
+_CAPTURE_FILES = ("transforms.json", "poses_bounds.npy", "sparse", "images")
+_PHOTO_SUFFIXES = {".jpg", ".jpeg", ".jpe", ".jfif", ".png", ".tif", ".tiff", ".dng", ".cr2", ".cr3", ".nef", ".arw",
+                   ".raf", ".orf", ".rw2", ".mp4", ".mov"}
+
+
+def check_export_target(folder: Path, target: Path, run_dir: Path) -> dict[str, str]:
+    """Raise ``InputError`` for a ``target`` an export of ``folder`` may not write: a file, a folder inside
+    the run directory, a capture (photos or pose files), or a folder holding a file the export would replace
+    but did not write. Returns what earlier exports wrote there (name -> sha256)."""
+    if target.exists() and not target.is_dir():
+        raise InputError(target, "is a file, not a folder", "pass --to a new folder, or one an earlier export made")
+    where, run = target.resolve(), run_dir.resolve()
+    if where == run or run in where.parents:
+        raise InputError(target, f"lies inside the run directory {run_dir}, which the next run rewrites",
+                         "pass --to a folder outside it")
+    if is_run_dir(target):
+        raise InputError(target, f"is a nerfpipe run directory ({RUN_MARKER})", "pass --to a folder outside any run")
+    if not target.is_dir():
+        return {}
+    written = _export_list(target)
+    entries = {p.name for p in target.iterdir()}
+    if not written and (entries & set(_CAPTURE_FILES) or any(Path(n).suffix.lower() in _PHOTO_SUFFIXES for n in entries)):
+        raise InputError(target, "holds photos or pose files: exporting there would change how that capture is read",
+                         "pass --to a new folder")
     for path in sorted(folder.rglob("*")):
-        if path.is_file():
-            destination = target / path.relative_to(folder)
-            destination.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(path, destination)
-            copied += path.stat().st_size
+        rel = path.relative_to(folder).as_posix()
+        there = target / rel
+        if path.is_file() and there.exists() and (rel not in written or not there.is_file()
+                                                  or sha256_file(there) != written[rel]):
+            raise InputError(there, "exists and was not written by an earlier `nerfpipe export` (or was changed since)",
+                             "move it away, or pass --to a new folder")
+    if not os.access(target, os.W_OK | os.X_OK):
+        raise InputError(target, "cannot be written to (permission denied)", "pass --to a folder you may write to")
+    return written
+
+
+def copy_exports(folder: Path, target: Path, run_dir: Path) -> int:
+    """Copy an exports folder to ``target`` (created), checked first by ``check_export_target``: files an
+    earlier export wrote are replaced, nothing else is. Returns the bytes copied."""
+    written = check_export_target(folder, target, run_dir)
+    files = [p for p in sorted(folder.rglob("*")) if p.is_file()]
+    if not files:
+        raise InputError(folder, "holds no exports yet", "run `nerfpipe run` to the end first")
+    target.mkdir(parents=True, exist_ok=True)
+    copied = 0
+    for path in files:
+        rel = path.relative_to(folder).as_posix()
+        destination = target / rel
+        destination.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(path, destination)
+        written[rel] = sha256_file(destination)
+        copied += path.stat().st_size
+        write_json_atomic(target / EXPORT_LIST, {"files": written})  # after each file: an interrupted copy is known
     return copied
 
 
-def _link_or_copy(source: Path, target: Path) -> None:
+def _export_list(target: Path) -> dict[str, str]:
+    try:
+        files = json.loads((target / EXPORT_LIST).read_text(encoding="utf-8"))["files"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
+    return {k: v for k, v in files.items() if isinstance(k, str) and isinstance(v, str)} if isinstance(files, dict) else {}
+
+
+def _copy(source: Path, target: Path) -> None:
+    """A copy, never a link: an edit of the export must not reach the cached result."""
     target.parent.mkdir(parents=True, exist_ok=True)
     if source.is_dir():
         for path in sorted(source.rglob("*")):
             if path.is_file():
-                _link_or_copy(path, target / path.relative_to(source))
+                _copy(path, target / path.relative_to(source))
         return
-    try:
-        os.link(source, target)
-    except OSError:
-        shutil.copyfile(source, target)
+    shutil.copyfile(source, target)

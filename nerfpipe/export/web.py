@@ -26,7 +26,8 @@ import numpy as np
 
 from nerfpipe.export.mesh import Mesh
 from nerfpipe.export.points import Cloud
-from nerfpipe.pipeline.errors import ParamError
+from nerfpipe.export.web_guard import LOOPBACK_NAMES, Gate, guarded, probe
+from nerfpipe.pipeline.errors import NerfpipeError, ParamError
 
 log = logging.getLogger("nerfpipe")
 
@@ -77,6 +78,7 @@ class WebViewer:
 
     server: Any
     scene: WebScene
+    gate: Gate
     mesh: Any = None
     points: Any = None
     frusta: list[Any] = field(default_factory=list)
@@ -86,9 +88,10 @@ class WebViewer:
 
     @property
     def url(self) -> str:
+        """The URL to open: the only one the viewer answers, since it carries the gate's token."""
         host = self.server.get_host()
         shown = "localhost" if host in LOOPBACK else f"[{host}]" if ":" in host else host
-        return f"http://{shown}:{self.server.get_port()}"
+        return f"http://{shown}:{self.server.get_port()}/?token={self.gate.token}"
 
     def stop(self) -> None:
         self._stop.set()
@@ -116,19 +119,34 @@ def check_address(host: str, port: int) -> None:
                                  f"{host}; try --port {free.getsockname()[1]}") from None
 
 
-def serve(scene: WebScene, host: str = "127.0.0.1", port: int = 8080) -> WebViewer:
+def serve(scene: WebScene, host: str = "127.0.0.1", port: int = 8080, share: bool = False) -> WebViewer:
     """Start the viewer on ``host``:``port`` (this machine only, by default: the page shows the run's photos);
-    it serves until ``stop()``. The live render runs in one thread per browser tab."""
+    it serves until ``stop()``. The live render runs in one thread per browser tab.
+
+    Only requests with the token of ``WebViewer.url`` are answered (``web_guard``), with a loopback ``Host``
+    unless ``host`` is another address, and WebSockets only from the viewer's own origin. ``share`` shows
+    viser's share button, which publishes the viewer, photos included, through viser's public tunnel."""
     import viser
 
     check_address(host, port)
     if host not in LOOPBACK:
-        log.warning("web viewer: listening on %s: anyone who can reach this machine on port %d sees the run's "
-                    "photos, cameras and model", host, port)
-
-    server = viser.ViserServer(host=host, port=port, verbose=False)
+        log.warning("web viewer: listening on %s: anyone who can reach this machine on port %d and has the URL "
+                    "(its token) sees the run's photos, cameras and model", host, port)
+    gate = Gate(port, hosts=LOOPBACK_NAMES if host in LOOPBACK else ())
+    server = guarded(gate, lambda: viser.ViserServer(host=host, port=port, verbose=False))
+    gate.port = server.get_port()
+    if probe(host, gate.port, {"Host": f"localhost:{gate.port}"}) != 403:  # the gate is not in front: fail closed
+        server.stop()
+        raise NerfpipeError(f"the web viewer cannot check who connects with viser {viser.__version__}; not serving "
+                            "the run (install the viser version nerfpipe was tested with)")
+    server.gui.configure_theme(show_share_button=share)
+    if share:
+        log.warning("web viewer: the share button publishes this viewer, the run's photos included, on a public "
+                    "URL through viser's tunnel service, for anyone who has that URL")
+    else:  # a page without the button could still send viser's share request
+        server.request_share_url = lambda *args, **kwargs: None
     server.scene.set_up_direction("+z")
-    viewer = WebViewer(server, scene)
+    viewer = WebViewer(server, scene, gate)
     # with a live render the geometry starts hidden (the render is behind it); the scene tree shows each
     if scene.mesh is not None:
         colors = scene.mesh.colors if scene.mesh.colors is not None else np.full((len(scene.mesh.vertices), 3), 0.7)

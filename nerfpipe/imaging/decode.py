@@ -12,7 +12,9 @@ never written to.
 
 from __future__ import annotations
 
+import hashlib
 import io
+import logging
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,12 +34,14 @@ from nerfpipe.imaging.integrity import (
 )
 from nerfpipe.imaging.tiff import open_tiff, read_ifd
 from nerfpipe.imaging.video import VIDEO_EXTENSIONS
-from nerfpipe.pipeline.errors import BadPhotoError
+from nerfpipe.pipeline.errors import BadPhotoError, InputError
+
+log = logging.getLogger("nerfpipe")
 
 PhotoKind = Literal["jpeg", "png", "tiff", "raw"]
 
 
-IMAGE_EXTENSIONS = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff"})
+IMAGE_EXTENSIONS = frozenset({".jpg", ".jpeg", ".jpe", ".jfif", ".png", ".tif", ".tiff"})
 # The camera RAW formats LibRaw opens (LibRaw's list of supported formats, by file extension).
 RAW_EXTENSIONS = frozenset(
     {
@@ -58,6 +62,8 @@ SIDECAR_EXTENSIONS = frozenset(
 _KIND_BY_EXTENSION: dict[str, PhotoKind] = {
     ".jpg": "jpeg",
     ".jpeg": "jpeg",
+    ".jpe": "jpeg",
+    ".jfif": "jpeg",
     ".png": "png",
     ".tif": "tiff",
     ".tiff": "tiff",
@@ -257,13 +263,16 @@ def apply_orientation(image: np.ndarray, orientation: int) -> np.ndarray:
     return np.ascontiguousarray(upright)
 
 
-def read_photo(path: Path, raw: RawOptions = RawOptions(), limits: SizeLimits = SizeLimits()) -> DecodedPhoto:
+def read_photo(path: Path, raw: RawOptions = RawOptions(), limits: SizeLimits = SizeLimits(),
+               sha256: str | None = None) -> DecodedPhoto:
     """Read, check and decode one photo into upright RGB(A) pixels (see ``DecodedPhoto``).
 
     JPEG, PNG and TIFF are decoded by OpenCV without its own orientation handling, and the EXIF orientation
     is applied here; camera RAW is developed by LibRaw (rawpy) as 16-bit sRGB following ``raw``.
     Raises ``BadPhotoError`` for unsupported, unreadable, empty, truncated or undecodable files, and
-    ``PhotoSizeError`` for a photo outside ``limits``, from its header, before decoding it.
+    ``PhotoSizeError`` for a photo outside ``limits``, from its header, before decoding it. ``sha256``: the
+    hash the file was cached under; bytes read that hash otherwise (the file changed since) raise ``InputError``,
+    so pixels are never stored under another file's hash.
     """
     path = Path(path)
     kind = photo_kind(path)
@@ -279,6 +288,9 @@ def read_photo(path: Path, raw: RawOptions = RawOptions(), limits: SizeLimits = 
         raise BadPhotoError(
             path, f"cannot be read ({err.strerror or err})", "check that it exists and that you may read it"
         ) from err
+    if sha256 is not None and hashlib.sha256(data).hexdigest() != sha256:
+        raise InputError(path, "changed while nerfpipe was reading it (its content is not what was hashed when the "
+                               "run began)", "let whatever writes it finish, then run again")
     check_integrity(path, data, kind)
     exif = read_exif(data)
     if kind == "raw":
@@ -310,6 +322,8 @@ def _decode_image(path: Path, data: bytes, exif: ExifSummary) -> DecodedPhoto:
         ) from err
     if stored is None or stored.size == 0:
         raise BadPhotoError(path, f"cannot be decoded (corrupt or not really a {container_name})", RECOPY_ADVICE)
+    if container == "tiff":
+        stored = _tiff_colour_model(path, data, stored)
     pixels = _to_rgb(path, stored)
     pixels = apply_orientation(pixels, exif.orientation)
     return DecodedPhoto(
@@ -355,6 +369,33 @@ def _tiff_with_stored_orientation(data: bytes) -> bytes:
     return bytes(patched)
 
 
+# Pillow's modes of a TIFF whose 4th channel is alpha (ExtraSamples 1 or 2), and those OpenCV decodes as they are
+_TIFF_ALPHA_MODES = frozenset({"RGBA", "RGBa", "LA", "La", "PA"})
+_TIFF_PLAIN_MODES = frozenset({"1", "L", "P", "RGB", "RGBX", "YCbCr", "I", "I;16", "I;16B", "I;16L", "I;16N", "F",
+                               *_TIFF_ALPHA_MODES})
+
+
+def _tiff_colour_model(path: Path, data: bytes, stored: np.ndarray) -> np.ndarray:
+    """OpenCV's decoding of a TIFF, made true to its colour model (its header, read by Pillow): CMYK converted
+    to RGB (OpenCV passes it as BGR plus a constant 255 that reads as alpha), a 4th channel that is no alpha
+    (RGBX) dropped, and a model neither converts (CIE Lab, ...) refused rather than shown in false colours."""
+    from PIL import Image
+
+    try:
+        with Image.open(io.BytesIO(data)) as image:
+            mode = image.mode
+            if mode == "CMYK":
+                rgb = np.asarray(image.convert("RGB"))
+                return np.ascontiguousarray(rgb[:, :, ::-1])  # as OpenCV's BGR
+    except (OSError, ValueError):  # a TIFF Pillow cannot parse but OpenCV decoded: as OpenCV has it
+        return stored
+    if mode not in _TIFF_PLAIN_MODES:
+        raise BadPhotoError(path, f"is a TIFF in the {mode} colour model", "export it as RGB (8 or 16 bits)")
+    if stored.ndim == 3 and stored.shape[2] == 4 and mode not in _TIFF_ALPHA_MODES:
+        return np.ascontiguousarray(stored[:, :, :3])
+    return stored
+
+
 def _to_rgb(path: Path, stored: np.ndarray) -> np.ndarray:
     """OpenCV's (H, W), (H, W, 2/3/4) BGR(A) array as (H, W, 3) RGB or (H, W, 4) RGBA, uint8 or uint16.
 
@@ -362,6 +403,11 @@ def _to_rgb(path: Path, stored: np.ndarray) -> np.ndarray:
     with two dtypes only.
     """
     if stored.dtype.kind == "f":
+        brightest = float(np.nanmax(stored)) if stored.size else 0.0
+        if brightest > 1.0:
+            clipped = float(np.mean(stored > 1.0))
+            log.warning("%s: float samples up to %.3g, above 1.0 (HDR): %.1f %% of them clipped to white; tone-map "
+                        "it to [0, 1] first to keep its highlights", path, brightest, 100 * clipped)
         stored = np.round(np.clip(np.nan_to_num(stored, nan=0.0), 0.0, 1.0) * 65535.0).astype(np.uint16)
     elif stored.dtype not in (np.uint8, np.uint16):
         raise BadPhotoError(

@@ -31,7 +31,8 @@ from nerfpipe.pipeline.lock import RunLock
 from nerfpipe.pipeline.params import build_params
 from nerfpipe.pipeline.runner import Pipeline
 from nerfpipe.pipeline.stage import Stage
-from nerfpipe.pipeline.store import write_json_atomic
+from nerfpipe.pipeline.plan import check_run_dir
+from nerfpipe.pipeline.store import ArtifactStore, write_json_atomic
 
 log = logging.getLogger("nerfpipe")
 
@@ -95,6 +96,10 @@ def find_captures(root: Path) -> list[Path]:
         raise InputError(root, "does not exist" if not root.exists() else "is not a folder",
                          "pass a folder that holds one folder per capture")
     captures = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))
+    for capture in captures:
+        if capture.name == SUMMARY:  # its run directory would be the batch's summary file
+            raise InputError(capture, f"is named like the batch's summary file {SUMMARY}",
+                             "rename the capture folder")
     if not captures:
         raise InputError(root, "has no capture folders inside", "put each capture's photos in a folder of its own there")
     return captures
@@ -205,6 +210,8 @@ class Batch:
         capture.state = "running"
         settings = self.settings
         try:
+            check_run_dir(capture.source, capture.run_dir)
+            ArtifactStore(capture.run_dir).prepare()  # refuses a folder of the user's before the lock file lands in it
             lock = RunLock(capture.run_dir)
             lock.acquire()
             capture._lock = lock

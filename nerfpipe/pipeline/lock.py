@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 from nerfpipe.pipeline.errors import RunLockedError
+from nerfpipe.pipeline.store import LOCK_NAME
 
 log = logging.getLogger("nerfpipe")
 
@@ -72,7 +73,7 @@ class RunLock(FileLock):
     """One run at a time in a run directory: a second one fails at once, naming the holder."""
 
     def __init__(self, run_dir: Path) -> None:
-        super().__init__(run_dir / ".lock")
+        super().__init__(run_dir / LOCK_NAME)
 
     def acquire(self) -> None:
         holder = self.try_acquire()

@@ -16,7 +16,7 @@ from nerfpipe.pipeline.fingerprint import Fingerprint, FingerprintCache, diff_in
 from nerfpipe.pipeline.hashing import cache_key
 from nerfpipe.pipeline.params import build_params, describe_changes, params_to_dict
 from nerfpipe.pipeline.stage import Stage, capture_root
-from nerfpipe.pipeline.store import Committed, Damage
+from nerfpipe.pipeline.store import MANAGED, Committed, Damage
 
 
 @dataclass(frozen=True)
@@ -37,12 +37,19 @@ class PlannedStage:
 
 def check_run_dir(source: Path, run_dir: Path) -> None:
     """Refuse a run directory that is the capture folder or lies inside it (its renders and screenshots would be
-    read as photos by the next run)."""
-    if source.is_dir():
-        root, out = source.resolve(), run_dir.resolve()
-        if out == root or root in out.parents:
-            raise ParamError(f"--out {run_dir} lies inside the capture folder {source}: what a run writes there would "
-                             "be read as photos; choose a folder outside it")
+    read as photos by the next run), and a capture inside a folder the run replaces (``exports/``, ``report/``,
+    ``logs/``, ``stages/``...: the run would delete the photos it reads)."""
+    if str(run_dir).strip() == "":
+        raise ParamError("--out is empty; pass the run directory, e.g. --out runs/photos")
+    root, out = source.resolve(), run_dir.resolve()
+    if source.is_dir() and (out == root or root in out.parents):
+        raise ParamError(f"--out {run_dir} lies inside the capture folder {source}: what a run writes there would "
+                         "be read as photos; choose a folder outside it")
+    for managed in MANAGED:
+        folder = out / managed
+        if root == folder or folder in root.parents:
+            raise ParamError(f"the capture {source} lies inside {folder}, which a run into --out {run_dir} writes "
+                             "and replaces; copy the photos elsewhere, or choose another --out")
 
 
 def plan_stages(dag: Dag, source: Path, run_dir: Path, preset: str | None,

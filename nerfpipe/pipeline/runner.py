@@ -30,6 +30,7 @@ from nerfpipe.pipeline.errors import (
 from nerfpipe.pipeline.lock import RunLock, StageLock
 from nerfpipe.pipeline.logfile import log_to_file
 from nerfpipe.pipeline.plan import (
+    check_run_dir,
     PlannedStage,
     StageOutcome,
     StageStatus,
@@ -221,6 +222,7 @@ class Pipeline:
                 chosen = f"--until {until}" if until else f"--only {only}"
                 raise ParamError(f"--force {name}: not among the stages {chosen} runs; drop --force or choose stages that include it")
             forced |= {name} | self.dag.descendants(name)
+        check_run_dir(self.source, self.run_dir)
         self.store.prepare()
         with self._user_os_errors(), RunLock(self.run_dir), self._log_to_file():
             planned = self.plan()

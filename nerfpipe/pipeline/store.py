@@ -2,6 +2,7 @@
 
 Layout of a run directory::
 
+    .nerfpipe-run                 the marker: nerfpipe made this folder, and may replace what it made in it
     run.json                      the capture folder and settings of the last `nerfpipe run`
     stages/<stage>/<key>/         a committed result; manifest.json is always written last
     stages/<stage>/latest.json    which key the last run used
@@ -39,6 +40,25 @@ from nerfpipe.pipeline.hashing import sha256_file
 
 MANIFEST = "manifest.json"
 BROKEN = "broken"
+RUN_MARKER = ".nerfpipe-run"
+LOCK_NAME = ".lock"  # ``RunLock``'s file
+# the folders of a run directory that nerfpipe writes, and replaces whole (exports/, report/): a capture
+# inside one of them would be read while it is being replaced
+MANAGED = ("stages", ".work", BROKEN, ".cache", "logs", "exports", "report", "bench")
+
+
+def is_run_dir(folder: Path) -> bool:
+    """Whether nerfpipe made ``folder``: it carries the marker, or it is a run directory from before the marker
+    (``run.json`` and ``stages/`` beside it)."""
+    return (folder / RUN_MARKER).is_file() or ((folder / "run.json").is_file() and (folder / "stages").is_dir())
+
+
+def require_run_dir(folder: Path, what: str) -> None:
+    """Raise ``InputError`` unless nerfpipe made ``folder``: ``what`` (e.g. "the report") is replaced only
+    inside a run directory, never in a folder of the user's."""
+    if not is_run_dir(folder):
+        raise InputError(folder, f"is not a folder nerfpipe made (no {RUN_MARKER}), so {what} is not written "
+                                 "into it", "pass the --out folder of a run, or a new folder")
 
 
 def write_json_atomic(path: Path, value: Any) -> None:
@@ -162,6 +182,9 @@ class ArtifactStore:
             return Damage(folder, MANIFEST, "is not readable JSON")
         if not _well_formed(manifest):
             return Damage(folder, MANIFEST, "has no key or outputs, or an output without its size and sha256")
+        if manifest["key"] != key or manifest.get("stage", stage) != stage:
+            return Damage(folder, MANIFEST, f"belongs to another result ({manifest.get('stage', stage)} "
+                                            f"{manifest['key'][:12]}), not to the folder {stage}/{key[:12]}")
         return verify_outputs(folder, manifest["outputs"], full) or Committed(folder, manifest)
 
     def get(self, stage: str, key: str) -> Committed | None:
@@ -207,6 +230,21 @@ class ArtifactStore:
             raise InputError(where, "is on a read-only filesystem", "pass --out a folder on a writable disk")
         if not os.access(where, os.W_OK | os.X_OK):
             raise InputError(where, "cannot be written to (permission denied)", "pass --out a folder you may write to")
+        self._claim()
+
+    def _claim(self) -> None:
+        """Mark a new or empty folder as nerfpipe's; refuse a folder of the user's that holds anything, since a
+        run replaces its ``exports/``, ``report/``, ``logs/`` and ``stages/`` whole."""
+        where = self.run_dir
+        if (where / RUN_MARKER).is_file():
+            return
+        if not is_run_dir(where):
+            entries = sorted(p.name for p in where.iterdir() if p.name != LOCK_NAME)  # a racing run's lock is ours
+            if entries:
+                shown = ", ".join(entries[:3]) + (f" and {len(entries) - 3} more" if len(entries) > 3 else "")
+                raise InputError(where, f"is a folder nerfpipe did not make, and holds {shown}",
+                                 "pass --out a new or empty folder, or the folder of an earlier run")
+        write_json_atomic(where / RUN_MARKER, {"made_by": "nerfpipe", "at": time.time()})
 
     def begin(self, stage: str, key: str, resume: bool = False) -> Path:
         """The work folder for (stage, key), inside the run directory (same filesystem).

@@ -17,9 +17,10 @@ Layouts (little-endian):
 
 from __future__ import annotations
 
+import math
 import struct
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 from nerfpipe.pipeline.errors import InputError
 
@@ -71,7 +72,9 @@ def _images(r: _Reader) -> str | None:
     if count == 0:
         return "holds no images"
     for _ in range(count):
-        r.take("<I4d3dI")
+        image_id, *qvec = r.take("<I4d3dI")[:5]
+        if problem := quaternion_problem(qvec):
+            return f"image {image_id}: {problem}"
         r.name()
         r.skip(r.take("<Q")[0], 24)
     return None
@@ -86,6 +89,33 @@ def _points(r: _Reader) -> str | None:
 
 WALKS: dict[str, Callable[[_Reader], str | None]] = {"cameras.bin": _cameras, "images.bin": _images,
                                                     "points3D.bin": _points}
+
+
+def quaternion_problem(qvec: Sequence[float]) -> str | None:
+    """Why a COLMAP (qw, qx, qy, qz) is no rotation, or ``None``. pycolmap normalizes what it reads, so a zero
+    quaternion would become the identity without a word."""
+    norm = math.sqrt(sum(q * q for q in qvec)) if all(math.isfinite(q) for q in qvec) else math.nan
+    if not math.isfinite(norm):
+        return "its quaternion holds a non-finite value"
+    if norm < 1e-6:
+        return "its quaternion is zero, which is no rotation"
+    return None
+
+
+def check_text_images(images_txt: Path) -> None:
+    """Raise ``InputError`` for an ``images.txt`` line whose quaternion is no rotation (see ``quaternion_problem``)."""
+    data_lines = (line for line in images_txt.read_text(encoding="utf-8", errors="replace").splitlines()
+                  if line.strip() and not line.lstrip().startswith("#"))
+    for i, line in enumerate(data_lines):
+        if i % 2:  # the second line of each image: its 2D points
+            continue
+        fields = line.split()
+        try:
+            qvec = [float(v) for v in fields[1:5]]
+        except ValueError:
+            continue  # pycolmap's reader says what is wrong with the line
+        if len(qvec) == 4 and (problem := quaternion_problem(qvec)):
+            raise InputError(images_txt, f"image {fields[0]}: {problem}", ADVICE)
 
 
 def check_binary_model(model_dir: Path) -> None:

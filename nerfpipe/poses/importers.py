@@ -44,7 +44,7 @@ from nerfpipe.geometry.cameras import (
     pose_from_rt,
 )
 from nerfpipe.pipeline.errors import InputError
-from nerfpipe.poses.colmap_files import check_binary_model
+from nerfpipe.poses.colmap_files import check_binary_model, check_text_images
 from nerfpipe.poses.layout import IMAGE_SUFFIXES, CaptureLayout, _read_json, resolve_inside
 from nerfpipe.poses.llff import import_llff
 from nerfpipe.poses.middlebury import import_middlebury
@@ -103,6 +103,11 @@ def import_colmap(layout: CaptureLayout, photos: Photos) -> CameraSet:
             raise InputError(images_file, f"{where} uses the COLMAP camera model {model}, which nerfpipe does not support",
                              f"use one of {', '.join(CAMERA_MODELS)} (or undistort the images first)")
         cam = Camera(model, int(camera.width), int(camera.height), tuple(float(p) for p in camera.params))
+        if not (cam.fx > 0 and cam.fy > 0 and math.isfinite(cam.fx * cam.fy) and cam.width > 0 and cam.height > 0):
+            raise InputError(images_file.with_name(f"cameras{images_file.suffix}"),
+                             f"camera {image.camera_id} has focal length {cam.fx:g} x {cam.fy:g} px at "
+                             f"{cam.width}x{cam.height}; a focal length is a positive number of pixels",
+                             "fix the camera, or remove the model to let SfM compute the poses")
         w2c = np.vstack([np.asarray(image.cam_from_world().matrix(), dtype=np.float64), [0.0, 0.0, 0.0, 1.0]])
         if not np.all(np.isfinite(w2c)):
             raise InputError(images_file, f"{where}: the pose holds a non-finite value", "re-run or re-export the model")
@@ -131,6 +136,8 @@ def read_colmap_model(model_dir: Path) -> Any:
     ext = ".bin" if (model_dir / "images.bin").is_file() else ".txt"
     if ext == ".bin":
         check_binary_model(model_dir)  # counts pycolmap would trust, checked against the files' sizes
+    elif (model_dir / "images.txt").is_file():
+        check_text_images(model_dir / "images.txt")  # zero quaternions, which pycolmap reads as the identity
     if (model_dir / f"points3D{ext}").is_file():
         return read(model_dir)
     with tempfile.TemporaryDirectory() as tmp:  # cameras + images with known poses and no points yet
@@ -171,7 +178,7 @@ def import_transforms(layout: CaptureLayout, photos: Photos) -> CameraSet:
     table = CameraTable()
     frames: list[Frame] = []
     unregistered: list[str] = []
-    seen: set[str] = set()
+    seen: dict[str, np.ndarray] = {}  # each photo's transform_matrix, as first given
     hints = PoseHints(relative_names(layout, layout.pose_files))
     for pose_file in layout.pose_files:
         doc = _read_json(pose_file)
@@ -181,11 +188,14 @@ def import_transforms(layout: CaptureLayout, photos: Photos) -> CameraSet:
         for i, entry in enumerate(doc["frames"]):
             path = resolve_inside(layout.capture, entry["file_path"], pose_file, IMAGE_SUFFIXES)
             relpath = photos.relpath(path)
-            if relpath in seen:  # the same photo in two files: the first wins, as in layout.splits
-                continue
-            seen.add(relpath)
             where = f"frame {i} ({entry['file_path']})"
             c2w_gl = transform_matrix(entry, pose_file, where)
+            if relpath in seen:  # the same photo twice: the first wins, as in layout.splits, if the poses agree
+                if not np.allclose(seen[relpath], c2w_gl, atol=1e-6):
+                    raise InputError(pose_file, f"{where} repeats {relpath} with another pose than before",
+                                     "keep one frame per photo")
+                continue
+            seen[relpath] = c2w_gl
             record = photos.record(path)
             if record is None:
                 unregistered.append(photos.name(path))

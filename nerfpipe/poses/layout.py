@@ -135,6 +135,8 @@ def _read_json(path: Path) -> dict:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, ValueError) as err:
         raise InputError(path, f"is not valid JSON ({err})", "fix or remove the pose file") from None
+    except RecursionError:
+        raise InputError(path, "nests its JSON too deeply to be a pose file", "fix or remove the pose file") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("frames"), list):
         raise InputError(path, "has no \"frames\" list", "a transforms.json needs a frames list with file_path entries")
     return doc

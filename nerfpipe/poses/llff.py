@@ -3,6 +3,8 @@ axes (down, right, backwards)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from nerfpipe.artifacts import PHOTO_SUBFOLDER
@@ -33,6 +35,7 @@ def import_llff(layout: CaptureLayout, photos: Photos) -> CameraSet:
         # np.load would try to read it as a pickle and say so, hinting at allow_pickle: never for a pose file
         raise InputError(pose_file, "is not a NumPy .npy file (it does not start with the .npy signature)",
                          "regenerate it with LLFF's imgs2poses, or remove it to let SfM compute the poses")
+    check_npy_header(pose_file)
     try:
         array = np.load(pose_file, allow_pickle=False)
     except (OSError, ValueError, EOFError) as err:
@@ -74,3 +77,27 @@ def import_llff(layout: CaptureLayout, photos: Photos) -> CameraSet:
         bounds[record["name"]] = [near, far]
     return CameraSet(table.cameras, frames, None, "llff", sorted(unregistered),
                      PoseHints(relative_names(layout, layout.pose_files), llff_bounds=bounds))
+
+
+def check_npy_header(pose_file: Path) -> None:
+    """Raise ``InputError`` for a ``.npy`` whose header promises another shape than (N, 17) or more data than the
+    file holds: ``np.load`` would allocate what the header says before reading (10^9 rows: 127 GiB)."""
+    from numpy.lib import format as npy
+
+    try:
+        with open(pose_file, "rb") as f:
+            version = npy.read_magic(f)
+            read_header = {(1, 0): npy.read_array_header_1_0, (2, 0): npy.read_array_header_2_0}.get(version)
+            if read_header is None:
+                raise ValueError(f"format version {version} is not one of a plain number array")
+            shape, _, dtype = read_header(f)
+            offset = f.tell()
+    except (OSError, ValueError, SyntaxError) as err:
+        raise InputError(pose_file, f"has a damaged .npy header ({err})", "regenerate it with LLFF's imgs2poses") from None
+    if len(shape) != 2 or shape[1] != 17:
+        raise InputError(pose_file, f"has shape {shape}; poses_bounds.npy must be (N, 17): a 3x5 [R | t | hwf] pose "
+                         "and near, far per image", "regenerate it with LLFF's imgs2poses")
+    needed = shape[0] * shape[1] * dtype.itemsize
+    if offset + needed > pose_file.stat().st_size:
+        raise InputError(pose_file, f"claims {shape[0]} rows, more than its {pose_file.stat().st_size} bytes hold",
+                         "copy it again, or regenerate it with LLFF's imgs2poses")

@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 from typing import Any, Sequence
 
+from nerfpipe.pipeline.store import require_run_dir
 from nerfpipe.report.data import gather
 from nerfpipe.report.sections import SECTIONS
 
@@ -39,6 +40,7 @@ def write_report(run_dir: Path, stages: Sequence[Any] | None = None) -> Path:
 
     ``stages``: the pipeline's stages, by default ``nerfpipe.stages.default_stages()``.
     """
+    require_run_dir(run_dir, "the report")
     folder = run_dir / "report"
     run = gather(run_dir, stages, folder)
     if folder.exists():

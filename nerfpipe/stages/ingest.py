@@ -70,6 +70,7 @@ class IngestParams:
 
 
 PNG_SHARE = 0.2  # PNG bytes / pixel bytes of a typical photo, for the free-space check
+MAX_ASPECT = 10  # a photo longer than this many times its width is no camera view (panoramas: 2-8)
 MIN_VIDEO_FRAMES = 3  # fewer views than SfM can reconstruct from: refused at ingest, naming the video
 
 
@@ -290,7 +291,7 @@ class IngestStage(Stage):
             )
         limits = SizeLimits(params.min_size, round(params.max_megapixels * 1e6))
         try:
-            photo = read_photo(path, raw, limits)
+            photo = read_photo(path, raw, limits, sha256=fp.sha256)
         except PhotoSizeError as err:
             if err.too == "small":
                 problem = f"{err.problem}, below ingest.min_size={params.min_size}"
@@ -302,6 +303,10 @@ class IngestStage(Stage):
             raise BadPhotoError(path, problem, advice) from None
         pixels = photo.pixels
         src_w, src_h = photo.source_size
+        if max(src_w, src_h) > MAX_ASPECT * min(src_w, src_h):
+            raise BadPhotoError(path, f"is {src_w}x{src_h} pixels, {max(src_w, src_h) / min(src_w, src_h):.0f} times "
+                                f"as long as it is wide: no camera view (at most {MAX_ASPECT}:1 is taken)",
+                                "remove it from the photo folder or pass --skip-bad")
         width, height = target_size(src_w, src_h, params.max_size)
         if (width, height) != (src_w, src_h):
             pixels = cv2.resize(pixels, (width, height), interpolation=cv2.INTER_AREA)

@@ -99,6 +99,12 @@ class UndistortStage(Stage):
 
         displacement = {cid: max_distortion_displacement(camera) for cid, camera in model.cameras.items()}
         to_undistort = sorted(cid for cid, d in displacement.items() if d > params.threshold_px)
+        for cid, camera in sorted(model.cameras.items()):
+            if not np.all(np.abs(camera.distortion()) <= MAX_COEFFICIENT):  # NaN too
+                coefficients = ", ".join(f"{c:g}" for c in camera.distortion() if c)
+                ctx.log.warning("undistort: camera %d's distortion coefficients (%s) are far beyond any lens's (within "
+                                "+-%g): the undistorted photos will be wrong; check the calibration in the pose file",
+                                cid, coefficients, MAX_COEFFICIENT)
         frames_of: dict[int, list[Frame]] = {cid: [] for cid in model.cameras}
         for frame in model.frames:
             frames_of[frame.camera_id].append(frame)
@@ -196,6 +202,7 @@ class UndistortStage(Stage):
         return "; ".join(parts)
 
 
+MAX_COEFFICIENT = 10.0  # radial and tangential coefficients of real lenses, fisheyes included, stay well within this
 LOG_PER_CAMERA_MAX = 3  # up to this many undistorted cameras the log line names each one
 
 

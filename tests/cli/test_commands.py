@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import importlib.metadata
+import os
 import re
 import shutil
 import subprocess
+import sys
 
 import pytest
 
@@ -91,7 +93,11 @@ def test_ci_script_runs_the_readme_test_command():
 def test_version_completion_and_defaults_in_help():
     version = run_cli("--version")
     assert version.returncode == 0 and version.stdout.strip() == f"nerfpipe {importlib.metadata.version('nerfpipe')}"
-    completion = run_cli("--show-completion", "bash")
+    # typer takes the shell as a value only with detection off; detection walks the process tree, which has no
+    # shell under a detached job
+    env = {**os.environ, "_TYPER_COMPLETE_TEST_DISABLE_SHELL_DETECTION": "1"}
+    completion = subprocess.run([sys.executable, "-m", "nerfpipe", "--show-completion", "bash"], capture_output=True,
+                                text=True, env=env, timeout=60)
     assert completion.returncode == 0 and "complete" in completion.stdout and "nerfpipe" in completion.stdout
     help_text = " ".join(run_cli("run", "--help").stdout.split())
     assert "[default: runs/<photos folder name>]" in help_text  # not swallowed as markup

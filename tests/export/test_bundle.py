@@ -1,5 +1,5 @@
 """RUN_DIR/exports: transforms.json round-trips through nerfpipe's own importer, the COLMAP text model
-through pycolmap, and the folder is written anew with links to the results."""
+through pycolmap, and the folder is written anew with copies of the results, only inside a run directory."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import pytest
 
 from nerfpipe.export.bundle import collect, colmap_text, copy_exports, transforms_json
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
+from nerfpipe.pipeline import ArtifactStore, InputError
 from nerfpipe.poses.importers import import_poses
 from nerfpipe.poses.layout import detect_layout
 from tests.helpers import TEMPLE, look_at
@@ -68,7 +69,8 @@ def test_the_colmap_text_model_reads_back_in_pycolmap(tmp_path):
         assert camera.model.name == "PINHOLE" and list(camera.params) == list(exported.cameras[frame.camera_id].params)
 
 
-def test_collect_links_the_results_and_writes_the_folder_anew(tmp_path):
+def test_collect_copies_the_results_and_writes_the_folder_anew(tmp_path):
+    ArtifactStore(tmp_path / "run").prepare()  # a run directory nerfpipe made
     results = tmp_path / "stages"
     (results / "depth").mkdir(parents=True)
     (results / "mesh.glb").write_bytes(b"glTF")
@@ -82,11 +84,22 @@ def test_collect_links_the_results_and_writes_the_folder_anew(tmp_path):
                                                            "transforms.json", "images", "colmap"}
     assert "points.ply" in first.missing and "render.mp4" in first.missing
     assert (folder / "mesh.glb").read_bytes() == b"glTF" and (folder / "depth" / "a.depth.npy").is_file()
-    assert (folder / "mesh.glb").stat().st_ino == (results / "mesh.glb").stat().st_ino  # a link: no space taken
+    # a copy: an edit of the export cannot reach the cached result through a hard link
+    assert (folder / "mesh.glb").stat().st_ino != (results / "mesh.glb").stat().st_ino
+    (folder / "mesh.glb").write_bytes(b"edited")
+    assert (results / "mesh.glb").read_bytes() == b"glTF"
     assert sorted(p.name for p in (folder / "images").iterdir()) == list(NAMES)
     (folder / "stale.txt").write_text("from an earlier run")
     again = collect(tmp_path / "run", {"mesh_glb": results / "mesh.glb"}, None, {})
     assert again.names == ("mesh.glb",) and sorted(p.name for p in folder.iterdir()) == ["mesh.glb"]
-    copied = copy_exports(folder, tmp_path / "elsewhere")
+    copied = copy_exports(folder, tmp_path / "elsewhere", tmp_path / "run")
     assert copied == 4 and (tmp_path / "elsewhere" / "mesh.glb").read_bytes() == b"glTF"
     assert (tmp_path / "elsewhere" / "mesh.glb").stat().st_ino != (results / "mesh.glb").stat().st_ino
+
+
+def test_collect_writes_no_exports_into_a_folder_nerfpipe_did_not_make(tmp_path):
+    (tmp_path / "docs" / "exports").mkdir(parents=True)
+    (tmp_path / "docs" / "exports" / "taxes.csv").write_text("1,2")
+    with pytest.raises(InputError, match="is not a folder nerfpipe made"):
+        collect(tmp_path / "docs", {}, None, {})
+    assert (tmp_path / "docs" / "exports" / "taxes.csv").read_text() == "1,2"

@@ -13,6 +13,7 @@ import torch
 
 from nerfpipe.export import web
 from nerfpipe.export.web import FAST_WIDTH, SHARP_WIDTH, WebScene, WebViewer
+from nerfpipe.export.web_guard import Gate
 
 
 class CountingModel:
@@ -43,7 +44,7 @@ class FakeClient:
 def watch(scene: WebScene, client: FakeClient, seconds: float, move_at: float | None = None) -> None:
     """Run the live render for ``seconds`` against a fake server holding ``client``, moving its camera once."""
     server = SimpleNamespace(get_clients=lambda: {client.client_id: client})
-    viewer = WebViewer(server, scene)
+    viewer = WebViewer(server, scene, Gate(0))
     client.camera.update_timestamp = time.time()  # the view has just been set
     thread = threading.Thread(target=web._live_render, args=(viewer, client), daemon=True)
     thread.start()
@@ -110,7 +111,7 @@ def test_the_viewer_listens_on_this_machine_only_and_says_so_in_its_url(caplog) 
     viewer = web.serve(WebScene(frames=[]), port=port)
     try:
         assert listening_addresses(port) == {"127.0.0.1"}
-        assert viewer.url == f"http://localhost:{port}"
+        assert viewer.url == f"http://localhost:{port}/?token={viewer.gate.token}"
         assert "anyone who can reach this machine" not in caplog.text
     finally:
         viewer.stop()

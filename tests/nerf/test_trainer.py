@@ -64,10 +64,17 @@ def test_the_batch_grows_smoothly_when_rays_get_shorter(tmp_path) -> None:
     assert trainer.rays_per_batch == 0.8 * 1024 + 0.2 * 16 * 1024
 
 
-def test_tf32_is_set_for_cuda_training_only(monkeypatch) -> None:
-    # torch's flags are process-wide: monkeypatch puts them back after the test
-    monkeypatch.setattr(torch.backends.cuda.matmul, "allow_tf32", False)
-    monkeypatch.setattr(torch.backends.cudnn, "allow_tf32", False)
+@pytest.fixture
+def tf32_flags_restored():
+    """torch's TF32 flags are process-wide properties, not attributes monkeypatch can restore (pytest 9.2
+    fails its teardown with `'cuBLASModule' object has no attribute 'allow_tf32'`): save and put them back."""
+    saved = (torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32)
+    torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = False
+    yield
+    torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32 = saved
+
+
+def test_tf32_is_set_for_cuda_training_only(tf32_flags_restored) -> None:
     set_precision(TrainConfig(tf32=True), torch.device("cpu"))
     set_precision(TrainConfig(tf32=False), torch.device("cuda"))
     assert not torch.backends.cuda.matmul.allow_tf32 and not torch.backends.cudnn.allow_tf32

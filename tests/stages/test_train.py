@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import json
 import signal
 import subprocess
@@ -76,6 +78,7 @@ def free_port() -> int:
 @pytest.mark.slow
 def test_training_writes_model_metrics_and_held_out_renders(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     import threading
+    import urllib.error
     import urllib.request
 
     # watched (`nerfpipe run --view`): the web viewer answers while the field trains, and is gone afterwards
@@ -86,6 +89,8 @@ def test_training_writes_model_metrics_and_held_out_renders(tmp_path: Path, capl
             try:
                 with urllib.request.urlopen(f"http://localhost:{port}", timeout=2) as page:
                     pages.append(page.status)
+            except urllib.error.HTTPError as refused:  # it answers, but not without the printed URL's token
+                pages.append(refused.code)
             except OSError:
                 pass
             time.sleep(0.2)
@@ -98,7 +103,7 @@ def test_training_writes_model_metrics_and_held_out_renders(tmp_path: Path, capl
     time.sleep(1.0)
     done.set()
     poller.join()
-    assert answered > 0 and set(pages) == {200} and len(pages) == answered  # served during training only
+    assert answered > 0 and set(pages) == {403} and len(pages) == answered  # served during training only
     assert f"train: watch the field learn at http://localhost:{port}" in caplog.text
     out = outcome.path
     metrics = json.loads((out / "metrics.json").read_text())
@@ -350,7 +355,8 @@ def check_web_viewer(run_dir: Path) -> None:
                       path["export_mesh"] / "mesh.ply", path["export_points"] / "points.ply")
     viewer = serve(scene, port=free_port())
     try:
-        page = urllib.request.urlopen(viewer.url, timeout=10).read().decode()
+        opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor())  # the token becomes a cookie
+        page = opener.open(viewer.url, timeout=10).read().decode()
         assert "<html" in page.lower()
         assert isinstance(viewer.mesh, viser.GlbHandle) and isinstance(viewer.points, viser.PointCloudHandle)
         assert len(viewer.frusta) == len(scene.frames) == 16
@@ -370,8 +376,10 @@ def check_web_viewer(run_dir: Path) -> None:
         while "web viewer:" not in line:
             line = process.stdout.readline()
             assert line or process.poll() is None, process.stderr.read()
-        assert f"web viewer: http://localhost:{port} (16 cameras with their photos, a mesh of" in line
-        assert urllib.request.urlopen(f"http://localhost:{port}", timeout=10).status == 200
+        url = re.search(rf"http://localhost:{port}/\?token=\S+", line).group(0)
+        assert f"web viewer: {url} (16 cameras with their photos, a mesh of" in line
+        opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor())
+        assert opener.open(url, timeout=10).status == 200
     finally:
         process.send_signal(signal.SIGINT)
         try:
