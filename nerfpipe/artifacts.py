@@ -8,6 +8,7 @@ key for key, as it reads, so cache keys and files stay as they were. Camera sets
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
@@ -47,8 +48,22 @@ def output_names(relpaths: list[str]) -> dict[str, str]:
     for rel, path in stems.items():
         base = path.with_suffix("")
         clash = counts[base] > 1
-        names[rel] = f"{base}_{path.suffix.lstrip('.').lower()}.png" if clash else f"{base}.png"
+        name = f"{base}_{path.suffix.lstrip('.').lower()}.png" if clash else f"{base}.png"
+        names[rel] = _within_name_limit(PurePosixPath(name), rel)
     return names
+
+
+MAX_NAME_BYTES = 255  # a file name's limit on every common filesystem
+
+
+def _within_name_limit(name: PurePosixPath, rel: str) -> str:
+    """``name`` with its last part shortened to ``MAX_NAME_BYTES`` where it is longer, made unique by a hash of
+    the photo's path (two long names that share their start stay two names)."""
+    if len(name.name.encode()) <= MAX_NAME_BYTES:
+        return str(name)
+    tag = "-" + hashlib.sha256(rel.encode()).hexdigest()[:12] + ".png"
+    stem = name.name.encode()[:MAX_NAME_BYTES - len(tag)].decode("utf-8", "ignore")
+    return str(name.with_name(stem + tag))
 
 
 def frame_image_path(frame_name: str, image_root: str, ingest_images: Path, undistort_images: Path) -> Path:

@@ -28,14 +28,34 @@ from nerfpipe.pipeline.params import flatten, params_to_dict
 CONFIG_FILE = "config.yaml"
 
 
+class _DuplicateKey(Exception):
+    pass
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a key given twice in one mapping (it would keep the last silently)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise _DuplicateKey(f"{key!r} is given twice (line {key_node.start_mark.line + 1})")
+            seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
 def read_config(path: Path) -> tuple[str | None, dict[str, dict[str, Any]], str | None]:
     """The preset, the overrides (stage -> {dotted name: value}) and the budget (as written) of a settings
     file; a file that cannot be read or is not such a mapping is a ``ParamError`` naming it."""
     try:
-        doc = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        doc = yaml.load(Path(path).read_text(encoding="utf-8"), Loader=_UniqueKeyLoader)
     except FileNotFoundError:
         raise ParamError(f"--config {path}: no such file") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+    except _DuplicateKey as err:
+        raise ParamError(f"--config {path}: {err}; keep one") from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError, RecursionError) as err:
+        # ValueError: an integer of thousands of digits, which Python refuses to convert
         where = getattr(err, "problem_mark", None)
         at = f" (line {where.line + 1})" if where is not None else ""
         raise ParamError(f"--config {path}: not a readable YAML file{at}; write STAGE: {{PARAM: VALUE}} mappings") from None

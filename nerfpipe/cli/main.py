@@ -21,7 +21,7 @@ from nerfpipe.cli.console import (
     setup_logging,
     user_errors,
 )
-from nerfpipe.pipeline import Pipeline, parse_assignments
+from nerfpipe.pipeline import ParamError, Pipeline, parse_assignments
 from nerfpipe.pipeline.budget import parse_duration
 from nerfpipe.pipeline.lock import RunLock
 from nerfpipe.pipeline.plan import check_run_dir
@@ -52,17 +52,26 @@ def _main(
 
 
 DebugOption = typer.Option(False, "--debug", help="Show tracebacks and debug logs.")
-PresetOption = typer.Option(None, "--preset", "-p", help="Named preset applied to every stage that has it.")
+PresetOption = typer.Option([], "--preset", "-p", help="Named preset applied to every stage that has it (one: presets do "
+                            "not combine; use --set on top).")
 SetOption = typer.Option([], "--set", "-s", help="Override one parameter: STAGE.PARAM=VALUE (repeatable).")
 HostOption = typer.Option("127.0.0.1", "--host", show_default=True, help="The web viewer's address: this machine only by default; "
                           "0.0.0.0 shows the run's photos to anyone on the network who has the printed URL (its token).")
 
 
+def one_preset(presets: List[str]) -> Optional[str]:
+    """The one ``--preset`` given, if any: presets do not combine, so two are refused rather than one dropped."""
+    if len(presets) > 1:
+        raise ParamError(f"--preset given {len(presets)} times ({', '.join(presets)}); presets do not combine: choose "
+                         "one, and --set what you want on top")
+    return presets[0] if presets else None
+
+
 @app.command()
 def run(
     photos_dir: Path = typer.Argument(..., help="Folder of photos (or a capture folder with images/), or a video."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Run directory \\[default: runs/<photos folder name>]."),
-    preset: Optional[str] = PresetOption,
+    out: Optional[str] = typer.Option(None, "--out", "-o", help="Run directory \\[default: runs/<photos folder name>]."),
+    presets: List[str] = PresetOption,
     set_: List[str] = SetOption,
     until: Optional[str] = typer.Option(None, "--until", help="Run the stages up to and including this one."),
     only: Optional[str] = typer.Option(None, "--only", help="Run only this stage; its upstream must be fresh."),
@@ -86,6 +95,7 @@ def run(
     from nerfpipe.cli.config import merge, read_config, write_config
 
     with user_errors(debug):
+        preset = one_preset(presets)
         overrides = parse_assignments(set_)
         budget_from_file = None
         if config is not None:
@@ -94,8 +104,12 @@ def run(
             overrides = merge(overrides_from_file, overrides)
         job_budget = parse_duration(budget if budget is not None else budget_from_file or "auto")
         if skip_bad:
+            if str(overrides.get("ingest", {}).get("skip_bad", "true")).strip().lower() in ("false", "0", "no", "off"):
+                raise ParamError("--skip-bad and ingest.skip_bad=false disagree; drop one of them")
             overrides.setdefault("ingest", {})["skip_bad"] = "true"
-        run_dir = out if out is not None else Path("runs") / photos_dir.resolve().name
+        if out is not None and not out.strip():
+            raise ParamError("--out is empty; pass the run directory, e.g. --out runs/photos")
+        run_dir = Path(out) if out is not None else Path("runs") / photos_dir.resolve().name
         check_run_dir(photos_dir, run_dir)
         if view:
             from nerfpipe.export.web import check_address
@@ -126,7 +140,7 @@ def run(
 @app.command()
 def status(
     run_dir: Path = typer.Argument(..., help="Run directory of an earlier `nerfpipe run`."),
-    preset: Optional[str] = PresetOption,
+    presets: List[str] = PresetOption,
     set_: List[str] = SetOption,
     verify: bool = typer.Option(False, "--verify", help="Hash every output (sha256) instead of checking sizes and "
                                 "times; move damaged results aside, for the next run to compute again."),
@@ -135,7 +149,7 @@ def status(
     """Each stage fresh / stale / broken / missing, with the reason. --preset/--set ask "what if"."""
     setup_logging(debug)
     with user_errors(debug):
-        pipe = Pipeline.from_run_dir(default_stages(), run_dir, preset, parse_assignments(set_))
+        pipe = Pipeline.from_run_dir(default_stages(), run_dir, one_preset(presets), parse_assignments(set_))
         moved = pipe.verify() if verify else []
         statuses = pipe.status()
     table = Table(title=f"{escape(str(run_dir))} (photos: {escape(str(pipe.source))})", title_justify="left")
@@ -153,7 +167,7 @@ def status(
                           f"{len(moved)} damaged result{'s' * (len(moved) != 1)}"
                           + "".join(f"\n  {s.name}: {escape(str(s.damage))}; moved aside to {escape(str(aside))}"
                                     for s, aside in moved)
-                          + (f"\nthe next `nerfpipe run {pipe.source} --out {run_dir}` computes "
+                          + (f"\nthe next `{pipe.command()}` computes "
                              f"{'them' if len(moved) > 1 else 'it'} again" if moved else ""),
                           highlight=False, soft_wrap=True)
 
@@ -179,8 +193,6 @@ def view(
     """Look at a run's mesh, point cloud or cameras; with no display, write RUN_DIR/view_<kind>.png instead."""
     setup_logging(debug)
     import difflib
-
-    from nerfpipe.pipeline import ParamError
 
     with user_errors(debug):
         if kind not in VIEW_KINDS:
@@ -286,7 +298,7 @@ def batch(
     max_parallel: int = typer.Option(0, "--max-parallel", "-j", help="Captures in progress at once \\[default: local 1, "
                                      "ray as many as the cluster's resources run]."),
     max_retries: int = typer.Option(2, "--max-retries", help="Restarts of a stage whose worker or node died."),
-    preset: Optional[str] = PresetOption,
+    presets: List[str] = PresetOption,
     set_: List[str] = SetOption,
     until: Optional[str] = typer.Option(None, "--until", help="Run the stages up to and including this one."),
     debug: bool = DebugOption,
@@ -313,7 +325,7 @@ def batch(
             raise typer.BadParameter(f"{out} lies inside the captures folder {captures_root}, whose every folder is "
                                      "taken for a capture; choose a folder outside it", param_hint="--out")
         sources = find_captures(captures_root)
-        settings = BatchSettings(preset=preset, overrides=parse_assignments(set_), until=until, max_parallel=max_parallel)
+        settings = BatchSettings(preset=one_preset(presets), overrides=parse_assignments(set_), until=until, max_parallel=max_parallel)
         runner = LocalExecutor(max_parallel or 1, max_retries) if executor == "local" else RayExecutor(address, max_retries)
         with runner, batch_progress(len(sources)) as on_change:
             states = Batch(sources, out, runner, settings, on_change).run()

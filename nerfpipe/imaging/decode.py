@@ -12,13 +12,16 @@ never written to.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import logging
 import struct
+import threading
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Iterator, Literal
 
 import cv2
 import numpy as np
@@ -157,6 +160,25 @@ def read_header(source: Path | bytes) -> PhotoHeader | None:
     """
     from PIL import JpegImagePlugin, PngImagePlugin, TiffImagePlugin
 
+    with pillow_warnings(source if not isinstance(source, bytes) else None):
+        return _read_header(source, JpegImagePlugin, PngImagePlugin, TiffImagePlugin)
+
+
+@contextlib.contextmanager
+def pillow_warnings(path: Path | None) -> Iterator[None]:
+    """Pillow's warnings (corrupt EXIF, truncated metadata) as log lines naming the photo, not as Python warnings
+    that name a file inside Pillow. ``warnings.catch_warnings`` is process-wide: ingest's threads take turns."""
+    with _PILLOW_LOCK, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    for warning in caught:
+        log.warning("%s: %s", path if path is not None else "a photo", warning.message)
+
+
+_PILLOW_LOCK = threading.Lock()
+
+
+def _read_header(source: Path | bytes, JpegImagePlugin: Any, PngImagePlugin: Any, TiffImagePlugin: Any) -> PhotoHeader | None:
     try:
         if isinstance(source, bytes):
             data = source
@@ -382,7 +404,7 @@ def _tiff_colour_model(path: Path, data: bytes, stored: np.ndarray) -> np.ndarra
     from PIL import Image
 
     try:
-        with Image.open(io.BytesIO(data)) as image:
+        with pillow_warnings(path), Image.open(io.BytesIO(data)) as image:
             mode = image.mode
             if mode == "CMYK":
                 rgb = np.asarray(image.convert("RGB"))

@@ -19,6 +19,7 @@ from nerfpipe.nerf.checkpoints import load_latest_checkpoint, save_checkpoint
 from nerfpipe.nerf.device import synchronize
 from nerfpipe.nerf.model import Field, RadianceModel
 from nerfpipe.nerf.stall import StallGuard, mean_colour_psnr, mse_to_psnr
+from nerfpipe.pipeline.errors import StageError
 
 log = logging.getLogger("nerfpipe.nerf.trainer")
 
@@ -335,7 +336,8 @@ class Trainer:
                 loss, psnr = self.train_step(self.step)
                 rays = self.rays
                 if not math.isfinite(loss):
-                    raise FloatingPointError(f"training loss became {loss} at step {self.step}")
+                    raise StageError(f"train: the training loss became {loss} at step {self.step}, so the field diverged; "
+                                     f"lower train.optim.lr (now {self.config.lr:g}) or the per-image learning rates")
                 synchronize(self.device)
                 self.step += 1
                 now = self.clock()

@@ -21,9 +21,10 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable, Iterable
 
-from nerfpipe.pipeline.errors import ParamError
+from nerfpipe.pipeline.errors import ParamError, StageError
 
 AUTO = "auto"
+MAX_BUDGET_SECONDS = 7 * 24 * 3600.0
 _UNITS = {"": 1.0, "s": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0}
 
 
@@ -38,6 +39,9 @@ def parse_duration(text: str, what: str = "--budget") -> float | str | None:
     seconds = float(match.group(1)) * _UNITS[match.group(2) or ""]
     if not seconds > 0:
         raise ParamError(f"{what} {text!r}: must be more than 0 seconds")
+    if seconds > MAX_BUDGET_SECONDS:
+        raise ParamError(f"{what} {text[:30]!r}: at most {format_duration(MAX_BUDGET_SECONDS)} (a week); "
+                         "pass off for no budget")
     return seconds
 
 
@@ -102,3 +106,11 @@ def takes_part(share: float, elastic_params: tuple[str, ...], chosen: Iterable[s
     or a preset are ``chosen``: elastic unless one of those was chosen; budgeted if either."""
     elastic = bool(elastic_params) and not set(elastic_params) & set(chosen)
     return elastic or share > 0, elastic
+
+
+def check_affordable(allotment: Allotment | None, seconds: float, what: str, advice: str) -> None:
+    """Raise ``StageError`` when ``what``, predicted to take ``seconds``, would take more than the job's whole
+    budget: it would overrun it, not fit it. No budget (``--budget off``): the user asked for it as set."""
+    if allotment is not None and seconds > allotment.budget:
+        raise StageError(f"{what} would take about {format_duration(seconds)}, more than the job's whole budget of "
+                         f"{format_duration(allotment.budget)}; {advice}, or pass --budget off to run it anyway")

@@ -12,6 +12,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
+from nerfpipe.pipeline.errors import InputError
 from nerfpipe.pipeline.hashing import sha256_file
 
 
@@ -50,7 +51,11 @@ class FingerprintCache:
         if not self.rehash and cached is not None and cached[0] == st.st_size and cached[1] == st.st_mtime_ns:
             digest = cached[2]
         else:
-            digest = sha256_file(file)
+            try:
+                digest = sha256_file(file)
+            except OSError as err:
+                raise InputError(file, f"cannot be read ({err.strerror or err})",
+                                 "check that you may read it, or move it out of the capture folder") from None
             self._dirty = self._dirty or self._entries.get(key) != [st.st_size, st.st_mtime_ns, digest]
             self._entries[key] = [st.st_size, st.st_mtime_ns, digest]
         # a file outside the capture (a camera path a parameter names) is known by its absolute path

@@ -35,11 +35,15 @@ _FALSE = {"0", "false", "no", "off"}
 _NONE = {"none", "null"}
 
 
-def param(default: Any, help: str) -> Any:
-    """A parameter field with its default and the help text ``nerfpipe stages`` and docs/parameters.md show."""
+def param(default: Any, help: str, bounds: tuple[float, float] | None = None) -> Any:
+    """A parameter field with its default, the help text ``nerfpipe stages`` and docs/parameters.md show, and for
+    a number its ``bounds`` (lowest, highest; both allowed), checked before anything runs."""
     if dataclasses.is_dataclass(default):
         return dataclasses.field(default_factory=lambda: default, metadata={"help": help})
-    return dataclasses.field(default=default, metadata={"help": help})
+    metadata: dict[str, Any] = {"help": help}
+    if bounds is not None:
+        metadata["bounds"] = bounds
+    return dataclasses.field(default=default, metadata=metadata)
 
 
 @dataclass(frozen=True)
@@ -50,6 +54,21 @@ class ParamSpec:
     type: Any
     default: Any
     help: str
+    bounds: tuple[float, float] | None = None  # a number's lowest and highest value, both allowed
+
+    @property
+    def is_number(self) -> bool:
+        return _strip_optional(self.type)[0] in (int, float)
+
+    def check_bounds(self, value: Any, qualname: str) -> None:
+        """Raise ``ParamError`` for a number outside ``bounds``."""
+        if self.bounds is None or value is None or not self.is_number:
+            return
+        low, high = self.bounds
+        if not low <= value <= high:
+            shown = f"{value:g}" if isinstance(value, float) else (f"{value}" if len(str(value)) < 30 else
+                                                                    f"a {len(str(abs(value)))}-digit number")
+            raise ParamError(f"{qualname}: {shown} is outside its bounds [{_show(low)}, {_show(high)}]")
 
     @property
     def choices(self) -> tuple[Any, ...] | None:
@@ -80,7 +99,8 @@ def param_specs(params_cls: type, prefix: str = "") -> list[ParamSpec]:
             specs.extend(param_specs(hints[f.name], f"{prefix}{f.name}."))
             continue
         default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
-        specs.append(ParamSpec(prefix + f.name, hints[f.name], default, f.metadata.get("help", "")))
+        specs.append(ParamSpec(prefix + f.name, hints[f.name], default, f.metadata.get("help", ""),
+                               f.metadata.get("bounds")))
     return specs
 
 
@@ -173,7 +193,7 @@ def coerce(value: Any, tp: Any, qualname: str) -> Any:
             if isinstance(value, bool):
                 raise ValueError
             number = float(value) if isinstance(value, (int, float)) else float(str(value).strip())
-        except ValueError:
+        except (ValueError, OverflowError):  # OverflowError: an integer beyond any float
             raise ParamError(f"{qualname}: expected a number, got {value!r}") from None
         if not math.isfinite(number):
             raise ParamError(f"{qualname}: expected a finite number, got {value!r}")
@@ -213,6 +233,8 @@ def build_params(
             raise ParamError(f"unknown parameter {stage}.{name}; {hint}")
         values[name] = raw
     typed = {name: coerce(v, specs[name].type, f"{stage}.{name}") for name, v in values.items()}
+    for name, value in typed.items():
+        specs[name].check_bounds(value, f"{stage}.{name}")
     try:
         return _instantiate(params_cls, typed)
     except ValueError as err:
@@ -258,4 +280,6 @@ def describe_changes(stage: str, old: Mapping[str, Any], new: Mapping[str, Any])
 
 
 def _show(value: Any) -> str:
+    if isinstance(value, float) and (abs(value) >= 1e6 or 0 < abs(value) < 1e-3):
+        return f"{value:g}"
     return "none" if value is None else str(value).lower() if isinstance(value, bool) else str(value)

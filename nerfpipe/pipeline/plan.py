@@ -4,6 +4,7 @@ and why (StageStatus, stale_reasons), and what a run did with it (StageOutcome).
 from __future__ import annotations
 
 import importlib.metadata
+import os
 import platform
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,7 +17,7 @@ from nerfpipe.pipeline.fingerprint import Fingerprint, FingerprintCache, diff_in
 from nerfpipe.pipeline.hashing import cache_key
 from nerfpipe.pipeline.params import build_params, describe_changes, params_to_dict
 from nerfpipe.pipeline.stage import Stage, capture_root
-from nerfpipe.pipeline.store import MANAGED, Committed, Damage
+from nerfpipe.pipeline.store import MANAGED, Committed, Damage, is_run_dir
 
 
 @dataclass(frozen=True)
@@ -42,6 +43,14 @@ def check_run_dir(source: Path, run_dir: Path) -> None:
     if str(run_dir).strip() == "":
         raise ParamError("--out is empty; pass the run directory, e.g. --out runs/photos")
     root, out = source.resolve(), run_dir.resolve()
+    for part in out.parts:
+        if len(os.fsencode(part)) > NAME_MAX:
+            raise ParamError(f"--out {_clip(run_dir)}: the name {_clip(part)} is {len(os.fsencode(part))} bytes, more than "
+                             f"the {NAME_MAX} a file name may have; choose a shorter one")
+    if len(os.fsencode(str(out))) > PATH_MAX - RUN_PATH_ROOM:
+        raise ParamError(f"--out {_clip(run_dir)}: the path is {len(os.fsencode(str(out)))} bytes; a run needs "
+                         f"{RUN_PATH_ROOM} more for its stage folders, within the {PATH_MAX} a path may have; "
+                         "choose a shorter one")
     if source.is_dir() and (out == root or root in out.parents):
         raise ParamError(f"--out {run_dir} lies inside the capture folder {source}: what a run writes there would "
                          "be read as photos; choose a folder outside it")
@@ -50,6 +59,15 @@ def check_run_dir(source: Path, run_dir: Path) -> None:
         if root == folder or folder in root.parents:
             raise ParamError(f"the capture {source} lies inside {folder}, which a run into --out {run_dir} writes "
                              "and replaces; copy the photos elsewhere, or choose another --out")
+
+
+NAME_MAX, PATH_MAX = 255, 4096  # Linux's limits on a file name and a path, in bytes
+RUN_PATH_ROOM = 400  # what a run adds below --out: stages/<stage>/<64-hex key>/ and the deepest artifact names
+
+
+def _clip(text: object, keep: int = 40) -> str:
+    text = str(text)
+    return text if len(text) <= keep else f"{text[:keep]}..."
 
 
 def plan_stages(dag: Dag, source: Path, run_dir: Path, preset: str | None,
@@ -78,7 +96,7 @@ def plan_stages(dag: Dag, source: Path, run_dir: Path, preset: str | None,
         if budget is not None and budgeted:
             material["budget"] = budget
         planned[name] = PlannedStage(stage, params, files, material, cache_key(material), elastic and budget is not None)
-    if run_dir.exists():
+    if is_run_dir(run_dir):  # never into a folder nerfpipe has not made its own
         fingerprints.save()
     return planned
 

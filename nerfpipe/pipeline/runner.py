@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
-from nerfpipe.pipeline.budget import Allotment, JobBudget
+from nerfpipe.pipeline.budget import Allotment, JobBudget, format_duration
 from nerfpipe.pipeline.dag import Dag
 from nerfpipe.pipeline.errors import (
     DiskFullError,
@@ -168,8 +168,27 @@ class Pipeline:
         result = self.result(stage)
         if result is None:
             raise InputError(self.run_dir, f"has no {what or name} for its current settings",
-                             f"run `nerfpipe run {self.source} --out {self.run_dir} --until {stage}` first")
+                             f"run `{self.command(until=stage)}` first")
         return result.path / self.dag.stages[stage].provides[name]
+
+    def command(self, until: str | None = None) -> str:
+        """The ``nerfpipe run`` command line that repeats this pipeline's settings (preset, every ``--set``,
+        the budget), quoted for a POSIX shell."""
+        import shlex
+
+        words = ["nerfpipe", "run", str(self.source), "--out", str(self.run_dir)]
+        if self.preset is not None:
+            words += ["--preset", self.preset]
+        for stage, values in self.overrides.items():
+            for name, value in values.items():
+                words += ["--set", f"{stage}.{name}={value}"]
+        if self.budget is None:
+            words += ["--budget", "off"]
+        elif not isinstance(self.budget, str):
+            words += ["--budget", f"{self.budget:g}"]
+        if until is not None:
+            words += ["--until", until]
+        return shlex.join(words)
 
     def optional_artifact(self, name: str) -> Path | None:
         """``artifact``, or None where its stage has no current result (or this pipeline has no such stage)."""
@@ -223,6 +242,8 @@ class Pipeline:
                 raise ParamError(f"--force {name}: not among the stages {chosen} runs; drop --force or choose stages that include it")
             forced |= {name} | self.dag.descendants(name)
         check_run_dir(self.source, self.run_dir)
+        self.plan()  # a capture that cannot be read is refused before the run directory is made
+        self._check_affordable(selected)
         self.store.prepare()
         with self._user_os_errors(), RunLock(self.run_dir), self._log_to_file():
             planned = self.plan()
@@ -246,6 +267,23 @@ class Pipeline:
                     log.warning("%s (the run goes on without it)", err)
                     outcomes.append(StageOutcome(name, "failed", planned[name].key, self.run_dir, 0.0, (str(err),)))
             return outcomes
+
+    def _check_affordable(self, selected: Sequence[str]) -> None:
+        """Refuse, before anything runs, a stage set to cost more than the whole job's budget (``least_seconds``);
+        ``--budget auto`` is compared with the most it can give (the rule's ``ceiling``)."""
+        if self.budget is None:
+            return
+        budget = self.budget if not isinstance(self.budget, str) else getattr(self.budget_rule, "ceiling", None)
+        if budget is None:
+            return
+        for name in selected:
+            planned = self.plan()[name]
+            least = None if planned.elastic else planned.stage.least_seconds(planned.params)
+            if least is not None and least[0] > budget:
+                raise ParamError(f"{name}.{least[1]} takes at least {format_duration(least[0])}, more than the job's "
+                                 f"budget of {format_duration(budget)}"
+                                 f"{' (the most --budget auto gives)' if isinstance(self.budget, str) else ''}; "
+                                 "lower it, raise --budget, or pass --budget off")
 
     def run_stage(self, name: str, force: bool = False) -> StageOutcome:
         """Run one stage whose upstream results exist, in whichever process or node this is.
@@ -320,7 +358,10 @@ class Pipeline:
     def _never_ran(self, planned: PlannedStage) -> str:
         """Why a stage with no result and no earlier run to compare with is missing."""
         aside = self.store.set_aside_as(planned.name, planned.key)
-        return f"its damaged result was moved aside to {aside}" if aside is not None else "not run yet"
+        if aside is not None:
+            return f"its damaged result was moved aside to {aside}"
+        failure = self.store.failure(planned.name, planned.key)
+        return f"failed in the last run: {failure}" if failure is not None else "not run yet"
 
     def _run_locked(self, planned: PlannedStage, forced: bool) -> StageOutcome:
         name, key = planned.name, planned.key
@@ -346,9 +387,12 @@ class Pipeline:
             missing = [rel for rel in planned.stage.provides.values() if not (work / rel).exists()]
             if missing:
                 raise RuntimeError(f"stage {name} did not write its declared artifacts {missing}")
-        except NerfpipeError:
-            # Kept for the user to inspect (logs the error message may point at); it is not a result,
-            # and the next attempt at this key wipes it.
+        except NerfpipeError as err:
+            # Kept for the user to inspect (logs the error message may point at) unless empty; it is not a
+            # result, and the next attempt at this key wipes it. ``status`` says the stage failed, and why.
+            self.store.record_failure(name, key, str(err))
+            if work.is_dir() and not any(work.iterdir()):
+                self.store.abandon(work)
             raise
         except BaseException as err:
             full = disk_full(err, work, self.run_dir, name)

@@ -103,6 +103,11 @@ class Stage:
         """
         return 0
 
+    def least_seconds(self, params: Any) -> tuple[float, str] | None:
+        """The fewest seconds ``params`` can cost on any machine, and the setting that asks for them, where the
+        parameters alone tell (``train.steps``): a job whose budget is smaller is refused before it starts."""
+        return None
+
     def describe(self, result: Path, manifest: Mapping[str, Any]) -> list[str]:
         """Lines ``nerfpipe status`` prints about a committed result (its folder and manifest)."""
         return []

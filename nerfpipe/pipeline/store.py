@@ -6,6 +6,7 @@ Layout of a run directory::
     run.json                      the capture folder and settings of the last `nerfpipe run`
     stages/<stage>/<key>/         a committed result; manifest.json is always written last
     stages/<stage>/latest.json    which key the last run used
+    stages/<stage>/failed.json    the key and error of its last failed attempt, until that key is committed
     broken/<stage>-<key12>-<time>/ a committed result found damaged, moved aside (REASON.txt says why)
     .work/<stage>-<key16>/        a stage being written; never read as a result
     .cache/fingerprints.json      (size, mtime) -> sha256 of input files
@@ -42,6 +43,7 @@ MANIFEST = "manifest.json"
 BROKEN = "broken"
 RUN_MARKER = ".nerfpipe-run"
 LOCK_NAME = ".lock"  # ``RunLock``'s file
+FAILED = "failed.json"  # in stages/<stage>/: the key and error of the last failed attempt
 # the folders of a run directory that nerfpipe writes, and replaces whole (exports/, report/): a capture
 # inside one of them would be read while it is being replaced
 MANAGED = ("stages", ".work", BROKEN, ".cache", "logs", "exports", "report", "bench")
@@ -285,6 +287,8 @@ class ArtifactStore:
             shutil.rmtree(work)  # another writer committed the same key first; its result stands
         _fsync_dir(target.parent)
         self.set_latest(stage, key)
+        if self.failure(stage, key) is not None:
+            (self.stages_dir / stage / FAILED).unlink(missing_ok=True)
         return Committed(target, json.loads((target / MANIFEST).read_text(encoding="utf-8")))
 
     def set_aside(self, stage: str, key: str, damage: Damage) -> Path:
@@ -304,6 +308,21 @@ class ArtifactStore:
         folder = self.run_dir / BROKEN
         found = sorted(folder.glob(f"{stage}-{key[:12]}-*")) if folder.is_dir() else []
         return found[-1] if found else None
+
+    def record_failure(self, stage: str, key: str, error: str) -> None:
+        """Remember that computing (stage, key) failed, and why, for ``status``; a commit of the key forgets it."""
+        (self.stages_dir / stage).mkdir(parents=True, exist_ok=True)
+        write_json_atomic(self.stages_dir / stage / FAILED, {"key": key, "error": error, "at": time.time()})
+
+    def failure(self, stage: str, key: str) -> str | None:
+        """Why the last attempt at (stage, key) failed, if it did and nothing has been committed for it since."""
+        try:
+            record = json.loads((self.stages_dir / stage / FAILED).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+        if not isinstance(record, dict) or record.get("key") != key or not isinstance(record.get("error"), str):
+            return None
+        return record["error"]
 
     def set_latest(self, stage: str, key: str) -> None:
         write_json_atomic(self.stages_dir / stage / "latest.json", {"key": key, "at": time.time()})

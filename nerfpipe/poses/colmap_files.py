@@ -104,11 +104,11 @@ def quaternion_problem(qvec: Sequence[float]) -> str | None:
 
 def check_text_images(images_txt: Path) -> None:
     """Raise ``InputError`` for an ``images.txt`` line whose quaternion is no rotation (see ``quaternion_problem``)."""
-    data_lines = (line for line in images_txt.read_text(encoding="utf-8", errors="replace").splitlines()
-                  if line.strip() and not line.lstrip().startswith("#"))
-    for i, line in enumerate(data_lines):
-        if i % 2:  # the second line of each image: its 2D points
+    lines = iter(images_txt.read_text(encoding="utf-8", errors="replace").splitlines())
+    for line in lines:  # as COLMAP reads it: an image's line, then the next line whatever it holds (its 2D points)
+        if not line.strip() or line.lstrip().startswith("#"):
             continue
+        next(lines, None)
         fields = line.split()
         try:
             qvec = [float(v) for v in fields[1:5]]

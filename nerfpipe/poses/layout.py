@@ -86,6 +86,9 @@ def detect_layout(capture: Path, kind: str | None = None) -> CaptureLayout:
         return layout
     from nerfpipe.imaging.video import VIDEO_EXTENSIONS
 
+    if capture.exists() and not capture.is_file() and not capture.is_dir():
+        raise InputError(capture, "is a device or special file, not a capture folder or a video",
+                         "pass the folder of photos, or a video")
     if capture.is_file():
         if capture.suffix.lower() in VIDEO_EXTENSIONS:
             return CaptureLayout("video", capture.parent, [capture])

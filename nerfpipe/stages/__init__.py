@@ -43,6 +43,9 @@ def auto_budget(pipe: Pipeline) -> float:
     return seconds
 
 
+auto_budget.ceiling = BUDGET_RANGE_SECONDS[1]  # type: ignore[attr-defined]  # the most auto gives, for refusals
+
+
 def default_stages() -> list[Stage]:
     """The stages `nerfpipe run` chains, in declaration order."""
     return [

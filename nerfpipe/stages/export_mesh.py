@@ -36,7 +36,9 @@ from typing import Any, Literal
 import numpy as np
 
 from nerfpipe.artifacts import Bounds, SceneDecisions
+from nerfpipe.pipeline.budget import check_affordable
 from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.resources import check_memory
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 
 FORMATS = (".ply", ".obj", ".glb")
@@ -45,21 +47,21 @@ FORMATS = (".ply", ".obj", ".glb")
 @dataclass(frozen=True)
 class ExportMeshParams:
     method: Literal["auto", "marching_cubes", "poisson", "tsdf"] = field(default="auto", metadata={"help": "auto: marching cubes for an object on a backdrop, poisson for a scene; marching cubes on the density, a Poisson surface of the point cloud, or TSDF fusion of the rendered depth"})
-    resolution: int = field(default=256, metadata={"help": "voxels along the longest side of the box (both methods)"})
-    density_threshold: float = field(default=25.0, metadata={"help": "marching cubes: the density of the surface (per normalized unit)"})
-    block: int = field(default=64, metadata={"help": "marching cubes: voxels per block side; memory grows with its cube, not the resolution's"})
-    truncation: float = field(default=4.0, metadata={"help": "tsdf: truncation distance in voxels"})
-    acc_threshold: float = field(default=0.9, metadata={"help": "tsdf: fuse pixels whose accumulated opacity reaches this"})
+    resolution: int = field(default=256, metadata={"bounds": (8, 2048), "help": "voxels along the longest side of the box (both methods)"})
+    density_threshold: float = field(default=25.0, metadata={"bounds": (0.0, 1000000.0), "help": "marching cubes: the density of the surface (per normalized unit)"})
+    block: int = field(default=64, metadata={"bounds": (8, 512), "help": "marching cubes: voxels per block side; memory grows with its cube, not the resolution's"})
+    truncation: float = field(default=4.0, metadata={"bounds": (0.1, 100.0), "help": "tsdf: truncation distance in voxels"})
+    acc_threshold: float = field(default=0.9, metadata={"bounds": (0.0, 1.0), "help": "tsdf: fuse pixels whose accumulated opacity reaches this"})
     poisson_too: bool = field(default=False, metadata={"help": "also a screened Poisson surface of the point cloud (mesh_poisson.*) beside another method's mesh"})
-    poisson_depth: int = field(default=7, metadata={"help": "poisson: octree depth, cells of 1/2^depth of the box's side (7 fills more of a noisy scene cloud than 8, in 0.4 the time)"})
-    min_component: float = field(default=0.05, metadata={"help": "drop connected pieces with fewer triangles than this fraction of the largest"})
+    poisson_depth: int = field(default=7, metadata={"bounds": (1, 11), "help": "poisson: octree depth, cells of 1/2^depth of the box's side (7 fills more of a noisy scene cloud than 8, in 0.4 the time)"})
+    min_component: float = field(default=0.05, metadata={"bounds": (0.0, 1.0), "help": "drop connected pieces with fewer triangles than this fraction of the largest"})
     region: Literal["box", "all"] = field(default="box", metadata={"help": "contracted scenes: mesh the scene box, or all of space out to where the contraction ends"})
-    target_faces: int = field(default=200_000, metadata={"help": "simplify to at most this many triangles (0: keep all)"})
+    target_faces: int = field(default=200_000, metadata={"bounds": (0, 100_000_000), "help": "simplify to at most this many triangles (0: keep all)"})
     watertight: bool = field(default=False, metadata={"help": "also a closed, manifold remesh of the solid (mesh_watertight.*), for printing: tunnels closed, hollows filled, the largest piece kept"})
-    close_voxels: int = field(default=4, metadata={"help": "watertight: close tunnels and gaps up to about twice this many voxels wide"})
-    texture: int = field(default=1024, metadata={"help": "texture size in texels a side, baked from the training photos into mesh.glb (and the vertex colours); 0: vertex colours from the field"})
-    texture_faces: int = field(default=50_000, metadata={"help": "triangles of the textured mesh (the photos' detail is in the texture)"})
-    texture_photos: int = field(default=24, metadata={"help": "bake from at most this many training photos, spread evenly over them (0: all); each costs about 0.8 s at 1024 texels"})
+    close_voxels: int = field(default=4, metadata={"bounds": (0, 64), "help": "watertight: close tunnels and gaps up to about twice this many voxels wide"})
+    texture: int = field(default=1024, metadata={"bounds": (0, 8192), "help": "texture size in texels a side, baked from the training photos into mesh.glb (and the vertex colours); 0: vertex colours from the field"})
+    texture_faces: int = field(default=50_000, metadata={"bounds": (1, 10_000_000), "help": "triangles of the textured mesh (the photos' detail is in the texture)"})
+    texture_photos: int = field(default=24, metadata={"bounds": (0, 10_000), "help": "bake from at most this many training photos, spread evenly over them (0: all); each costs about 0.8 s at 1024 texels"})
     device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
 
     def __post_init__(self) -> None:
@@ -72,6 +74,7 @@ class ExportMeshParams:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not 0 <= self.acc_threshold <= 1:
             raise ValueError(f"acc_threshold must be in [0, 1], got {self.acc_threshold}")
+        check_memory("texture", "the texture's texels, with the photos' sums baked into them", TEXEL_BYTES * self.texture**2)
 
 
 class ExportMeshStage(Stage):
@@ -153,10 +156,12 @@ class ExportMeshStage(Stage):
             box = mesh_box(model.ray_space, far, (lo, hi), params.region)
             grid = Grid.over(box[0], box[1], params.resolution)
             field = model.fine if model.fine is not None else model.coarse
+            predicted = timed(lambda pts: evaluate_density(field.query_density, pts, device=device), box, grid.voxel,
+                              PROBE_POINTS) * float(np.prod(grid.cells)) / PROBE_POINTS
             ctx.log.info("export_mesh: marching cubes on %s voxels of %.4g at density %g, about %.0f s of density",
-                         "x".join(map(str, grid.cells)), grid.voxel, params.density_threshold,
-                         timed(lambda pts: evaluate_density(field.query_density, pts, device=device), box, grid.voxel,
-                               PROBE_POINTS) * np.prod(grid.cells) / PROBE_POINTS)
+                         "x".join(map(str, grid.cells)), grid.voxel, params.density_threshold, predicted)
+            check_affordable(ctx.allotment, predicted, f"export_mesh: marching cubes at resolution {params.resolution}",
+                             "lower export_mesh.resolution")
             mesh = marching_cubes(field.query_density, grid, params.density_threshold, params.block, device=device)
             warped = model.ray_space.ndc or model.ray_space.contraction is not None
             if warped:
@@ -349,6 +354,7 @@ def spread(names: list[str], count: int) -> list[str]:
     return [names[i] for i in np.unique(np.linspace(0, len(names) - 1, count).round().astype(int))]
 
 
+TEXEL_BYTES = 64  # a texel's colour sums, weights and best view while baking, in float32 and float64
 PROBE_POINTS = 65_536  # density queries timed to predict what marching cubes costs (a sixteenth of them: colours)
 
 

@@ -24,14 +24,14 @@ from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 
 @dataclass(frozen=True)
 class ExportPointsParams:
-    acc_threshold: float = field(default=0.9, metadata={"help": "back-project pixels whose accumulated opacity reaches this"})
-    voxel: float = field(default=0.0, metadata={"help": "smallest down-sampling voxel in normalized units (0: scene box diagonal / 1000)"})
-    target_points: int = field(default=200_000, metadata={"help": "grow the voxel until at most this many points remain (0: no limit)"})
-    outlier_neighbors: int = field(default=20, metadata={"help": "neighbours of the statistical outlier test"})
-    outlier_std: float = field(default=2.0, metadata={"help": "drop points whose mean neighbour distance is this many std above the mean"})
-    agree_views: int = field(default=2, metadata={"help": "keep a pixel's point only when this many neighbouring views' depths agree with it (multi-view consistency; 0: keep all)"})
-    neighbours: int = field(default=6, metadata={"help": "views each view's depth is checked against: those looking the most the same way"})
-    agree_tolerance: float = field(default=0.03, metadata={"help": "relative depth difference within which two views agree"})
+    acc_threshold: float = field(default=0.9, metadata={"bounds": (0.0, 1.0), "help": "back-project pixels whose accumulated opacity reaches this"})
+    voxel: float = field(default=0.0, metadata={"bounds": (0.0, 10.0), "help": "smallest down-sampling voxel in normalized units (0: scene box diagonal / 1000)"})
+    target_points: int = field(default=200_000, metadata={"bounds": (0, 100_000_000), "help": "grow the voxel until at most this many points remain (0: no limit)"})
+    outlier_neighbors: int = field(default=20, metadata={"bounds": (1, 1000), "help": "neighbours of the statistical outlier test"})
+    outlier_std: float = field(default=2.0, metadata={"bounds": (0.01, 100.0), "help": "drop points whose mean neighbour distance is this many std above the mean"})
+    agree_views: int = field(default=2, metadata={"bounds": (0, 100), "help": "keep a pixel's point only when this many neighbouring views' depths agree with it (multi-view consistency; 0: keep all)"})
+    neighbours: int = field(default=6, metadata={"bounds": (1, 1000), "help": "views each view's depth is checked against: those looking the most the same way"})
+    agree_tolerance: float = field(default=0.03, metadata={"bounds": (0.0, 1.0), "help": "relative depth difference within which two views agree"})
     crop_to_box: bool = field(default=True, metadata={"help": "360 scenes: keep the points inside the scene box only (false: all of them, background included)"})
 
     def __post_init__(self) -> None:

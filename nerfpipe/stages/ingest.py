@@ -7,6 +7,7 @@ The photos themselves are only ever read.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -23,10 +24,12 @@ from nerfpipe.pipeline.fingerprint import Fingerprint
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.poses.layout import detect_layout
 
+log = logging.getLogger("nerfpipe")
+
 
 @dataclass(frozen=True)
 class IngestParams:
-    max_size: int = field(default=1600, metadata={"help": "longest side in pixels after downscaling; 0 keeps full size"})
+    max_size: int = field(default=1600, metadata={"bounds": (0, 65_536), "help": "longest side in pixels after downscaling; 0 keeps full size"})
     bit_depth: Literal["auto", "8", "16"] = field(
         default="auto", metadata={"help": "PNG bit depth; auto = 16 for RAW and 16-bit sources, else 8"}
     )
@@ -40,17 +43,17 @@ class IngestParams:
     raw_white_balance: Literal["camera", "auto", "daylight"] = field(
         default="camera", metadata={"help": "RAW: white balance (as shot by the camera, auto, or daylight)"}
     )
-    min_size: int = field(default=32, metadata={"help": "refuse photos whose shorter side is below this many pixels"})
+    min_size: int = field(default=32, metadata={"bounds": (1, 65_536), "help": "refuse photos whose shorter side is below this many pixels"})
     max_megapixels: float = field(
         default=250.0,
-        metadata={"help": "refuse photos above this size, read from the header before decoding (a guard against "
+        metadata={"bounds": (0.0, 10000.0), "help": "refuse photos above this size, read from the header before decoding (a guard against "
                   "decompression bombs; 0 = no limit); today's largest camera and phone photos are 200 MP"},
     )
     video_frames: int = field(
-        default=150, metadata={"help": "a video capture: frames to keep, each the sharpest of its stretch of the video"}
+        default=150, metadata={"bounds": (2, 10_000), "help": "a video capture: frames to keep, each the sharpest of its stretch of the video"}
     )
     skip_bad: bool = field(default=False, metadata={"help": "skip unreadable or duplicate photos with a warning"})
-    workers: int = field(default=0, metadata={"help": "decoding threads; 0 = one per CPU core"})
+    workers: int = field(default=0, metadata={"bounds": (0, 256), "help": "decoding threads; 0 = one per CPU core"})
 
     def __post_init__(self) -> None:
         if self.max_size < 0:
@@ -65,6 +68,8 @@ class IngestParams:
             raise ValueError(f"min_size must be at least 1 pixel, got {self.min_size}")
         if self.max_megapixels < 0:
             raise ValueError(f"max_megapixels must be 0 (no limit) or positive, got {self.max_megapixels}")
+        if 0 < self.max_megapixels * 1e6 < 1:  # would round to 0 pixels, which reads as no limit
+            raise ValueError(f"max_megapixels {self.max_megapixels:g} is below one pixel; use 0 for no limit")
         if self.workers < 0:
             raise ValueError(f"workers must be >= 0, got {self.workers}")
 
@@ -134,7 +139,17 @@ class IngestStage(Stage):
             for photo in photos:
                 if (kind := photo_kind(photo)) is not None:
                     check_head(photo, kind, size=1 << 16)
-        return photos
+            return photos
+        readable = []
+        for photo in photos:  # the engine hashes what is returned: a file it cannot read is skipped here
+            try:
+                with open(photo, "rb") as f:
+                    f.read(1)
+            except OSError as err:
+                log.warning("skipped %s: cannot be read (%s)", photo, err.strerror or err)
+                continue
+            readable.append(photo)
+        return readable
 
     def expected_bytes(self, inputs: StageInputs, params: IngestParams) -> int:
         """The PNGs' size from the photos' headers: their pixels at the output size and depth, times the

@@ -45,10 +45,10 @@ PATH_KINDS = ("auto", "spiral", "orbit", "sweep")
 
 @dataclass(frozen=True)
 class RenderParams:
-    frames: int = field(default=40, metadata={"help": "frames along the path"})
-    fps: float = field(default=20.0, metadata={"help": "frames per second of the videos"})
-    scale: float = field(default=0.5, metadata={"help": "render size relative to the first training camera (0.5: half width and height)"})
-    max_side: int = field(default=320, metadata={"help": "cap on the longest side of the render in pixels, after scale (0: none)"})
+    frames: int = field(default=40, metadata={"bounds": (1, 100_000), "help": "frames along the path"})
+    fps: float = field(default=20.0, metadata={"bounds": (1.0, 240.0), "help": "frames per second of the videos"})
+    scale: float = field(default=0.5, metadata={"bounds": (0.01, 4.0), "help": "render size relative to the first training camera (0.5: half width and height)"})
+    max_side: int = field(default=320, metadata={"bounds": (0, 16_384), "help": "cap on the longest side of the render in pixels, after scale (0: none)"})
     path: str = field(
         default="auto", metadata={"help": "camera path: auto, spiral, orbit, sweep, or a camera_path.json (keyframes "
                                           "recorded in `nerfpipe view --web`; its frames and fps apply); auto: "
@@ -56,9 +56,9 @@ class RenderParams:
                                           "ones whose cameras go all round (300° or more), else a sweep out and "
                                           "back along the cameras"}
     )
-    n_rotations: float = field(default=2.0, metadata={"help": "spiral: turns around the mean camera (LLFF: 2)"})
+    n_rotations: float = field(default=2.0, metadata={"bounds": (0.0, 100.0), "help": "spiral: turns around the mean camera (LLFF: 2)"})
     elevation: str = field(default="auto", metadata={"help": "orbit: degrees above the target, or auto (the cameras' mean)"})
-    chunk: int = field(default=4096, metadata={"help": "rays per chunk while rendering (4096: measured fastest on a 2-core CPU, scripts/bench_throughput.py)"})
+    chunk: int = field(default=4096, metadata={"bounds": (1, 1_048_576), "help": "rays per chunk while rendering (4096: measured fastest on a 2-core CPU, scripts/bench_throughput.py)"})
     device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
 
     def __post_init__(self) -> None:

@@ -24,8 +24,16 @@ from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 from nerfpipe.artifacts import ViewSplit
-from nerfpipe.nerf.config import FieldParams, OptimParams, PerImageParams, SamplerParams, SpaceParams
+from nerfpipe.nerf.config import (
+    FieldParams,
+    OptimParams,
+    PerImageParams,
+    SamplerParams,
+    SpaceParams,
+    step_bytes,
+)
 from nerfpipe.pipeline.params import param
+from nerfpipe.pipeline.resources import check_memory
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
 
@@ -39,28 +47,28 @@ class TrainParams:
     """The defaults are the ``fast`` preset: the grid field with empty-space skipping. The model's parts are
     configured in groups (``nerfpipe.nerf.config``): ``field``, ``sampler``, ``space``, ``optim``, ``per_image``."""
 
-    steps: int = param(0, "optimization steps (the paper: 100-300k, Section 5.3); 0: as many as fit in train.seconds")
+    steps: int = param(0, "optimization steps (the paper: 100-300k, Section 5.3); 0: as many as fit in train.seconds", bounds=(0, 10_000_000))
     seconds: float = param(120.0, "with steps=0: seconds of training, the learning rate decaying over them "
-                                  "(Instant-NGP trains by time too)")
+                                  "(Instant-NGP trains by time too)", bounds=(1.0, 604800.0))
     field: FieldParams = param(FieldParams(), "the radiance field")
     sampler: SamplerParams = param(SamplerParams(), "where along each ray the field is evaluated")
     space: SpaceParams = param(SpaceParams(), "the ray space and the scene box")
     optim: OptimParams = param(OptimParams(), "batches, optimizer and schedule")
     per_image: PerImageParams = param(PerImageParams(), "what is learned for each training photo")
-    train_images: int = param(0, "train on this many images, evenly spaced (Table 2 rows 5-6); 0: all")
-    holdout_every: int = param(8, "without a val/test split, hold out every n-th image (the paper: 8)")
-    eval_stride: int = param(1, "evaluate every n-th held-out view")
+    train_images: int = param(0, "train on this many images, evenly spaced (Table 2 rows 5-6); 0: all", bounds=(0, 100_000))
+    holdout_every: int = param(8, "without a val/test split, hold out every n-th image (the paper: 8)", bounds=(1, 10_000))
+    eval_stride: int = param(1, "evaluate every n-th held-out view", bounds=(1, 10_000))
     eval_scale: str = param("auto", "render and score the held-out views at this share of their size (1: full "
                                     "resolution); auto: the largest share predicted to cost at most eval_budget of "
                                     "the training time")
-    eval_budget: float = param(0.1, "with eval_scale=auto: the held-out evaluation's share of the training time")
-    checkpoint_every: int = param(500, "write a checkpoint every n steps (a killed run resumes from the last)")
-    keep_checkpoints: int = param(2, "checkpoints kept (0: all)")
-    seed: int = param(0, "seed of initialization, batches and samples")
+    eval_budget: float = param(0.1, "with eval_scale=auto: the held-out evaluation's share of the training time", bounds=(0.001, 10.0))
+    checkpoint_every: int = param(500, "write a checkpoint every n steps (a killed run resumes from the last)", bounds=(1, 10_000_000))
+    keep_checkpoints: int = param(2, "checkpoints kept (0: all)", bounds=(0, 1000))
+    seed: int = param(0, "seed of initialization, batches and samples", bounds=(0, 2_147_483_647))
     device: Literal["auto", "cpu", "cuda"] = param("auto", "auto: CUDA when present, else CPU")
     tf32: bool = param(False, "CUDA: TF32 matmuls")
     autocast: Literal["none", "bf16", "fp16"] = param("none", "mixed precision for the MLP (compositing stays float32)")
-    chunk: int = param(4096, "rays per chunk when rendering whole views")
+    chunk: int = param(4096, "rays per chunk when rendering whole views", bounds=(1, 1_048_576))
 
     # the flat names before the parameters were grouped: still accepted, with a deprecation message
     ALIASES: ClassVar[dict[str, Any]] = {
@@ -80,6 +88,8 @@ class TrainParams:
     }
 
     def __post_init__(self) -> None:
+        check_memory("optim.batch_rays, optim.batch_samples and the sampler's samples a ray", "a training step's samples",
+                     step_bytes(self.field, self.sampler, self.optim), share=1.0)
         for name in ("holdout_every", "eval_stride", "checkpoint_every", "chunk"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -154,6 +164,11 @@ class TrainStage(Stage):
     accelerated = True
     resumable = True
     elastic = ("seconds", "steps")  # under a job budget, train.seconds is what the other stages leave
+
+    def least_seconds(self, params: TrainParams) -> tuple[float, str] | None:
+        if params.steps:
+            return params.steps * FASTEST_STEP_SECONDS, f"steps={params.steps}"
+        return params.seconds, f"seconds={params.seconds:g}"
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
         s = manifest.get("summary", {})
@@ -300,6 +315,7 @@ class TrainStage(Stage):
 # training a budget can leave it (a budget smaller than the stages before training need still trains this long).
 SAVE_RESERVE_SECONDS = 3.0
 MIN_TRAIN_SECONDS = 20.0
+FASTEST_STEP_SECONDS = 1e-3  # no machine trains a step faster (an H200 runs 45-110 a second): a floor, for refusing
 
 
 def training_seconds(allotted: float, eval_budget: float) -> float:

@@ -31,7 +31,7 @@ from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 class UndistortParams:
     threshold_px: float = field(
         default=0.5,
-        metadata={"help": "undistort a camera only when its lens moves some pixel by more than this many pixels"},
+        metadata={"bounds": (0.0, 1000.0), "help": "undistort a camera only when its lens moves some pixel by more than this many pixels"},
     )
     interpolation: Literal["linear", "cubic", "lanczos"] = field(
         default="cubic", metadata={"help": "resampling of the colour channels; alpha is always resampled linearly"}

@@ -66,8 +66,10 @@ def run_sfm(
         raise StageError(
             f"SfM registered only {registered} of {len(names)} photos"
             f"{' even with relaxed options' if params.relaxed_retry else ''}; the photos may lack texture or overlap. "
-            "Try: more photos with 60-80% overlap, --set sfm.matcher=exhaustive, "
-            "--set sfm.max_features=16384, or --set ingest.max_size=0 for full-resolution features "
+            "Try: more photos with 60-80% overlap, "
+            f"{'--set sfm.matcher=exhaustive, ' if matcher != 'exhaustive' else ''}"
+            f"{f'--set sfm.max_features={2 * params.max_features}, ' if params.max_features < 32768 else ''}"
+            "or --set ingest.max_size=0 for full-resolution features "
             f"(COLMAP's log: {out / 'colmap.log'})"
         )
     best.write(colmap_dir)  # the kept model, as COLMAP binary files, for other tools
