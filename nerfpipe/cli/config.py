@@ -99,3 +99,11 @@ def write_config(run_dir: Path, plan: Mapping[str, PlannedStage], budget: float 
     header = "# every parameter of this run as resolved; `nerfpipe run PHOTOS --config this-file` repeats it\n"
     path.write_text(header + yaml.safe_dump(doc, sort_keys=False, allow_unicode=True), encoding="utf-8")
     return path
+
+
+def one_preset(presets: list[str]) -> str | None:
+    """The one ``--preset`` given, if any: presets do not combine, so two are refused rather than one dropped."""
+    if len(presets) > 1:
+        raise ParamError(f"--preset given {len(presets)} times ({', '.join(presets)}); presets do not combine: choose "
+                         "one, and --set what you want on top")
+    return presets[0] if presets else None

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+from pathlib import Path
 from typing import Callable, Iterator
 
 import typer
@@ -187,3 +188,23 @@ def print_outcomes(run_dir, outcomes, view: bool) -> None:
     if view and not any(o.name == "train" and o.action == "ran" for o in outcomes):
         out_console.print(f"--view: no training ran to watch; `nerfpipe view {escape(str(run_dir))} --web` shows the "
                           "trained field", highlight=False, soft_wrap=True)
+
+
+def print_batch(states: list, out: Path, executor: str) -> list:
+    """`batch`'s table of each capture's state, and its closing line; returns the captures that did not finish."""
+    from nerfpipe.pipeline.batch import SUMMARY
+
+    table = Table(title=f"nerfpipe batch -> {escape(str(out))} ({executor})", title_justify="left")
+    for column in ("capture", "state", "ran", "cached", "time"):
+        table.add_column(column)
+    table.add_column("reason", overflow="fold")
+    for c in states:
+        reason = "" if c.error is None else f"{c.stage or 'plan'}: {c.error}" + (f" (log: {c.log})" if c.log else "")
+        style = {"done": "green", "failed": "red"}.get(c.state, "")
+        table.add_row(escape(c.name), f"[{style}]{c.state}[/]", str(c.count("ran")),
+                      str(c.count("cached") + c.count("restored")), f"{c.seconds:.1f} s", escape(reason))
+    out_console.print(table)
+    failed = [c for c in states if c.state != "done"]
+    out_console.print(f"{len(states) - len(failed)} of {len(states)} captures done, {len(failed)} failed; "
+                      f"summary: {escape(str(out / SUMMARY))}", highlight=False, soft_wrap=True)
+    return failed

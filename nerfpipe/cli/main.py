@@ -9,12 +9,14 @@ from typing import List, Optional
 import typer
 from rich.table import Table
 
+from nerfpipe.cli.config import one_preset
 from nerfpipe.cli.console import (
     STATE_STYLE,
     batch_progress,
     bench_line,
     escape,
     out_console,
+    print_batch,
     print_outcomes,
     progress_factory,
     serve_web,
@@ -57,14 +59,6 @@ PresetOption = typer.Option([], "--preset", "-p", help="Named preset applied to 
 SetOption = typer.Option([], "--set", "-s", help="Override one parameter: STAGE.PARAM=VALUE (repeatable).")
 HostOption = typer.Option("127.0.0.1", "--host", show_default=True, help="The web viewer's address: this machine only by default; "
                           "0.0.0.0 shows the run's photos to anyone on the network who has the printed URL (its token).")
-
-
-def one_preset(presets: List[str]) -> Optional[str]:
-    """The one ``--preset`` given, if any: presets do not combine, so two are refused rather than one dropped."""
-    if len(presets) > 1:
-        raise ParamError(f"--preset given {len(presets)} times ({', '.join(presets)}); presets do not combine: choose "
-                         "one, and --set what you want on top")
-    return presets[0] if presets else None
 
 
 @app.command()
@@ -307,7 +301,7 @@ def batch(
     setup_logging(debug)
     if not debug:
         logging.getLogger("nerfpipe").handlers[0].setLevel(logging.ERROR)  # each capture's log file has the rest
-    from nerfpipe.pipeline.batch import SUMMARY, Batch, BatchSettings, find_captures
+    from nerfpipe.pipeline.batch import Batch, BatchSettings, find_captures
     from nerfpipe.pipeline import InputError
     from nerfpipe.pipeline.executors import LocalExecutor, RayExecutor
 
@@ -329,19 +323,7 @@ def batch(
         runner = LocalExecutor(max_parallel or 1, max_retries) if executor == "local" else RayExecutor(address, max_retries)
         with runner, batch_progress(len(sources)) as on_change:
             states = Batch(sources, out, runner, settings, on_change).run()
-    table = Table(title=f"nerfpipe batch -> {escape(str(out))} ({executor})", title_justify="left")
-    for column in ("capture", "state", "ran", "cached", "time"):
-        table.add_column(column)
-    table.add_column("reason", overflow="fold")
-    for c in states:
-        reason = "" if c.error is None else f"{c.stage or 'plan'}: {c.error}" + (f" (log: {c.log})" if c.log else "")
-        style = {"done": "green", "failed": "red"}.get(c.state, "")
-        table.add_row(escape(c.name), f"[{style}]{c.state}[/]", str(c.count("ran")), str(c.count("cached") + c.count("restored")),
-                      f"{c.seconds:.1f} s", escape(reason))
-    out_console.print(table)
-    failed = [c for c in states if c.state != "done"]
-    out_console.print(f"{len(states) - len(failed)} of {len(states)} captures done, {len(failed)} failed; "
-                      f"summary: {escape(str(out / SUMMARY))}", highlight=False, soft_wrap=True)
+    failed = print_batch(states, out, executor)
     if failed:
         raise typer.Exit(1)
 

@@ -53,6 +53,10 @@ class Photo:
     c2w: np.ndarray
 
 
+class UnchartableMeshError(Exception):
+    """The mesh cannot be laid out on a texture (UVAtlas fails on degenerate meshes)."""
+
+
 def bake(mesh: Mesh, photos: Sequence[Photo], faces: int, size: int) -> TexturedMesh:
     """The mesh, simplified to at most ``faces`` triangles, with a ``size`` x ``size`` texture from ``photos``."""
     import open3d as o3d
@@ -62,7 +66,10 @@ def bake(mesh: Mesh, photos: Sequence[Photo], faces: int, size: int) -> Textured
     if len(mesh.triangles) > faces:
         legacy = legacy.simplify_quadric_decimation(faces)
     solid = o3d.t.geometry.TriangleMesh.from_legacy(manifold(legacy))
-    solid.compute_uvatlas(size=size, parallel_partitions=4)  # UVAtlas charts the parts in parallel (measured fastest)
+    try:
+        solid.compute_uvatlas(size=size, parallel_partitions=4)  # UVAtlas charts the parts in parallel (measured fastest)
+    except (IndexError, RuntimeError) as err:  # UVAtlas gives up on degenerate meshes (slivers of a short training)
+        raise UnchartableMeshError(f"Open3D's UVAtlas could not chart its {len(legacy.triangles)} triangles ({err})") from None
     images = [o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(p.rgb[..., :3]))) for p in photos]
     # Open3D's pinhole model puts pixel centres at integers: half a pixel off ours
     intrinsics = [o3d.core.Tensor(p.K - np.array([[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0]])) for p in photos]

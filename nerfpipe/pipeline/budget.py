@@ -19,7 +19,7 @@ from __future__ import annotations
 import re
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Iterable
+from typing import Any, Callable, Iterable
 
 from nerfpipe.pipeline.errors import ParamError, StageError
 
@@ -114,3 +114,19 @@ def check_affordable(allotment: Allotment | None, seconds: float, what: str, adv
     if allotment is not None and seconds > allotment.budget:
         raise StageError(f"{what} would take about {format_duration(seconds)}, more than the job's whole budget of "
                          f"{format_duration(allotment.budget)}; {advice}, or pass --budget off to run it anyway")
+
+
+def check_least_seconds(planned: Iterable[Any], budget: float | str | None, ceiling: float | None) -> None:
+    """Refuse, before anything runs, a stage set to cost more than the whole job's budget on any machine
+    (``Stage.least_seconds``); ``--budget auto`` is compared with the most it can give, ``ceiling``. A stage that
+    takes what the budget leaves (``elastic``) sizes itself, and ``--budget off`` runs anything as set."""
+    limit = ceiling if isinstance(budget, str) else budget
+    if limit is None:
+        return
+    for stage in planned:
+        least = None if stage.elastic else stage.stage.least_seconds(stage.params)
+        if least is not None and least[0] > limit:
+            raise ParamError(f"{stage.name}.{least[1]} takes at least {format_duration(least[0])}, more than the job's "
+                             f"budget of {format_duration(limit)}"
+                             f"{' (the most --budget auto gives)' if isinstance(budget, str) else ''}; "
+                             "lower it, raise --budget, or pass --budget off")

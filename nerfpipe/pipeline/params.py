@@ -68,7 +68,8 @@ class ParamSpec:
         if not low <= value <= high:
             shown = f"{value:g}" if isinstance(value, float) else (f"{value}" if len(str(value)) < 30 else
                                                                     f"a {len(str(abs(value)))}-digit number")
-            raise ParamError(f"{qualname}: {shown} is outside its bounds [{_show(low)}, {_show(high)}]")
+            low_, high_ = (f"{b:g}" if isinstance(b, float) else str(b) for b in (low, high))
+            raise ParamError(f"{qualname}: {shown} is outside its bounds [{low_}, {high_}]")
 
     @property
     def choices(self) -> tuple[Any, ...] | None:
@@ -172,31 +173,31 @@ def coerce(value: Any, tp: Any, qualname: str) -> Any:
                 _deprecated(f"{qualname}={value}: the switches now read auto, on or off; taken as {qualname}={new}")
                 return new
         allowed = ", ".join(str(c) for c in choices)
-        raise ParamError(f"{qualname}: {value!r} is not one of {allowed}")
+        raise ParamError(f"{qualname}: {_clip(value)} is not one of {allowed}")
     if inner is bool:
         if isinstance(value, bool):
             return value
         if isinstance(value, str) and value.strip().lower() in _TRUE | _FALSE:
             return value.strip().lower() in _TRUE
-        raise ParamError(f"{qualname}: expected true or false, got {value!r}")
+        raise ParamError(f"{qualname}: expected true or false, got {_clip(value)}")
     if inner is int:
         if isinstance(value, bool):
-            raise ParamError(f"{qualname}: expected an integer, got {value!r}")
+            raise ParamError(f"{qualname}: expected an integer, got {_clip(value)}")
         if isinstance(value, int):
             return value
         try:
             return int(str(value).strip())
         except ValueError:
-            raise ParamError(f"{qualname}: expected an integer, got {value!r}") from None
+            raise ParamError(f"{qualname}: expected an integer, got {_clip(value)}") from None
     if inner is float:
         try:
             if isinstance(value, bool):
                 raise ValueError
             number = float(value) if isinstance(value, (int, float)) else float(str(value).strip())
         except (ValueError, OverflowError):  # OverflowError: an integer beyond any float
-            raise ParamError(f"{qualname}: expected a number, got {value!r}") from None
+            raise ParamError(f"{qualname}: expected a number, got {_clip(value)}") from None
         if not math.isfinite(number):
-            raise ParamError(f"{qualname}: expected a finite number, got {value!r}")
+            raise ParamError(f"{qualname}: expected a finite number, got {_clip(value)}")
         return number
     if inner is str:
         return str(value)
@@ -277,6 +278,13 @@ def describe_changes(stage: str, old: Mapping[str, Any], new: Mapping[str, Any])
         if old.get(name, "<unset>") != new.get(name, "<unset>"):
             changes.append(f"{stage}.{name} {_show(old.get(name, '<unset>'))} -> {_show(new.get(name, '<unset>'))}")
     return changes
+
+
+def _clip(value: Any, keep: int = 40) -> str:
+    """``repr(value)``, a long one cut to its first ``keep`` characters and its length: a 5000-digit number is
+    named, not printed."""
+    text = repr(value)
+    return text if len(text) <= keep else f"{text[:keep]}... ({len(text)} characters)"
 
 
 def _show(value: Any) -> str:

@@ -17,7 +17,7 @@ from nerfpipe.pipeline.fingerprint import Fingerprint, FingerprintCache, diff_in
 from nerfpipe.pipeline.hashing import cache_key
 from nerfpipe.pipeline.params import build_params, describe_changes, params_to_dict
 from nerfpipe.pipeline.stage import Stage, capture_root
-from nerfpipe.pipeline.store import MANAGED, Committed, Damage, is_run_dir
+from nerfpipe.pipeline.store import MANAGED, ArtifactStore, Committed, Damage, is_run_dir
 
 
 @dataclass(frozen=True)
@@ -72,12 +72,12 @@ def _clip(text: object, keep: int = 40) -> str:
 
 def plan_stages(dag: Dag, source: Path, run_dir: Path, preset: str | None,
                 overrides: Mapping[str, Mapping[str, Any]], budget: float | str | None,
-                rehash: bool = False) -> dict[str, PlannedStage]:
+                rehash: bool = False, fingerprints: FingerprintCache | None = None) -> dict[str, PlannedStage]:
     """Every stage's parameters, fingerprinted capture files and cache key, in the DAG's order. The key hashes
     the stage's name, version and parameters, its upstream keys, its files' fingerprints and, for a stage that
     takes part in the job's time ``budget``, the budget as given. ``rehash``: hash every capture file, trusting
     no cached fingerprint."""
-    fingerprints = FingerprintCache(run_dir / ".cache" / "fingerprints.json", rehash)
+    fingerprints = fingerprints or FingerprintCache(run_dir / ".cache" / "fingerprints.json", rehash)
     root = capture_root(source)
     planned: dict[str, PlannedStage] = {}
     for name in dag.order:
@@ -180,3 +180,37 @@ def library_versions(names: Sequence[str]) -> dict[str, str]:
         except importlib.metadata.PackageNotFoundError:
             versions[name] = "not installed"
     return versions
+
+
+def stage_statuses(plan: Mapping[str, PlannedStage], store: ArtifactStore, dag: Dag,
+                   verify: bool = False) -> list[StageStatus]:
+    """Each planned stage's state in ``store``, checking every result it would reuse: sizes and times, or
+    ``verify`` sha256."""
+    statuses: dict[str, StageStatus] = {}
+    for name, planned in plan.items():
+        found = store.inspect(name, planned.key, full=verify)
+        if isinstance(found, Committed):
+            upstream = {up: statuses[up].result if statuses[up].state == "fresh" else None for up in dag.upstream[name]}
+            problem = upstream_problem(found, upstream, {up: statuses[up].state for up in upstream})
+            if problem is not None:
+                statuses[name] = StageStatus(name, "stale", (problem,), planned.key, found)
+            else:
+                reasons = () if store.latest_key(name) == planned.key else ("cached by an earlier run",)
+                statuses[name] = StageStatus(name, "fresh", reasons, planned.key, found)
+        elif isinstance(found, Damage):
+            statuses[name] = StageStatus(name, "broken", (f"damaged result: {found}",), planned.key, None, found)
+        elif (latest := store.latest(name)) is not None:
+            why = stale_reasons(planned, latest.manifest, planned.stage.inputs_label)
+            statuses[name] = StageStatus(name, "stale", tuple(why), planned.key, latest)
+        else:
+            statuses[name] = StageStatus(name, "missing", (never_ran(store, planned),), planned.key, None)
+    return list(statuses.values())
+
+
+def never_ran(store: ArtifactStore, planned: PlannedStage) -> str:
+    """Why a stage with no result and no earlier run to compare with is missing."""
+    aside = store.set_aside_as(planned.name, planned.key)
+    if aside is not None:
+        return f"its damaged result was moved aside to {aside}"
+    failure = store.failure(planned.name, planned.key)
+    return f"failed in the last run: {failure}" if failure is not None else "not run yet"

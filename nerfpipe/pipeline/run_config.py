@@ -4,9 +4,10 @@
 from __future__ import annotations
 
 import json
+import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 from nerfpipe.pipeline.errors import InputError
 from nerfpipe.pipeline.store import write_json_atomic
@@ -52,3 +53,22 @@ class RunConfig:
             pass
         path.parent.mkdir(parents=True, exist_ok=True)
         write_json_atomic(path, doc)
+
+
+def run_command(source: Path, run_dir: Path, preset: str | None, overrides: Mapping[str, Mapping[str, Any]],
+                budget: float | str | None, until: str | None = None) -> str:
+    """The ``nerfpipe run`` command line with these settings (preset, every ``--set``, the budget), quoted for a
+    POSIX shell: what a message suggests, so that following it keeps the run's settings."""
+    words = ["nerfpipe", "run", str(source), "--out", str(run_dir)]
+    if preset is not None:
+        words += ["--preset", preset]
+    for stage, values in overrides.items():
+        for name, value in values.items():
+            words += ["--set", f"{stage}.{name}={value}"]
+    if budget is None:
+        words += ["--budget", "off"]
+    elif not isinstance(budget, str):
+        words += ["--budget", f"{budget:g}"]
+    if until is not None:
+        words += ["--until", until]
+    return shlex.join(words)

@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
-from nerfpipe.pipeline.budget import Allotment, JobBudget, format_duration
+from nerfpipe.pipeline.budget import Allotment, JobBudget, check_least_seconds
 from nerfpipe.pipeline.dag import Dag
 from nerfpipe.pipeline.errors import (
     DiskFullError,
@@ -28,6 +28,7 @@ from nerfpipe.pipeline.errors import (
     os_error_to_user_error,
 )
 from nerfpipe.pipeline.lock import RunLock, StageLock
+from nerfpipe.pipeline.fingerprint import FingerprintCache
 from nerfpipe.pipeline.logfile import log_to_file
 from nerfpipe.pipeline.plan import (
     check_run_dir,
@@ -35,12 +36,14 @@ from nerfpipe.pipeline.plan import (
     StageOutcome,
     StageStatus,
     library_versions,
+    never_ran,
     plan_stages,
     running_because,
+    stage_statuses,
     stale_reasons,
     upstream_problem,
 )
-from nerfpipe.pipeline.run_config import RunConfig
+from nerfpipe.pipeline.run_config import RunConfig, run_command
 from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress
 from nerfpipe.pipeline.store import ArtifactStore, Committed, Damage
 
@@ -86,6 +89,7 @@ class Pipeline:
             known = sorted({p for s in stages for p in s.presets})
             raise ParamError(f"unknown preset {preset!r}; presets are: {', '.join(known)}")
         self._plan: dict[str, PlannedStage] | None = None
+        self._fingerprints: FingerprintCache | None = None
 
     @classmethod
     def from_run_dir(
@@ -111,32 +115,14 @@ class Pipeline:
             return self._plan
         if not self.source.exists():
             raise InputError(self.source, "capture folder does not exist", "pass a folder of photos, or a video")
-        self._plan = plan_stages(self.dag, self.source, self.run_dir, self.preset, self.overrides, self.budget, rehash)
+        self._fingerprints = FingerprintCache(self.run_dir / ".cache" / "fingerprints.json", rehash)
+        self._plan = plan_stages(self.dag, self.source, self.run_dir, self.preset, self.overrides, self.budget, rehash,
+                                 self._fingerprints)
         return self._plan
 
     def status(self, verify: bool = False) -> list[StageStatus]:
         """Each stage's state, checking every result it would reuse: sizes and times, or ``verify`` sha256."""
-        statuses: dict[str, StageStatus] = {}
-        for name, planned in self.plan().items():
-            found = self.store.inspect(name, planned.key, full=verify)
-            if isinstance(found, Committed):
-                upstream = {up: statuses[up].result if statuses[up].state == "fresh" else None
-                            for up in self.dag.upstream[name]}
-                problem = upstream_problem(found, upstream, {up: statuses[up].state for up in upstream})
-                if problem is not None:
-                    statuses[name] = StageStatus(name, "stale", (problem,), planned.key, found)
-                else:
-                    latest = self.store.latest_key(name) == planned.key
-                    reasons = () if latest else ("cached by an earlier run",)
-                    statuses[name] = StageStatus(name, "fresh", reasons, planned.key, found)
-            elif isinstance(found, Damage):
-                statuses[name] = StageStatus(name, "broken", (f"damaged result: {found}",), planned.key, None, found)
-            elif (latest := self.store.latest(name)) is not None:
-                why = stale_reasons(planned, latest.manifest, planned.stage.inputs_label)
-                statuses[name] = StageStatus(name, "stale", tuple(why), planned.key, latest)
-            else:
-                statuses[name] = StageStatus(name, "missing", (self._never_ran(planned),), planned.key, None)
-        return list(statuses.values())
+        return stage_statuses(self.plan(), self.store, self.dag, verify)
 
     def verify(self) -> list[tuple[StageStatus, Path]]:
         """Hash every capture file and every output of every result the current settings use; move the damaged
@@ -172,23 +158,8 @@ class Pipeline:
         return result.path / self.dag.stages[stage].provides[name]
 
     def command(self, until: str | None = None) -> str:
-        """The ``nerfpipe run`` command line that repeats this pipeline's settings (preset, every ``--set``,
-        the budget), quoted for a POSIX shell."""
-        import shlex
-
-        words = ["nerfpipe", "run", str(self.source), "--out", str(self.run_dir)]
-        if self.preset is not None:
-            words += ["--preset", self.preset]
-        for stage, values in self.overrides.items():
-            for name, value in values.items():
-                words += ["--set", f"{stage}.{name}={value}"]
-        if self.budget is None:
-            words += ["--budget", "off"]
-        elif not isinstance(self.budget, str):
-            words += ["--budget", f"{self.budget:g}"]
-        if until is not None:
-            words += ["--until", until]
-        return shlex.join(words)
+        """The ``nerfpipe run`` command line that repeats this pipeline's settings (``run_command``)."""
+        return run_command(self.source, self.run_dir, self.preset, self.overrides, self.budget, until)
 
     def optional_artifact(self, name: str) -> Path | None:
         """``artifact``, or None where its stage has no current result (or this pipeline has no such stage)."""
@@ -243,8 +214,11 @@ class Pipeline:
             forced |= {name} | self.dag.descendants(name)
         check_run_dir(self.source, self.run_dir)
         self.plan()  # a capture that cannot be read is refused before the run directory is made
-        self._check_affordable(selected)
+        ceiling = getattr(self.budget_rule, "ceiling", None)  # the most --budget auto can give
+        check_least_seconds([self.plan()[name] for name in selected], self.budget, ceiling)
         self.store.prepare()
+        if self._fingerprints is not None:
+            self._fingerprints.save()  # planned before the folder was nerfpipe's: the hashes are kept now
         with self._user_os_errors(), RunLock(self.run_dir), self._log_to_file():
             planned = self.plan()
             self.save_config()
@@ -267,23 +241,6 @@ class Pipeline:
                     log.warning("%s (the run goes on without it)", err)
                     outcomes.append(StageOutcome(name, "failed", planned[name].key, self.run_dir, 0.0, (str(err),)))
             return outcomes
-
-    def _check_affordable(self, selected: Sequence[str]) -> None:
-        """Refuse, before anything runs, a stage set to cost more than the whole job's budget (``least_seconds``);
-        ``--budget auto`` is compared with the most it can give (the rule's ``ceiling``)."""
-        if self.budget is None:
-            return
-        budget = self.budget if not isinstance(self.budget, str) else getattr(self.budget_rule, "ceiling", None)
-        if budget is None:
-            return
-        for name in selected:
-            planned = self.plan()[name]
-            least = None if planned.elastic else planned.stage.least_seconds(planned.params)
-            if least is not None and least[0] > budget:
-                raise ParamError(f"{name}.{least[1]} takes at least {format_duration(least[0])}, more than the job's "
-                                 f"budget of {format_duration(budget)}"
-                                 f"{' (the most --budget auto gives)' if isinstance(self.budget, str) else ''}; "
-                                 "lower it, raise --budget, or pass --budget off")
 
     def run_stage(self, name: str, force: bool = False) -> StageOutcome:
         """Run one stage whose upstream results exist, in whichever process or node this is.
@@ -352,16 +309,8 @@ class Pipeline:
             return [problem or "cache key changed"], True
         latest = self.store.latest(name)
         if latest is None:
-            return [self._never_ran(planned)], False
+            return [never_ran(self.store, planned)], False
         return stale_reasons(planned, latest.manifest, planned.stage.inputs_label), False
-
-    def _never_ran(self, planned: PlannedStage) -> str:
-        """Why a stage with no result and no earlier run to compare with is missing."""
-        aside = self.store.set_aside_as(planned.name, planned.key)
-        if aside is not None:
-            return f"its damaged result was moved aside to {aside}"
-        failure = self.store.failure(planned.name, planned.key)
-        return f"failed in the last run: {failure}" if failure is not None else "not run yet"
 
     def _run_locked(self, planned: PlannedStage, forced: bool) -> StageOutcome:
         name, key = planned.name, planned.key

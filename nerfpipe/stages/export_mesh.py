@@ -142,7 +142,7 @@ class ExportMeshStage(Stage):
             vertex_normals,
             write_mesh,
         )
-        from nerfpipe.export.texture import colours_at, write_textured_glb
+        from nerfpipe.export.texture import UnchartableMeshError, colours_at, write_textured_glb
         from nerfpipe.nerf.model import RadianceModel
 
         started = time.perf_counter()
@@ -186,9 +186,12 @@ class ExportMeshStage(Stage):
         mesh, report = clean(mesh, params.min_component, params.target_faces)
         textured, scores = None, {}
         if params.texture:
-            textured, scores = bake_and_score(inputs, mesh, params, ctx)
-            mesh.colors = colours_at(textured, mesh.vertices)
-        elif method == "marching_cubes":
+            try:
+                textured, scores = bake_and_score(inputs, mesh, params, ctx)
+                mesh.colors = colours_at(textured, mesh.vertices)
+            except UnchartableMeshError as err:
+                ctx.log.warning("export_mesh: no texture: %s; the mesh keeps vertex colours", err)
+        if textured is None and method == "marching_cubes":
             normals = vertex_normals(mesh)
             probe = slice(0, min(PROBE_POINTS // 16, len(mesh.vertices)))
             began = time.perf_counter()

@@ -162,7 +162,7 @@ def test_spaces_and_non_ascii_paths_work(tmp_path):
         (["--set", "ingst.max_size=800"], ["unknown stage 'ingst'; did you mean ingest?"]),
         (["--set", "max_size=800"], ["expected STAGE.PARAM=VALUE"]),
         (["--set", "ingest.bit_depth=12"], ["ingest.bit_depth: '12' is not one of auto, 8, 16"]),
-        (["--set", "ingest.max_size=-5"], ["max_size must be 0"]),
+        (["--set", "ingest.max_size=-5"], ["ingest.max_size: -5 is outside its bounds [0, 65536]"]),
         (["--preset", "ultra"], ["unknown preset 'ultra'"]),
         (["--set", "ingest.max_megapixels=nan"], ["ingest.max_megapixels: expected a finite number, got 'nan'"]),
         (["--set", "train.seconds=inf"], ["train.seconds: expected a finite number, got 'inf'"]),

@@ -143,3 +143,22 @@ def test_a_run_directory_from_before_the_marker_is_still_a_run(tmp_path) -> None
     (old / "run.json").write_text("{}")
     ArtifactStore(old).prepare()
     assert (old / ".nerfpipe-run").is_file()
+
+
+def test_export_to_a_folder_that_cannot_be_written_is_one_line_before_any_copy(tmp_path, monkeypatch) -> None:
+    """As root every folder is writable; one that is not (another user's, a read-only mount) is simulated where
+    the check asks."""
+    import os
+
+    import nerfpipe.export.bundle as bundle
+
+    run = tmp_path / "RUN"
+    ArtifactStore(run).prepare()
+    (run / "exports").mkdir()
+    (run / "exports" / "points.ply").write_bytes(b"ply")
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    monkeypatch.setattr(bundle.os, "access", lambda path, mode: Path(path) != locked and os.access(path, mode))
+    with pytest.raises(InputError, match="locked: cannot be written to \\(permission denied\\)"):
+        copy_exports(run / "exports", locked, run)
+    assert not any(locked.iterdir())

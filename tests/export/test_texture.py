@@ -143,3 +143,19 @@ def test_a_folded_edge_and_a_loose_sliver_are_cleaned_before_charting():
     assert len(np.asarray(out.get_non_manifold_edges())) == 0
     assert textured.vertices[:, 0].max() < 1.0  # the lone triangle at x = 2 is gone
     assert len(box.triangles) - 2 <= textured.faces <= len(box.triangles)
+
+
+def test_a_mesh_uvatlas_cannot_chart_is_an_error_of_ours_not_open3ds(monkeypatch) -> None:
+    """UVAtlas raised IndexError (`_Map_base::at`) on the slivers of a ten-second training; export_mesh then
+    keeps vertex colours instead of failing with Open3D's traceback."""
+    import open3d as o3d
+
+    from nerfpipe.export.texture import UnchartableMeshError
+
+    def refuse(self, *args, **kwargs):
+        raise IndexError("_Map_base::at")
+
+    monkeypatch.setattr(o3d.t.geometry.TriangleMesh, "compute_uvatlas", refuse)
+    photos = [Photo(np.zeros((16, 16, 3), np.uint8), np.eye(3), c2w) for c2w in around(2, 0.5)]
+    with pytest.raises(UnchartableMeshError, match=r"UVAtlas could not chart its 768 triangles \(_Map_base::at\)"):
+        bake(cube(), photos, 1000, 64)

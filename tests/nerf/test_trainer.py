@@ -230,3 +230,16 @@ def test_a_grid_fields_tables_learn_at_lr_and_its_mlps_at_their_share() -> None:
     grouped = [p for g in groups for p in g["params"]]
     assert len(grouped) == len({id(p) for p in grouped}) == len(list(grid.parameters())) + len(list(mlp.parameters()))
     assert [g["final"] for g in groups] == pytest.approx([0.3] * 3)
+
+
+def test_a_diverged_training_is_a_stage_error_naming_the_learning_rate(tmp_path, monkeypatch) -> None:
+    """The outside pass's lr=1e12 ended in a FloatingPointError traceback; within bounds a loss can still
+    become nan, and that is one line saying what to lower."""
+    from nerfpipe.pipeline.errors import StageError
+
+    trainer = Trainer(marching_model(), pixels_of_one_view(8), TrainConfig(steps=3, lr=5.0), tmp_path,
+                      torch.device("cpu"))
+    monkeypatch.setattr(trainer, "train_step", lambda step: (float("nan"), 0.0))
+    with pytest.raises(StageError, match=r"^train: the training loss became nan at step 0, so the field diverged; "
+                                         r"lower train.optim.lr \(now 5\)"):
+        trainer.run()
