@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import json
+import re
 import shutil
 import signal
 import socket
@@ -40,6 +41,15 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("localhost", 0))
         return s.getsockname()[1]
+
+
+def printed_url(viewer: subprocess.Popen, port: int) -> str:
+    """The URL the viewer prints once it serves (after the stages before training, for --training)."""
+    for line in viewer.stdout:
+        found = re.search(rf"http://localhost:{port}/\?token=[\w-]+", line)
+        if found:
+            return found.group(0)
+    sys.exit("the viewer ended without printing its URL")
 
 
 def wait_for(url: str, seconds: float = 60) -> None:
@@ -106,7 +116,7 @@ def main(run_dir: Path, out: Path, photos: Path | None = None, keyframes: int = 
     else:
         command = ["run", str(photos), "--out", str(run_dir), "--until", "train", "--view", "--port", str(port)]
     viewer = subprocess.Popen([sys.executable, "-m", "nerfpipe", *command],
-                              stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     with tempfile.TemporaryDirectory() as profile:
         chrome = subprocess.Popen(
             [browser, "--headless", "--no-sandbox", "--use-gl=swiftshader", "--enable-unsafe-swiftshader",
@@ -114,9 +124,9 @@ def main(run_dir: Path, out: Path, photos: Path | None = None, keyframes: int = 
              f"--user-data-dir={profile}", "about:blank"],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         try:
-            wait_for(f"http://localhost:{port}", 60 if photos is None else 900)  # the stages before train first
+            url = printed_url(viewer, port)  # the viewer answers only its URL, which carries a token
             wait_for(f"http://localhost:{debug_port}/json/version")
-            asyncio.run(capture(debug_port, f"http://localhost:{port}", out, keyframes))
+            asyncio.run(capture(debug_port, url, out, keyframes))
         finally:
             chrome.terminate()
             viewer.send_signal(signal.SIGINT)

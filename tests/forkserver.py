@@ -63,7 +63,8 @@ class Outcome:
 
 class ForkServer:
     def __enter__(self) -> "ForkServer":
-        env = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200"}
+        # one thread each: servers run side by side, a core each
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
         self._process = subprocess.Popen([sys.executable, "-c", SERVER], stdin=subprocess.PIPE,
                                          stdout=subprocess.PIPE, text=True, env=env)
         assert self._process.stdout.readline().strip() == "ready"

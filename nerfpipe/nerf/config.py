@@ -67,12 +67,24 @@ _STEP_SAMPLES = {
 }
 
 
+# what a march lays out before the occupancy grid culls it: 4 steps + 1 candidates a ray (``march``), about
+# CANDIDATE_BYTES each (start, end, t, a point, its index and flags), for up to 16 x batch_rays rays a step while
+# the rays adapt to batch_samples
+CANDIDATE_BYTES = 48
+_STEP_CANDIDATES = {
+    "marching": lambda s, o: (16 if o.batch_samples else 1) * o.batch_rays * (4 * s.steps + 1),
+    "hierarchical": lambda s, o: 0,
+}
+
+
 def step_bytes(field: "FieldParams", sampler: "SamplerParams", optim: "OptimParams") -> int:
-    """About what one training step holds: its samples (``sample_bytes`` each). ``auto`` marches a grid field
-    and samples hierarchically along the MLP's rays, as ``assembly`` chooses."""
+    """About what one training step holds: its samples (``sample_bytes`` each), or the candidates a march lays
+    out for them, whichever is more. ``auto`` marches a grid field and samples hierarchically along the MLP's
+    rays, as ``assembly`` chooses."""
     kind = sampler.kind if sampler.kind != "auto" else "hierarchical" if field.kind == "mlp" else "marching"
     samples = _STEP_SAMPLES.get(kind, _STEP_SAMPLES["hierarchical"])(sampler, optim)
-    return samples * sample_bytes(field)
+    candidates = _STEP_CANDIDATES.get(kind, _STEP_CANDIDATES["hierarchical"])(sampler, optim)
+    return max(samples * sample_bytes(field), candidates * CANDIDATE_BYTES)
 
 
 def _at_least(params: object, minimum: float, *names: str) -> None:

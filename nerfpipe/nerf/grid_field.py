@@ -79,7 +79,7 @@ class _Trilinear(torch.autograd.Function):
         table_grad.index_add_(0, bags.reshape(-1), contributions)
         weights_grad = None
         if ctx.needs_input_grad[2]:
-            rows = table.index_select(0, bags.reshape(-1)).view(*bags.shape, -1).to(grad.dtype)  # (M L, C, F)
+            rows = table.index_select(0, bags.reshape(-1)).view(*bags.shape, table.shape[1]).to(grad.dtype)  # (M L, C, F)
             weights_grad = (rows * per_bag).sum(-1).view(m, levels, corners).permute(1, 2, 0).to(ctx.weights_dtype)
         return table_grad, None, weights_grad
 

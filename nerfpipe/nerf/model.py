@@ -27,6 +27,10 @@ from nerfpipe.nerf.samplers import Sampler
 from nerfpipe.nerf.spec import ModelSpec
 from nerfpipe.pipeline.errors import InputError
 
+# samples one rendering call may lay out (rays x the sampler's candidates a ray; about 48 bytes each): a chunk of
+# rays is cut to fit, so that a fine march (sampler.steps) or a large chunk (render.chunk) cannot exhaust memory
+RENDER_CANDIDATES = 1 << 22
+
 
 @dataclass
 class RadianceModel:
@@ -80,6 +84,7 @@ class RadianceModel:
         parts: dict[str, list[Tensor]] = {"rgb": [], "depth": [], "disparity": [], "acc": []}
         evaluated = 0
         background = self.background_tensor()
+        chunk = max(1, min(chunk, RENDER_CANDIDATES // self.sampler.candidates_per_ray()))  # memory, not speed
         with torch.no_grad():
             for start in range(0, len(rays), chunk):
                 out, n = self.sampler.render(coarse, fine, rays.slice(start, start + chunk), background)

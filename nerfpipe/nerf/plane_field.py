@@ -78,5 +78,5 @@ class PlaneField(GridField):
 
     def combine(self, features: Tensor) -> Tensor:
         """(M, 3 L, F) plane samples, plane-major -> (M, L F): the product of each level's three planes."""
-        m, _, width = features.shape
-        return features.view(m, 3, -1, width).prod(dim=1).flatten(1)
+        m, planes, width = features.shape
+        return features.view(m, 3, planes // 3, width).prod(dim=1).flatten(1)  # no -1: M may be 0

@@ -58,6 +58,10 @@ class Sampler(Protocol):
     def occupied_share(self) -> float | None:
         """The share of its grid that is occupied, for a sampler that skips empty space; else None."""
 
+    def candidates_per_ray(self) -> int:
+        """The most samples it lays out along one ray at once (before any are culled): what a call's memory
+        grows with, so that callers bound the rays they hand it (``RadianceModel.render_batch``)."""
+
     def state_dict(self) -> dict[str, Any]: ...
 
     def load_state_dict(self, state: dict[str, Any]) -> Any: ...
@@ -136,6 +140,9 @@ class HierarchicalSampler(StatelessSampler):
     def samples_per_ray(self) -> int:
         c = self.config
         return c.n_coarse + (c.n_coarse + c.n_fine if c.n_fine > 0 else 0)
+
+    def candidates_per_ray(self) -> int:
+        return self.samples_per_ray()
 
     def render_train(self, coarse: FieldFn, fine: FieldFn | None, density: DensityFn, rays: RayBatch,
                      generator: torch.Generator, max_samples: int) -> tuple[dict[str, Composite], int]:
@@ -216,6 +223,9 @@ class MarchingSampler:
 
     def occupied_share(self) -> float | None:
         return self.grid.occupancy()
+
+    def candidates_per_ray(self) -> int:
+        return 4 * self.config.steps + 1  # what ``march`` lays out along a ray before the grid culls them
 
     def state_dict(self) -> dict[str, Any]:
         return self.grid.state_dict()

@@ -99,7 +99,8 @@ def parameter_groups(model: RadianceModel, config: TrainConfig) -> list[dict]:
         # early let the field fit them for the rest of the steps (lego, cameras off by 1 degree and 1 %, 500 steps:
         # 0.6 dB from the clean poses' held-out PSNR, against 1.3 dB when they decayed as the field did)
         groups.append({"params": list(model.refinement.parameters()), "base_lr": config.pose_lr,
-                       "warmup": config.pose_warmup, "final": config.pose_lr_final / config.pose_lr})
+                       "warmup": config.pose_warmup,
+                       "final": config.pose_lr_final / config.pose_lr if config.pose_lr > 0 else 1.0})  # 0: frozen
     for group in groups:
         group["lr"] = group["base_lr"]
         group.setdefault("final", config.lr_final / config.lr)

@@ -106,6 +106,10 @@ class ExportPointsStage(Stage):
         lo, hi = bounds.box()
         voxel = params.voxel or float(np.linalg.norm(hi - lo)) / 1000
         cleaned, report = clean_cloud(cloud, voxel, params.target_points, params.outlier_neighbors, params.outlier_std)
+        if not len(cleaned):
+            raise StageError(f"export_points: the outlier test left none of the {len(cloud)} points "
+                             f"(export_points.outlier_neighbors={params.outlier_neighbors}, outlier_std="
+                             f"{params.outlier_std:g}); raise either")
         write_ply(out / "points.ply", transformed(cleaned, bounds.to_sfm))
         ctx.log.info("export_points: %d points (%d back-projected from %d views) -> points.ply (SfM frame)", len(cleaned),
                      len(cloud), len(train))

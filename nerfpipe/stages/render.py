@@ -28,6 +28,7 @@ import numpy as np
 from nerfpipe.artifacts import Bounds, SceneDecisions
 from nerfpipe.geometry.cameras import Camera, CameraSet
 from nerfpipe.imaging.png import read_png, srgb_encode, write_png
+from nerfpipe.pipeline.budget import check_affordable
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
@@ -98,6 +99,7 @@ class RenderParams:
 # Under a job budget the frames shrink to fit the stage's share, never below this fraction of their size; what
 # a frame costs beside rendering its rays (two PNGs, the videos) is about this fraction of the rays' time.
 MIN_SHRINK = 0.25
+FRAME_SECONDS = 0.01  # a frame's cost whatever its size: the render call, two PNGs written and read back
 FRAME_OVERHEAD = 1.1
 PREVIEW = {"frames": 12, "scale": 0.25, "max_side": 96}
 FULL = {"frames": 120, "scale": 1.0, "max_side": 0}
@@ -202,6 +204,8 @@ class RenderStage(Stage):
             shrink = fitting_scale(per_ray, len(poses) * width * height, left, MIN_SHRINK)
             width, height = (max(2, 2 * round(side * shrink / 2)) for side in wanted)
             scaled = camera.scaled(width / camera.width, height / camera.height)
+        check_affordable(ctx.allotment, per_ray * len(poses) * width * height + FRAME_SECONDS * len(poses),
+                         f"render: {len(poses)} frames, even at {width}x{height},", "lower render.frames")
         fits = "" if ctx.allotment is None else f" to fit its {ctx.allotment.describe()}" + (
             f"; {wanted[0]}x{wanted[1]} would take {per_ray * len(poses) * wanted[0] * wanted[1]:.0f} s"
             if (width, height) != wanted else "")

@@ -88,7 +88,8 @@ class TrainParams:
     }
 
     def __post_init__(self) -> None:
-        check_memory("optim.batch_rays, optim.batch_samples and the sampler's samples a ray", "a training step's samples",
+        check_memory("optim.batch_rays, optim.batch_samples, sampler.steps (or n_coarse and n_fine)",
+                     "a training step's samples",
                      step_bytes(self.field, self.sampler, self.optim), share=1.0)
         for name in ("holdout_every", "eval_stride", "checkpoint_every", "chunk"):
             if getattr(self, name) < 1:

@@ -114,3 +114,22 @@ def test_a_result_folder_holding_another_keys_result_is_broken(photos, tmp_path)
     assert "broken" in text and "belongs to another result" in text, text
     rerun = ingest(photos, tmp_path, "--set", "ingest.max_size=320", out=run)
     assert rerun.returncode == 0 and "ingest: done" in rerun.stderr  # computed again, not reused
+
+
+def test_distortion_beyond_any_lens_is_undistorted_with_a_warning_naming_it(tmp_path) -> None:
+    """k1 = 1e6 in a transforms.json was undistorted without a word."""
+    import numpy as np
+
+    capture = tmp_path / "cap"
+    capture.mkdir()
+    frames = []
+    for i, angle in zip((1, 2, 3), (0.0, 0.4, 0.8)):
+        shutil.copy(TEMPLE / f"templeSR000{i}.png", capture)
+        c2w = np.eye(4)
+        c2w[:3, 3] = [np.sin(angle) * 4, 0.0, np.cos(angle) * 4]
+        frames.append({"file_path": f"templeSR000{i}.png", "transform_matrix": c2w.tolist()})
+    (capture / "transforms.json").write_text(json.dumps({"camera_angle_x": 0.7, "k1": 1e6, "frames": frames}))
+    result = run_cli("run", capture, "--out", tmp_path / "run", "--until", "undistort", "--set", "sfm.triangulate=false")
+    assert "Traceback" not in result.stderr
+    assert "undistort: camera 1's distortion coefficients (1e+06) are far beyond any lens's" in result.stderr, \
+        result.stderr[-2000:]

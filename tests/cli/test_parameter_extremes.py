@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import re
 import shutil
+import threading
 from pathlib import Path
 
 import pytest
@@ -136,18 +137,32 @@ def run_cases() -> list[tuple[str, str]]:
 
 @pytest.mark.slow
 def test_a_run_until_the_stage_survives_each_parameter_at_its_bounds(prepared, tmp_path) -> None:
+    """Two fork servers, one a core, take the cases in turn."""
     capture, run = prepared
-    failures = []
-    with ForkServer() as server:
-        for name, value in run_cases():
-            folder = tmp_path / "run"
-            shutil.rmtree(folder, ignore_errors=True)
-            shutil.copytree(run, folder, symlinks=True)
-            settings_ = {**BASE, name: value}
-            outcome = server.run(["run", capture, "--out", folder, "--budget", BUDGET, *flags(settings_),
-                                  "--until", first_stage(name)], tmp_path, LIMIT, SECONDS)
-            try:
-                one_line_or_fine(outcome.code, outcome.stderr, f"{name}={value}")
-            except AssertionError as err:
-                failures.append(str(err))
+    cases = run_cases()
+    failures: list[str] = []
+
+    def work(lane: int) -> None:
+        with ForkServer() as server:
+            for i, (name, value) in enumerate(cases):
+                if i % LANES != lane:
+                    continue
+                folder = tmp_path / f"run{lane}"
+                shutil.rmtree(folder, ignore_errors=True)
+                shutil.copytree(run, folder, symlinks=True)
+                outcome = server.run(["run", capture, "--out", folder, "--budget", BUDGET, *flags({**BASE, name: value}),
+                                      "--until", first_stage(name)], tmp_path, LIMIT, SECONDS)
+                try:
+                    one_line_or_fine(outcome.code, outcome.stderr, f"{name}={value}")
+                except AssertionError as err:
+                    failures.append(str(err))
+
+    lanes = [threading.Thread(target=work, args=(lane,)) for lane in range(LANES)]
+    for lane in lanes:
+        lane.start()
+    for lane in lanes:
+        lane.join()
     assert not failures, "\n\n".join(failures)
+
+
+LANES = 2

@@ -376,7 +376,7 @@ def check_web_viewer(run_dir: Path) -> None:
         while "web viewer:" not in line:
             line = process.stdout.readline()
             assert line or process.poll() is None, process.stderr.read()
-        url = re.search(rf"http://localhost:{port}/\?token=\S+", line).group(0)
+        url = re.search(rf"http://localhost:{port}/\?token=[\w-]+", line).group(0)
         assert f"web viewer: {url} (16 cameras with their photos, a mesh of" in line
         opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor())
         assert opener.open(url, timeout=10).status == 200
