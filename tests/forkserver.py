@@ -22,6 +22,9 @@ from pathlib import Path
 SERVER = r'''
 import json, os, resource, signal, sys
 import nerfpipe.cli.main, nerfpipe.stages, torch  # imported once, before any fork
+# what the stages import when they run, so that no child pays for it again
+import av, cv2, kornia, matplotlib.pyplot, open3d, pycolmap, scipy.interpolate, scipy.spatial, trimesh
+import nerfpipe.export.mesh, nerfpipe.export.texture, nerfpipe.nerf.assembly, nerfpipe.nerf.trainer, nerfpipe.report
 print("ready", flush=True)
 for line in sys.stdin:
     job = json.loads(line)

@@ -87,6 +87,9 @@ class EvenSampler(StatelessSampler):
     def spec(self) -> dict[str, Any]:
         return {"n": self.n}
 
+    def candidates_per_ray(self) -> int:
+        return self.n
+
     @staticmethod
     def describe(spec: dict[str, Any]) -> str:
         return f"{spec['n']} evenly spaced samples a ray"

@@ -17,7 +17,9 @@ from tests.helpers import SavedCameras, look_at, shared
 
 
 def run_bounds(cameras: CameraSet, tmp_path: Path, **overrides) -> tuple[Path, dict]:
-    pipe = Pipeline([SavedCameras(cameras), BoundsStage()], tmp_path, tmp_path / "run", overrides={"bounds": overrides})
+    (tmp_path / "capture").mkdir(exist_ok=True)  # no photos: the cameras come from the stage before
+    pipe = Pipeline([SavedCameras(cameras), BoundsStage()], tmp_path / "capture", tmp_path / "run",
+                    overrides={"bounds": overrides})
     path = pipe.run()[-1].path
     return path, json.loads((path / "bounds.json").read_text())
 

@@ -195,8 +195,12 @@ def test_frames_shrink_to_fit_the_stages_share_of_a_job_budget(tmp_path: Path, m
     # 11 s of 44 s: half of each side, less the few milliseconds spent loading the model
     assert summary["resolution"] in ([16, 12], [14, 10])
     assert "32x24 would take 44 s" in caplog.text
-    _, summary, _ = run_render(tmp_path / "starved", "inward360", allotment=Allotment(0.001, 0.01))
+    _, summary, _ = run_render(tmp_path / "starved", "inward360", allotment=Allotment(0.001, 100.0))
     assert summary["resolution"] == [8, 6]  # never below a quarter of each side
+    # and when even that costs more than the whole job's budget, the stage says so instead of overrunning it
+    with pytest.raises(StageError, match=r"render: 4 frames, even at 8x6, would take about \d+ s, more than the job's "
+                                         r"whole budget of 0 s; lower render.frames, or pass --budget off"):
+        run_render(tmp_path / "hopeless", "inward360", allotment=Allotment(0.001, 0.01))
 
 
 def test_path_and_elevation_can_be_chosen(tmp_path: Path) -> None:
