@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
 from hypothesis import settings
+from hypothesis.configuration import set_hypothesis_home_dir
 
 from tests.helpers import REPO, SHARED_DATA, TEMPLE
 
-# hypothesis keeps no example database in the checkout: a test run changes no file outside its temporary folders
+# hypothesis keeps no example database, and its other files (a cache of constants) in a temporary folder: a test
+# run changes no file outside its temporary folders
 settings.register_profile("nerfpipe", database=None)
 settings.load_profile("nerfpipe")
+set_hypothesis_home_dir(tempfile.mkdtemp(prefix="nerfpipe-tests-hypothesis-"))
 
 # what the tests may write in the checkout: caches of Python and pytest
 _SCRATCH = ("__pycache__", ".pytest_cache", ".egg-info", ".git")
