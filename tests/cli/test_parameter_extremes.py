@@ -125,14 +125,19 @@ def first_stage(name: str) -> str:
 
 
 def run_cases() -> list[tuple[str, str]]:
-    """Each parameter at its own two bounds, the in-bounds extremes of all: what a run must survive."""
+    """Each parameter at its own two bounds, the in-bounds extremes of all, which a run must survive; and at the
+    extremes outside every parameter's bounds, which ``run`` must refuse as ``status`` does, before it starts."""
     cases = []
     for name, kind, bounds in NUMERIC:
         for b in bounds:
             value = repr(b) if kind == "float" else str(int(b))
             if BASE.get(name) != value:
                 cases.append((name, value))
+        cases += [(name, value) for value in RUN_EXTREMES]
     return cases
+
+
+RUN_EXTREMES = ("-1", "1e20", "nan", str(10**30))  # outside every parameter's bounds
 
 
 @pytest.mark.slow
@@ -148,12 +153,16 @@ def test_a_run_until_the_stage_survives_each_parameter_at_its_bounds(prepared, t
                 if i % LANES != lane:
                     continue
                 folder = tmp_path / f"run{lane}"
-                shutil.rmtree(folder, ignore_errors=True)
-                shutil.copytree(run, folder, symlinks=True)
+                if value not in RUN_EXTREMES or not folder.exists():  # a refused run writes nothing: no fresh copy
+                    shutil.rmtree(folder, ignore_errors=True)
+                    shutil.copytree(run, folder, symlinks=True)
                 outcome = server.run(["run", capture, "--out", folder, "--budget", BUDGET, *flags({**BASE, name: value}),
                                       "--until", first_stage(name)], tmp_path, LIMIT, SECONDS)
                 try:
                     one_line_or_fine(outcome.code, outcome.stderr, f"{name}={value}")
+                    if value in RUN_EXTREMES:
+                        assert outcome.code == 2 and name.rsplit(".", 1)[-1] in outcome.stderr, \
+                            f"{name}={value} was not refused: {outcome.stderr[-1000:]}"
                 except AssertionError as err:
                     failures.append(str(err))
 
