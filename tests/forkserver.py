@@ -25,6 +25,15 @@ import nerfpipe.cli.main, nerfpipe.stages, torch  # imported once, before any fo
 # what the stages import when they run, so that no child pays for it again
 import av, cv2, kornia, matplotlib.pyplot, open3d, pycolmap, scipy.interpolate, scipy.spatial, trimesh
 import nerfpipe.export.mesh, nerfpipe.export.texture, nerfpipe.nerf.assembly, nerfpipe.nerf.trainer, nerfpipe.report
+# first uses that load more (torch's optimizers import its compiler; matplotlib's first 3D figure its toolkit and
+# fonts): done once here, computing nothing worth a thread
+import io, matplotlib
+matplotlib.use("Agg")
+torch.optim.Adam([torch.zeros(1, requires_grad=True)])
+_figure = matplotlib.pyplot.figure()
+_figure.add_subplot(projection="3d").scatter([0.0], [0.0], [0.0])
+_figure.savefig(io.BytesIO(), format="png")
+matplotlib.pyplot.close(_figure)
 print("ready", flush=True)
 for line in sys.stdin:
     job = json.loads(line)

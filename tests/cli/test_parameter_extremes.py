@@ -9,6 +9,7 @@ changing one parameter, so that only the stage that reads it runs again."""
 from __future__ import annotations
 
 import math
+import os
 import re
 import shutil
 import threading
@@ -84,6 +85,7 @@ def one_line_or_fine(code: int, stderr: str, what: str) -> None:
     if code:
         errors = [line for line in stderr.splitlines() if line.startswith("error:")]
         assert len(errors) == 1, f"{what}:\n{stderr[-3000:]}"
+        assert "is in use by" not in errors[0], f"{what}: another lane held the run's lock: {errors[0]}"
 
 
 def status(run: Path, name: str, value: str):
@@ -137,7 +139,7 @@ def run_cases() -> list[tuple[str, str]]:
     return cases
 
 
-RUN_EXTREMES = ("-1", "1e20", "nan", str(10**30))  # outside every parameter's bounds
+RUN_EXTREMES = ("-1", "nan")  # outside every parameter's bounds (status takes all of EXTREMES)
 
 
 @pytest.mark.slow
@@ -155,7 +157,9 @@ def test_a_run_until_the_stage_survives_each_parameter_at_its_bounds(prepared, t
                 folder = tmp_path / f"run{lane}"
                 if value not in RUN_EXTREMES or not folder.exists():  # a refused run writes nothing: no fresh copy
                     shutil.rmtree(folder, ignore_errors=True)
-                    shutil.copytree(run, folder, symlinks=True)
+                    # linked, not copied: a run never writes into a committed result or a file it replaces whole
+                    shutil.copytree(run, folder, symlinks=True, copy_function=os.link,
+                                    ignore=shutil.ignore_patterns(".lock", ".locks"))  # locks are written in place
                 outcome = server.run(["run", capture, "--out", folder, "--budget", BUDGET, *flags({**BASE, name: value}),
                                       "--until", first_stage(name)], tmp_path, LIMIT, SECONDS)
                 try:
