@@ -24,6 +24,19 @@ FLOAT_BYTES = 4
 OCCUPANCY_CELL_BYTES = 24  # a cell's density, flags and the indices and maxima of an update
 
 
+def level_resolutions(levels: int, min_resolution: int, max_resolution: int) -> list[int]:
+    """Each level's cells a side, geometric from ``min_resolution`` to ``max_resolution``: how the grid fields lay
+    their levels, and what their tables' sizes are reckoned from before any torch runs."""
+    if levels == 1:
+        return [max_resolution]
+    growth = (max_resolution / min_resolution) ** (1.0 / (levels - 1))
+    return [int(round(min_resolution * growth**i)) for i in range(levels)]
+
+
+def _resolutions(params: "FieldParams") -> list[int]:
+    return level_resolutions(params.levels, params.min_resolution, params.max_resolution)
+
+
 def _dense_rows(params: "FieldParams") -> int:
     return sum((r + 1) ** 3 for r in _resolutions(params))
 
@@ -35,14 +48,6 @@ _TABLE_ROWS = {
     "planes": lambda p: sum(3 * (r + 1) ** 2 for r in _resolutions(p)),
     "mlp": lambda p: 0,
 }
-
-
-def _resolutions(params: "FieldParams") -> list[int]:
-    """Each level's cells a side, geometric from min_resolution to max_resolution (as the grid fields lay them)."""
-    if params.levels == 1:
-        return [params.max_resolution]
-    growth = (params.max_resolution / params.min_resolution) ** (1.0 / (params.levels - 1))
-    return [int(round(params.min_resolution * growth**i)) for i in range(params.levels)]
 
 
 def field_training_bytes(params: "FieldParams") -> int:

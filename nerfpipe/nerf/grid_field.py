@@ -25,6 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from nerfpipe.nerf.config import level_resolutions
 from nerfpipe.nerf.encoding import encoded_size, positional_encoding
 
 Box = tuple[tuple[float, ...], tuple[float, ...]]
@@ -46,10 +47,7 @@ class GridFieldConfig:
     init_scale: float = 1e-4
 
     def resolutions(self) -> list[int]:
-        if self.levels == 1:
-            return [self.max_resolution]
-        growth = (self.max_resolution / self.min_resolution) ** (1.0 / (self.levels - 1))
-        return [int(round(self.min_resolution * growth**i)) for i in range(self.levels)]
+        return level_resolutions(self.levels, self.min_resolution, self.max_resolution)
 
 
 class _Trilinear(torch.autograd.Function):

@@ -40,8 +40,6 @@ def check_run_dir(source: Path, run_dir: Path) -> None:
     """Refuse a run directory that is the capture folder or lies inside it (its renders and screenshots would be
     read as photos by the next run), and a capture inside a folder the run replaces (``exports/``, ``report/``,
     ``logs/``, ``stages/``...: the run would delete the photos it reads)."""
-    if str(run_dir).strip() == "":
-        raise ParamError("--out is empty; pass the run directory, e.g. --out runs/photos")
     root, out = source.resolve(), run_dir.resolve()
     for part in out.parts:
         if len(os.fsencode(part)) > NAME_MAX:
