@@ -324,6 +324,8 @@ def surface_colors(model: Any, vertices: np.ndarray, normals: np.ndarray, offset
     its opacity (the colour a camera there would see). A vertex whose ray stays transparent takes the
     field's colour at the vertex.
 
+    The short rays are rendered as every ray is (``RadianceModel.render``): with the model's own sampler.
+
     Args:
         model: a ``RadianceModel``; vertices, normals: (V, 3) world coordinates, outward unit normals.
     Returns:
@@ -331,18 +333,12 @@ def surface_colors(model: Any, vertices: np.ndarray, normals: np.ndarray, offset
     """
     import torch
 
-    from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
-
     device = model.device
     space = model.ray_space
     v = torch.as_tensor(vertices, dtype=torch.float32, device=device)
     n = torch.as_tensor(normals, dtype=torch.float32, device=device)
-    # both ray ends go to field coordinates: NDC maps straight lines to straight lines
-    start = space.to_field(v + offset * n)
-    end = space.to_field(v - offset * n)
     count = len(v)
-    rays = RayBatch(start, end - start, -n, torch.zeros(count, device=device), torch.ones(count, device=device))
-    out = render_chunked(model.coarse, model.fine, rays, SamplingConfig(32, 32), None, chunk)
+    out = model.render_rays(space.segment_rays(v + offset * n, v - offset * n, -n), chunk, background=None)
     acc = out["acc"].unsqueeze(-1)
     colors = out["rgb"] / acc.clamp_min(1e-6)
     with torch.no_grad():

@@ -31,6 +31,13 @@ class SphereField(torch.nn.Module):
     def query_density(self, points: Tensor) -> Tensor:
         return self(points)[1]
 
+    def density_features(self, points: Tensor) -> tuple[Tensor, Tensor]:
+        """The density, and the points themselves: the colour is a function of position."""
+        return self(points)[1], points
+
+    def colour(self, points: Tensor, viewdirs: Tensor | None) -> Tensor:
+        return self(points)[0]
+
     def intersect(self, origins: Tensor, directions: Tensor) -> Tensor:
         """First ray parameter t >= 0 where o + t d enters the sphere, inf where the ray misses it.
 

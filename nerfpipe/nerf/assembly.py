@@ -24,7 +24,7 @@ from nerfpipe.geometry.normalize import robust_box
 from nerfpipe.nerf.config import FieldParams, OptimParams, PerImageParams, SamplerParams, SpaceParams
 from nerfpipe.nerf.fields import field_class
 from nerfpipe.nerf.model import RadianceModel, build
-from nerfpipe.nerf.ray_space import RaySpace
+from nerfpipe.nerf.ray_space import BoxSpace, ContractedSpace, NdcSpace, RaySpace
 from nerfpipe.nerf.registry import SAMPLERS, resolve
 from nerfpipe.nerf.spec import ModelSpec
 from nerfpipe.nerf.trainer import TrainConfig
@@ -104,21 +104,21 @@ def build_ray_space(params: TrainSettings, scene: SceneDecisions, world: CameraS
         box, kept = scene_box(bounds), "the scene box"
         if params.space.contract_around == "cameras":
             box, kept = camera_box(box, np.asarray(world.centers())), "the box of the scene and the cameras"
-        return RaySpace(contraction=box), (
+        return ContractedSpace(box), (
             f"{why}: world rays over each image's near/far; {kept} at full resolution and the space "
             "beyond it contracted into a shell around it (mip-NeRF 360, Eq. 10), steps growing with distance")
     if layout == "forward":
         c2ws = np.array([f.c2w for f in world.frames])
         reference = world.camera_of(world.frames[0])
         near_plane = NDC_NEAR_FACTOR * min(f.near for f in bounds.frames)
-        ray_space = RaySpace(ndc=True, ndc_c2w=tuple(map(tuple, mean_camera(c2ws).tolist())), ndc_focal=reference.fx,
-                             ndc_size=(reference.width, reference.height), ndc_near=near_plane)
+        ray_space = NdcSpace(tuple(map(tuple, mean_camera(c2ws).tolist())), reference.fx,
+                             (reference.width, reference.height), near_plane)
         return ray_space, (f"forward-facing: rays in NDC of the mean camera, near plane {near_plane:.3g}, "
                            "samples linear in NDC depth (near to infinity)")
     if layout == "inward360" and params.space.clip_to_box:
-        return RaySpace(box=scene_box(bounds)), "inward 360: world rays, each clipped to the scene box and its image's near/far"
+        return BoxSpace(scene_box(bounds)), "inward 360: world rays, each clipped to the scene box and its image's near/far"
     what = "unbounded 360: world rays over each image's near/far" if layout == "unbounded360" else "world rays over each image's near/far"
-    return RaySpace(), what + (", samples linear in disparity" if lindisp(params, layout) else "")
+    return BoxSpace(), what + (", samples linear in disparity" if lindisp(params, layout) else "")
 
 
 def scene_box(bounds: Bounds) -> Box:

@@ -107,13 +107,20 @@ class NerfField(nn.Module):
         raw_sigma, feature = self.trunk_features(x)
         if density_noise > 0:
             raw_sigma = raw_sigma + density_noise * torch.randn_like(raw_sigma)
-        sigma = self.density_activation(raw_sigma.float())
+        return self.colour(feature, d), self.density_activation(raw_sigma.float())
+
+    def density_features(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """sigma (M,) and the trunk's feature (M, width) ``colour`` reads, of (M, 3) positions."""
+        raw_sigma, feature = self.trunk_features(x)
+        return self.density_activation(raw_sigma.float()), feature
+
+    def colour(self, feature: Tensor, d: Tensor | None) -> Tensor:
+        """rgb (M, 3) in (0, 1) from the trunk's feature and unit viewing directions d (M, 3)."""
         if self.config.view_dependent:
             if d is None:
                 raise ValueError("a view-dependent field needs viewing directions d")
             feature = torch.cat([feature, positional_encoding(d, self.config.dir_freqs, self.dir_include).to(feature.dtype)], dim=-1)
-        rgb = torch.sigmoid(self.rgb(torch.relu(self.view(feature))).float())
-        return rgb, sigma
+        return torch.sigmoid(self.rgb(torch.relu(self.view(feature))).float())
 
     def query_density(self, x: Tensor) -> Tensor:
         """sigma(x) alone: (M, 3) -> (M,), without the colour branch (for meshes and occupancy)."""

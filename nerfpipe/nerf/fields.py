@@ -31,6 +31,15 @@ class Field(Protocol):
     def query_density(self, x: Tensor) -> Tensor:
         """sigma (M,) at x (M, 3), without colour."""
 
+    def density_features(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """sigma (M,) at x (M, 3) and the features (M, F) ``colour`` reads: a field evaluated in two halves,
+        so that rendering without gradients reuses the density its sampler looked at
+        (``nerfpipe.nerf.marching.visible``)."""
+
+    def colour(self, features: Tensor, d: Tensor | None) -> Tensor:
+        """rgb (M, 3) in [0, 1] from ``density_features``' features and unit view directions d (M, 3):
+        ``field(x, d)`` is ``(colour(density_features(x)[1], d), density_features(x)[0])``."""
+
     @staticmethod
     def spec_of(params: Any, box: Box | None) -> dict[str, Any]:
         """The spec ``nerfpipe.nerf.config.FieldParams`` asks for over ``box`` (field coordinates; None: unbounded)."""

@@ -216,12 +216,19 @@ class GridField(nn.Module):
         and sigma (M,) >= 0. ``density_noise`` is accepted for ``NerfField``'s signature and not used: the
         grid's density has no pre-activation that noise regularizes the same way."""
         sigma, geo = self._density(x)
+        return self.colour(geo, d), sigma
+
+    def density_features(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """sigma (M,) and the features ``colour`` reads (M, geo_features), of (M, 3) positions."""
+        return self._density(x)
+
+    def colour(self, features: Tensor, d: Tensor | None) -> Tensor:
+        """rgb (M, 3) in (0, 1) from ``density_features``' features and unit viewing directions d (M, 3)."""
         if self.config.view_dependent:
             if d is None:
                 raise ValueError("a view-dependent field needs viewing directions d")
-            geo = torch.cat([geo, positional_encoding(d, self.config.dir_freqs, True).to(geo.dtype)], dim=-1)
-        rgb = torch.sigmoid(self.color_net(geo).float())
-        return rgb, sigma
+            features = torch.cat([features, positional_encoding(d, self.config.dir_freqs, True).to(features.dtype)], dim=-1)
+        return torch.sigmoid(self.color_net(features).float())
 
     def query_density(self, x: Tensor) -> Tensor:
         """sigma(x) alone: (M, 3) -> (M,)."""

@@ -5,12 +5,13 @@ Saved as ``model.pt`` (tensors only, loadable with ``torch.load(..., weights_onl
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import pickle
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -19,13 +20,21 @@ from torch import Tensor
 from nerfpipe.nerf.appearance import ExposureGains
 from nerfpipe.nerf.fields import Field, field_spec
 from nerfpipe.nerf.ray_space import RaySpace
-from nerfpipe.nerf.rays import camera_rays, pixel_centers
+from nerfpipe.nerf.rays import RayBatch, pixel_centers
 from nerfpipe.nerf.refinement import PoseRefinement
 from nerfpipe.nerf.registry import FIELDS, SAMPLERS, resolve
-from nerfpipe.nerf.renderer import RayBatch
+from nerfpipe.nerf.rendering import RaySamples, RenderOutput, volume_render
 from nerfpipe.nerf.samplers import Sampler
 from nerfpipe.nerf.spec import ModelSpec
 from nerfpipe.pipeline.errors import InputError
+
+LEGACY_NAMES = {"sampler": "occupancy"}  # what a part's state was saved under in models before it was renamed
+
+# what one field call may hold without gradients (rendering): a large chunk of rays, or many samples a ray left
+# after early termination, is evaluated in pieces whose activations (each linear layer's output and its
+# activation's, float32) stay within this, however wide the field's layers (train.field.hidden up to 1024)
+EVAL_BYTES = 1 << 26
+EVAL_POINTS = (1 << 10, 1 << 16)  # the fewest and most points a piece holds
 
 # samples one rendering call may lay out (rays x the sampler's candidates a ray; about 48 bytes each): a chunk of
 # rays is cut to fit, so that a fine march (sampler.steps) or a large chunk (render.chunk) cannot exhaust memory
@@ -60,40 +69,55 @@ class RadianceModel:
     def fields(self) -> list[Field]:
         return [self.coarse] + ([self.fine] if self.fine is not None else [])
 
-    def world_field(self, field: Field) -> Field | Callable[..., tuple[Tensor, Tensor]]:
-        """``field`` as a function of the points rays reach: in contracted space the rays are world rays,
-        and their points are contracted before the field sees them."""
-        contraction = self.ray_space.contracted
-        if contraction is None:
-            return field
-        return lambda points, viewdirs, *rest: field(contraction.to_field(points), viewdirs, *rest)
+    def render(self, rays: RayBatch, *, train: bool = False, generator: torch.Generator | None = None,
+               max_samples: int = 0, background: Tensor | None | str = "model", images: Tensor | None = None,
+               density_noise: float = 0.0) -> RenderOutput:
+        """Render ``rays`` (in the ray space's ray coordinates): the one place a model renders.
 
-    def world_density(self, field: Field) -> Callable[[Tensor], Tensor]:
-        """``field.query_density`` of the points rays reach (see ``world_field``)."""
-        contraction = self.ray_space.contracted
-        if contraction is None:
-            return field.query_density
-        return lambda points: field.query_density(contraction.to_field(points))
+        The sampler says where along each ray to look (randomized when ``train``, and with ``max_samples``
+        > 0 only for the leading rays whose samples fit it: the output's length says how many); the field it
+        names is evaluated there, with noise of std ``density_noise`` on raw density (training), and
+        ``volume_render`` composites. Then each photo's appearance (``images`` (R,): the training image of
+        each ray, when the model learns appearance) and the ``background`` (3,) / (R, 3) behind it: "model"
+        for the model's own, None for none. Gradients flow where autograd is on; ``render_rays`` renders without.
+        """
+        probe = _Probe(self, rays, density_noise, self.eval_points())
+        samples, level, earlier = self.sampler.sample(rays, self.ray_space, probe, train=train, generator=generator,
+                                                      max_samples=max_samples)
+        out = probe.render(samples, level)
+        out = dataclasses.replace(out, earlier=earlier,
+                                  evaluated=len(samples) + sum(len(e.samples) for e in earlier))
+        if images is not None and self.appearance is not None:  # as the photo's camera recorded the light
+            out = out.map_rgb(lambda rgb, o: self.appearance(rgb, images[:len(o)]))
+        # "over" onto the background after the exposure: a backdrop whose colour is a stand-in (alpha, a masked
+        # cloth) is not exposed by the camera
+        return out.over(self.background_tensor() if isinstance(background, str) else background)
 
-    def render_batch(self, rays: RayBatch, chunk: int = 8192) -> dict[str, Tensor]:
-        """Deterministic rendering of rays without gradients: rgb (R, 3), depth, disparity, acc (R,), in the
-        ray space's own depth (t, or NDC t'); and ``samples``, the field evaluations per ray on average."""
+    def render_rays(self, rays: RayBatch, chunk: int = 8192, background: Tensor | None | str = "model") -> dict[str, Tensor]:
+        """``render`` without gradients, deterministic, ``chunk`` rays at a time (cut further to what memory
+        allows, ``RENDER_CANDIDATES``): rgb (R, 3), depth, disparity, acc (R,) in the ray space's own ray
+        parameter (t, or NDC t'); and ``samples``, the field evaluations per ray on average. ``background`` as
+        ``render`` takes it."""
         for f in self.fields():
             f.eval()
-        coarse, fine = self.world_field(self.coarse), None if self.fine is None else self.world_field(self.fine)
         parts: dict[str, list[Tensor]] = {"rgb": [], "depth": [], "disparity": [], "acc": []}
         evaluated = 0
-        background = self.background_tensor()
         chunk = max(1, min(chunk, RENDER_CANDIDATES // self.sampler.candidates_per_ray()))  # memory, not speed
         with torch.no_grad():
-            for start in range(0, len(rays), chunk):
-                out, n = self.sampler.render(coarse, fine, rays.slice(start, start + chunk), background)
-                evaluated += n
+            for start in range(0, max(len(rays), 1), chunk):  # an empty batch renders once, to empty shapes
+                out = self.render(rays.slice(start, start + chunk), background=background)
+                evaluated += out.evaluated
                 for key in parts:
-                    parts[key].append(out[key])
-        result = {key: torch.cat(values) if values else torch.zeros(0) for key, values in parts.items()}
+                    parts[key].append(getattr(out, key))
+        result = {key: torch.cat(values) for key, values in parts.items()}
         result["samples"] = torch.tensor(evaluated / max(len(rays), 1))
         return result
+
+    def eval_points(self) -> int:
+        """Points a field call evaluates at once without gradients (``EVAL_BYTES``): fewer, the wider the
+        fields' layers."""
+        floats = max(sum(m.out_features for m in f.modules() if isinstance(m, torch.nn.Linear)) for f in self.fields())
+        return int(min(max(EVAL_BYTES // max(8 * floats, 1), EVAL_POINTS[0]), EVAL_POINTS[1]))
 
     @property
     def device(self) -> torch.device:
@@ -108,9 +132,8 @@ class RadianceModel:
     ) -> dict[str, Tensor]:
         """Render a whole pinhole view. Returns rgb (H, W, 3), depth, disparity, acc (H, W), on the CPU.
 
-        ``depth`` is the expected depth along the camera axis in world units, and ``disparity`` its
-        inverse. In NDC the expected t' is mapped to world depth (``RaySpace.camera_depth``), capped at
-        ``far``, since t' near 1 lies near infinity.
+        ``depth`` is the expected depth along the camera axis in world units (``RaySpace.camera_depth``),
+        capped at ``far`` (an NDC t' near 1 lies near infinity), and ``disparity`` its inverse.
         """
         device = self.device
         uv = pixel_centers(width, height, device)
@@ -118,20 +141,18 @@ class RadianceModel:
         k = torch.tensor(intrinsics, dtype=torch.float32, device=device).expand(n, 4)
         pose = torch.as_tensor(np.asarray(c2w), dtype=torch.float32, device=device)
         rays = self.ray_space.rays(uv, k, pose, torch.full((n,), near, device=device), torch.full((n,), far, device=device))
-        out = self.render_batch(rays, chunk)
+        out = self.render_rays(rays, chunk)
         out.pop("samples")
-        if self.ray_space.ndc:
-            origins, directions = camera_rays(uv, k, pose)
-            depth = self.ray_space.camera_depth(origins, directions, out["depth"].to(origins))
-            depth = torch.where(torch.isfinite(depth) & (depth > 0), depth, torch.full_like(depth, far)).clamp(max=far)
-            out["depth"], out["disparity"] = depth, 1.0 / depth.clamp_min(1e-12)
+        depth = self.ray_space.camera_depth(uv, k, pose, out["depth"])
+        depth = torch.where(torch.isfinite(depth) & (depth > 0), depth, torch.full_like(depth, far)).clamp(max=far)
+        out["depth"], out["disparity"] = depth, 1.0 / depth.clamp_min(1e-12)
         shapes = {"rgb": (height, width, 3)}
         return {key: value.reshape(shapes.get(key, (height, width))).cpu() for key, value in out.items()}
 
     # -- files ---------------------------------------------------------------------------------
     def parts(self) -> dict[str, Any]:
         """Every part with tensors, by the name its state is saved under."""
-        named = {"coarse": self.coarse, "fine": self.fine, "occupancy": self.sampler, "appearance": self.appearance,
+        named = {"coarse": self.coarse, "fine": self.fine, "sampler": self.sampler, "appearance": self.appearance,
                  "refinement": self.refinement}
         return {name: part for name, part in named.items() if part is not None}
 
@@ -143,7 +164,7 @@ class RadianceModel:
     def load_state(self, weights: dict[str, Any]) -> None:
         for name, part in self.parts().items():
             if part.state_dict():
-                part.load_state_dict(weights[name])
+                part.load_state_dict(weights[name] if name in weights else weights[LEGACY_NAMES[name]])
 
     @property
     def spec(self) -> ModelSpec:
@@ -186,8 +207,47 @@ def build(spec: ModelSpec, device: torch.device | str = "cpu") -> RadianceModel:
     cls = resolve(FIELDS, spec.field["kind"])
     coarse = cls.from_spec(spec.field).to(device)
     fine = cls.from_spec(spec.field).to(device) if spec.fine_network else None
-    sampler = resolve(SAMPLERS, spec.sampler["kind"]).from_spec(spec.sampler, spec.ray_space.contracted).to(device)
+    sampler = resolve(SAMPLERS, spec.sampler["kind"]).from_spec(spec.sampler).to(device)
     a, r = spec.appearance, spec.refinement
     appearance = None if a is None else ExposureGains(a["images"], a["linear"], a.get("stops")).to(device)
     refinement = None if r is None else PoseRefinement(r["images"]).to(device)
     return RadianceModel(coarse, fine, sampler, spec.ray_space, spec.background, dict(spec.info), appearance, refinement)
+
+
+class _Probe:
+    """What ``RadianceModel.render`` lets its sampler ask while it samples ``rays`` (``samplers.Probe``)."""
+
+    def __init__(self, model: RadianceModel, rays: RayBatch, density_noise: float, piece: int) -> None:
+        self.model, self.rays, self.noise, self.piece = model, rays, density_noise, piece
+
+    def density_features(self, points: Tensor) -> tuple[Tensor, Tensor]:
+        with torch.no_grad():
+            return _pieces(self.piece, self.model.coarse.density_features, points)
+
+    def render(self, samples: RaySamples, level: int) -> RenderOutput:
+        """The field of ``level`` (the last there is) at ``samples``, composited onto nothing (Eq. 3). The
+        first field's density and features the sampler already evaluated (``RaySamples.known``) are reused."""
+        model, rays = self.model, self.rays
+        fields = model.fields()
+        index = min(level, len(fields) - 1)
+        viewdirs = rays.viewdirs[samples.ray]
+        if samples.known is not None and index == 0:
+            sigma, features = samples.known
+            rgb = _pieces(self.piece, fields[0].colour, features, viewdirs)[0]
+        else:
+            points = model.ray_space.field_points(rays.points(samples.ray, samples.t))
+            rgb, sigma = _pieces(self.piece, lambda x, d: fields[index](x, d, self.noise), points, viewdirs)
+        n = samples.n_rays
+        return volume_render(sigma, rgb, samples, rays.near[:n], rays.far[:n])
+
+
+def _pieces(piece: int, fn, *inputs: Tensor):
+    """``fn(*inputs)`` of (M, ...) inputs, in pieces of ``piece`` rows when gradients are off; outputs
+    concatenated (a tensor output comes back as a one-tuple)."""
+    count = inputs[0].shape[0]
+    if torch.is_grad_enabled() or count <= piece:
+        out = fn(*inputs)
+        return out if isinstance(out, tuple) else (out,)
+    parts = [fn(*(x[i:i + piece] for x in inputs)) for i in range(0, count, piece)]
+    parts = [p if isinstance(p, tuple) else (p,) for p in parts]
+    return tuple(torch.cat(column) for column in zip(*parts))

@@ -6,8 +6,45 @@ centre of the top-left pixel is at (0.5, 0.5)); see ``nerfpipe.geometry.cameras`
 
 from __future__ import annotations
 
+from dataclasses import dataclass, fields
+
 import torch
 from torch import Tensor
+
+
+@dataclass
+class RayBatch:
+    """Rays to render, in a ray space's ray coordinates (``nerfpipe.nerf.ray_space``): origins,
+    directions: (R, 3); viewdirs: (R, 3) unit world directions the field sees; near, far: (R,) bounds of
+    the ray parameter t."""
+
+    origins: Tensor
+    directions: Tensor
+    viewdirs: Tensor
+    near: Tensor
+    far: Tensor
+
+    def __len__(self) -> int:
+        return self.origins.shape[0]
+
+    def _map(self, fn) -> "RayBatch":
+        return RayBatch(*(fn(getattr(self, f.name)) for f in fields(self)))
+
+    def slice(self, start: int, stop: int) -> "RayBatch":
+        return self._map(lambda x: x[start:stop])
+
+    def to(self, device: torch.device | str) -> "RayBatch":
+        return self._map(lambda x: x.to(device))
+
+    def points(self, ray: Tensor, t: Tensor) -> Tensor:
+        """o + t d of samples (N,) on rays ``ray`` (N,). (N, 3)."""
+        return torch.addcmul(self.origins[ray], t.unsqueeze(-1), self.directions[ray])
+
+    @staticmethod
+    def segment(start: Tensor, end: Tensor, viewdirs: Tensor) -> "RayBatch":
+        """Rays from ``start`` to ``end`` (R, 3) over t in [0, 1]."""
+        count = start.shape[0]
+        return RayBatch(start, end - start, viewdirs, start.new_zeros(count), start.new_ones(count))
 
 
 def pixel_centers(width: int, height: int, device: torch.device | str | None = None) -> Tensor:

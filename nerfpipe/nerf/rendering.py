@@ -1,4 +1,7 @@
-"""Volume rendering by alpha compositing, the quadrature of Eq. 3 and the weights of Eq. 5.
+"""Volume rendering by alpha compositing, the quadrature of Eq. 3 and the weights of Eq. 5, over packed
+samples: every sampler (``nerfpipe.nerf.samplers``) says where along the rays to look as ``RaySamples``,
+the samples of all rays one after the other with the index of their ray (nerfacc's layout), and
+``volume_render`` composites them. Nothing else composites.
 
 Everything runs in float32 (or float64 when given float64), whatever autocast does around it: densities
 of 1e10 overflow float16 and bf16 loses the small transmittances that decide the weights.
@@ -6,6 +9,7 @@ of 1e10 overflow float16 and bf16 loses the small transmittances that decide the
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import torch
@@ -19,114 +23,27 @@ def _float(x: Tensor) -> Tensor:
     return x if x.dtype == torch.float64 else x.float()
 
 
-def sample_deltas(t: Tensor, far: Tensor) -> Tensor:
-    """delta_i = t_{i+1} - t_i (Eq. 3); the last sample's interval ends at the far bound.
-
-    The authors' code closes the last interval with 1e10 instead, which makes every ray opaque at its end
-    and would hide the background the scene analysis asks to composite onto.
-
-    Args:
-        t: (R, N) sorted sample depths; far: (R,).
-    Returns:
-        deltas: (R, N) >= 0.
-    """
-    t, far = _float(t), _float(far)
-    deltas = torch.cat([t[..., 1:] - t[..., :-1], far.unsqueeze(-1) - t[..., -1:]], dim=-1)
-    return deltas.clamp_min(0.0)
-
-
 def optical_depth(sigmas: Tensor, deltas: Tensor) -> Tensor:
     """sigma_i delta_i, with densities clamped at 0 and the product capped at ``MAX_OPTICAL_DEPTH``.
 
     Args:
-        sigmas, deltas: (R, N).
+        sigmas, deltas: (...) alike.
     Returns:
-        (R, N).
+        (...).
     """
     return (_float(sigmas).clamp_min(0.0) * _float(deltas)).clamp_max(MAX_OPTICAL_DEPTH)
 
 
-def alphas_from_density(sigmas: Tensor, deltas: Tensor) -> Tensor:
-    """alpha_i = 1 - exp(-sigma_i delta_i) (Section 4), as -expm1 so tiny densities keep their value.
-
-    Args:
-        sigmas, deltas: (R, N).
-    Returns:
-        alphas: (R, N) in [0, 1].
-    """
-    return -torch.expm1(-optical_depth(sigmas, deltas))
-
-
-def transmittance(sigmas: Tensor, deltas: Tensor) -> Tensor:
-    """T_i = exp(-sum_{j<i} sigma_j delta_j), Eq. 3, from the exclusive cumulative sum of optical depth.
-
-    Args:
-        sigmas, deltas: (R, N).
-    Returns:
-        T: (R, N) in [0, 1], T_1 = 1.
-    """
-    tau = optical_depth(sigmas, deltas)
-    # Shifted, not cumsum(tau) - tau: subtracting a large tau_i (up to the cap) from the running sum
-    # loses the small optical depth before it, off by up to half an ulp of 1e4 in float32.
-    exclusive = torch.cat([torch.zeros_like(tau[..., :1]), torch.cumsum(tau, dim=-1)[..., :-1]], dim=-1)
-    return torch.exp(-exclusive)
-
-
-def transmittance_from_alphas(alphas: Tensor) -> Tensor:
-    """T_i = prod_{j<i} (1 - alpha_j): the same transmittance by cumulative product (the route of the
-    authors' code), kept as a second route that tests compare with ``transmittance``.
-
-    Args:
-        alphas: (R, N).
-    Returns:
-        T: (R, N).
-    """
-    survive = 1.0 - _float(alphas)
-    return torch.cat([torch.ones_like(survive[..., :1]), torch.cumprod(survive, dim=-1)[..., :-1]], dim=-1)
-
-
-def compositing_weights(sigmas: Tensor, deltas: Tensor) -> Tensor:
-    """w_i = T_i (1 - exp(-sigma_i delta_i)), Eq. 5.
-
-    Args:
-        sigmas, deltas: (R, N).
-    Returns:
-        weights: (R, N) >= 0 with sum <= 1.
-    """
-    return transmittance(sigmas, deltas) * alphas_from_density(sigmas, deltas)
-
-
-def termination_depths(sigmas: Tensor, t: Tensor, far: Tensor) -> Tensor:
-    """Where a ray that terminates at sample i stops, on average: the depth ``composite`` weights by w_i.
-
-    Sample i stands for the stretch of ray closer to it than to its neighbours (the midpoint rule), from
-    s_i = (t_{i-1} + t_i) / 2 (t_0 for the first) to e_i = (t_i + t_{i+1}) / 2 (``far`` for the last), with
-    constant density sigma_i there. A ray stopping in a stretch of length L and optical depth
-    tau = sigma_i L stops on average L (1/tau - 1/(e^tau - 1)) past s_i: L/2 where the stretch is nearly
-    transparent, 1/sigma_i where it is opaque. Taking t_i itself instead, as the paper's code does, puts an
-    opaque surface that lies anywhere before t_i at t_i, up to one sample spacing too deep; this puts it
-    within half a spacing of the truth.
-
-    Args:
-        sigmas: (R, N) densities; t: (R, N) sorted sample depths; far: (R,).
-    Returns:
-        (R, N) depths, s_i <= depth_i <= e_i.
-    """
-    t, far = _float(t), _float(far)
-    mid = 0.5 * (t[..., 1:] + t[..., :-1])
-    start = torch.cat([t[..., :1], mid], dim=-1)
-    end = torch.cat([mid, torch.maximum(far.unsqueeze(-1), t[..., -1:])], dim=-1)
-    return interval_stop_depths(sigmas, start, end)
-
-
 def interval_stop_depths(sigmas: Tensor, starts: Tensor, ends: Tensor) -> Tensor:
     """Mean stopping depth of a ray that terminates in the interval [start_i, end_i] of constant density
-    sigma_i: start + L (1/tau - 1/(e^tau - 1)) with L = end - start, tau = sigma_i L (``termination_depths``).
+    sigma_i: start + L (1/tau - 1/(e^tau - 1)) with L = end - start, tau = sigma_i L: L/2 where the stretch
+    is nearly transparent, 1/sigma_i where it is opaque. Taking a sample's own t instead puts an opaque
+    surface anywhere in its stretch at the sample, up to a stretch too deep.
 
     Args:
-        sigmas, starts, ends: (R, N).
+        sigmas, starts, ends: (...) alike.
     Returns:
-        (R, N) depths, start_i <= depth_i <= end_i.
+        (...) depths, start_i <= depth_i <= end_i.
     """
     start, end = _float(starts), _float(ends)
     length = (end - start).clamp_min(0.0)
@@ -142,95 +59,179 @@ def interval_stop_depths(sigmas: Tensor, starts: Tensor, ends: Tensor) -> Tensor
     return start + length * g
 
 
-@dataclass
-class Composite:
-    """What compositing one set of samples gives, per ray.
 
-    rgb: (R, 3) colour, composited onto the background; depth: (R,) expected depth sum_i w_i z_i / sum_i w_i
-    with z_i the mean stopping depth of sample i's stretch of ray (``termination_depths``; ``far`` where
-    nothing was hit); disparity: (R,) 1 / depth (0 where depth is infinite); acc: (R,)
-    accumulated opacity sum_i w_i; weights: (R, N); intervals: (R, N) starts and ends of the samples'
-    stretches in a normalized distance, where the sampler measured them (``distortion_loss``), else None.
+@dataclass
+class RaySamples:
+    """N samples of R rays, packed ray after ray in order of depth (nerfacc's layout).
+
+    ray: (N,) int64, the ray of each sample, non-decreasing; t: (N,) the ray parameter the field is
+    evaluated at; starts, ends: (N,) the stretch of ray [start, end] the sample stands for (its delta_i of
+    Eq. 3 is end - start), t inside it. Stretches of one ray do not overlap; they may leave gaps (empty space
+    a sampler skipped). ``spans``: (starts, ends) (N,) of the same stretches in a distance normalized along
+    the ray, where the sampler measures one (mip-NeRF 360's s, for ``distortion``), else None. ``known``:
+    (sigma (N,), features (N, F)) of the first field at the samples, where the sampler evaluated them
+    without gradients (``Field.density_features``), for rendering to reuse, else None.
+    """
+
+    ray: Tensor
+    t: Tensor
+    starts: Tensor
+    ends: Tensor
+    n_rays: int
+    spans: tuple[Tensor, Tensor] | None = None
+    known: tuple[Tensor, Tensor] | None = None
+
+    def __len__(self) -> int:
+        return self.ray.shape[0]
+
+    @staticmethod
+    def dense(t: Tensor, starts: Tensor, ends: Tensor, spans: tuple[Tensor, Tensor] | None = None) -> "RaySamples":
+        """The same number of samples on every ray: t, starts, ends (R, K) (and spans)."""
+        n_rays, per_ray = t.shape
+        ray = torch.arange(n_rays, device=t.device).repeat_interleave(per_ray)
+        flat = None if spans is None else (spans[0].reshape(-1), spans[1].reshape(-1))
+        return RaySamples(ray, t.reshape(-1), starts.reshape(-1), ends.reshape(-1), n_rays, flat)
+
+    def select(self, index: Tensor) -> "RaySamples":
+        """The samples ``index`` picks (a mask (N,), or increasing indices), in their order."""
+        spans = None if self.spans is None else (self.spans[0][index], self.spans[1][index])
+        known = None if self.known is None else (self.known[0][index], self.known[1][index])
+        return RaySamples(self.ray[index], self.t[index], self.starts[index], self.ends[index], self.n_rays, spans,
+                          known)
+
+    def leading(self, n_rays: int) -> "RaySamples":
+        """The samples of the first ``n_rays`` rays (a prefix: samples are packed ray after ray)."""
+        end = int(torch.searchsorted(self.ray, torch.tensor([n_rays], device=self.ray.device)).item())
+        cut = self.select(slice(0, end))
+        return dataclasses.replace(cut, n_rays=n_rays)
+
+    def counts(self) -> Tensor:
+        """(R,) samples of each ray."""
+        return torch.bincount(self.ray, minlength=self.n_rays)
+
+    def rank(self) -> Tensor:
+        """(N,) each sample's place along its ray: 0 for a ray's first sample."""
+        counts = self.counts()
+        first = torch.cumsum(counts, dim=0) - counts
+        return torch.arange(len(self), device=self.ray.device) - first[self.ray]
+
+    def exclusive_sums(self, values: Tensor) -> Tensor:
+        """sum_{j before i on i's ray} values_j for each sample i (N,) -> (N,): a cumulative sum over all
+        samples in float64 less its value where the ray begins, so that rays of any length cost one pass."""
+        wide = values.double()
+        before = torch.cumsum(wide, dim=0) - wide
+        counts = self.counts()
+        first = (torch.cumsum(counts, dim=0) - counts)[self.ray]
+        return (before - before[first]).to(_float(values).dtype)
+
+    def per_ray(self, values: Tensor) -> Tensor:
+        """The sum over each ray's samples of ``values`` (N, ...) -> (R, ...)."""
+        out = values.new_zeros((self.n_rays, *values.shape[1:]))
+        return out.index_add(0, self.ray, values)
+
+
+@dataclass
+class RenderOutput:
+    """What rendering rays gives (``volume_render``), the one thing the trainer, evaluation, every export
+    and the viewer read.
+
+    rgb: (R, 3) colour; depth: (R,) expected ray parameter at which a ray stops, sum_i w_i z_i / sum_i w_i
+    with z_i the mean stopping depth within sample i's stretch (``interval_stop_depths``), ``far`` where
+    nothing was hit; acc: (R,) accumulated opacity sum_i w_i; weights: (N,) w_i of Eq. 5 of ``samples``.
+    evaluated: field evaluations spent, including a sampler's own passes. earlier: the renderings a sampler
+    made on its way to these samples that the loss also fits (Section 5.2's coarse pass, Eq. 6).
     """
 
     rgb: Tensor
     depth: Tensor
-    disparity: Tensor
     acc: Tensor
     weights: Tensor
-    intervals: tuple[Tensor, Tensor] | None = None
+    samples: RaySamples
+    evaluated: int = 0
+    earlier: tuple["RenderOutput", ...] = ()
 
-    def distortion_loss(self) -> Tensor | None:
-        """(R,) mip-NeRF 360's distortion of the weights over ``intervals`` (``distortion``), computed only when
-        asked (training with the loss on), None where the sampler gave no intervals."""
-        return None if self.intervals is None else distortion(self.weights, *self.intervals)
+    def __len__(self) -> int:
+        return self.rgb.shape[0]
+
+    @property
+    def disparity(self) -> Tensor:
+        """(R,) 1 / depth, 0 where depth is not positive."""
+        positive = self.depth > 0
+        return torch.where(positive, 1.0 / torch.where(positive, self.depth, torch.ones_like(self.depth)),
+                           torch.zeros_like(self.depth))
+
+    def passes(self) -> tuple["RenderOutput", ...]:
+        """Every rendering the loss fits: the earlier ones, then this one."""
+        return (*self.earlier, self)
+
+    def map_rgb(self, fn) -> "RenderOutput":
+        """This output with ``fn`` applied to the colour of every pass (``appearance``, ``over``)."""
+        return dataclasses.replace(self, rgb=fn(self.rgb, self), earlier=tuple(e.map_rgb(fn) for e in self.earlier))
+
+    def over(self, background: Tensor | None) -> "RenderOutput":
+        """Porter-Duff "over" onto ``background`` (3,) or (R, 3): rgb + (1 - acc) background, every pass."""
+        if background is None:
+            return self
+        colour = _float(background)
+
+        def blend(rgb: Tensor, out: RenderOutput) -> Tensor:
+            behind = colour if colour.dim() == 1 else colour[:len(out)]
+            return rgb + (1.0 - out.acc).clamp_min(0.0).unsqueeze(-1) * behind.to(rgb.device)
+
+        return self.map_rgb(blend)
+
+    def distortion(self) -> Tensor | None:
+        """(R,) mip-NeRF 360's distortion of the weights over the samples' spans (``distortion``); None
+        where the sampler measured no spans."""
+        return None if self.samples.spans is None else distortion(self.weights, self.samples)
 
 
-def composite(
-    sigmas: Tensor,
-    colors: Tensor,
-    t: Tensor,
-    far: Tensor,
-    background: Tensor | None = None,
-    deltas: Tensor | None = None,
-    intervals: tuple[Tensor, Tensor] | None = None,
-) -> Composite:
-    """C = sum_i T_i (1 - exp(-sigma_i delta_i)) c_i, Eq. 3, plus (1 - sum_i w_i) times the background.
-
-    The background term is Porter-Duff "over" onto a constant colour: the scene analysis asks for it when
-    the photos have alpha (composited onto the same colour) or a constant-colour backdrop. ``None``
-    composites onto black, the paper's choice for real scenes.
+def volume_render(sigmas: Tensor, colors: Tensor, samples: RaySamples, near: Tensor, far: Tensor,
+                  background: Tensor | None = None) -> RenderOutput:
+    """C = sum_i T_i (1 - exp(-sigma_i delta_i)) c_i, Eq. 3, over each ray's packed samples, with
+    delta_i = end_i - start_i and T_i = exp(-sum_{j<i} sigma_j delta_j); plus (1 - sum_i w_i) times the
+    background (Porter-Duff "over" onto a constant colour; None composites onto black, the paper's choice
+    for real scenes).
 
     Args:
-        sigmas: (R, N) densities; colors: (R, N, 3); t: (R, N) sorted sample depths; far: (R,).
+        sigmas: (N,) densities; colors: (N, 3); samples: the N samples of R rays; near, far: (R,).
         background: (3,) or (R, 3) colour, or None.
-        deltas: (R, N) interval lengths, if not the spacing of ``t`` (``sample_deltas``).
-        intervals: (starts, ends), each (R, N): the stretch of ray each sample stands for, when the samples
-            do not tile [t_1, far] (marching through an occupancy grid leaves gaps, and pads rays with
-            empty intervals, start = end). Sets the deltas and where a ray stopping at a sample stops.
     Returns:
-        Composite.
+        RenderOutput.
     """
-    t = _float(t)
-    if intervals is not None:
-        starts, ends = _float(intervals[0]), _float(intervals[1])
-        deltas = (ends - starts).clamp_min(0.0)
-    else:
-        deltas = sample_deltas(t, far) if deltas is None else _float(deltas)
-    weights = compositing_weights(sigmas, deltas)
-    acc = weights.sum(dim=-1)
-    rgb = (weights.unsqueeze(-1) * _float(colors)).sum(dim=-2)
-    if background is not None:
-        rgb = rgb + (1.0 - acc).clamp_min(0.0).unsqueeze(-1) * _float(background).to(rgb.device)
+    starts, ends = _float(samples.starts), _float(samples.ends)
+    tau = optical_depth(sigmas, (ends - starts).clamp_min(0.0))
+    # T_i from the exclusive sum of optical depth, not cumprod(1 - alpha): alpha = 1 - exp(-tau) rounds to 1
+    # long before tau stops growing, and the products lose the transmittance behind it
+    weights = torch.exp(-samples.exclusive_sums(tau)) * -torch.expm1(-tau)
+    acc = samples.per_ray(weights)
+    rgb = samples.per_ray(weights.unsqueeze(-1) * _float(colors))
+    near, far = _float(near), _float(far)
     hit = acc > ACC_EPS
-    safe_acc = torch.where(hit, acc, torch.ones_like(acc))
-    stops = termination_depths(sigmas, t, far) if intervals is None else interval_stop_depths(sigmas, starts, ends)
-    depth = torch.where(hit, (weights * stops).sum(dim=-1) / safe_acc, _float(far).expand_as(acc))
-    depth = torch.minimum(torch.maximum(depth, t[..., 0]), torch.maximum(_float(far), t[..., -1]))
-    positive = depth > 0
-    disparity = torch.where(positive, 1.0 / torch.where(positive, depth, torch.ones_like(depth)), torch.zeros_like(depth))
-    return Composite(rgb, depth, disparity, acc, weights)
+    stops = samples.per_ray(weights * interval_stop_depths(sigmas, starts, ends))
+    depth = torch.where(hit, stops / torch.where(hit, acc, torch.ones_like(acc)), far)
+    depth = torch.minimum(torch.maximum(depth, near), torch.maximum(far, near))
+    return RenderOutput(rgb, depth, acc, weights, samples).over(background)
 
 
-def distortion(weights: Tensor, starts: Tensor, ends: Tensor) -> Tensor:
-    """mip-NeRF 360's distortion loss (Barron et al. 2022, Eq. 15) of each ray's weights over its intervals:
+def distortion(weights: Tensor, samples: RaySamples) -> Tensor:
+    """mip-NeRF 360's distortion loss (Barron et al. 2022, Eq. 15) of each ray's weights over its spans:
 
         L = sum_i sum_j w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 (e_i - s_i),   m_i = (s_i + e_i) / 2,
 
     small when a ray's weight sits in one short stretch, large when it is spread out or split (floaters in
-    front of a surface). The double sum is computed in O(N) for sorted intervals as
-    2 sum_i w_i (m_i W_i - S_i), W_i and S_i the sums of w_j and w_j m_j over j < i.
+    front of a surface). The double sum is computed in O(N) for sorted spans as
+    2 sum_i w_i (m_i W_i - S_i), W_i and S_i the sums of w_j and w_j m_j over j < i on the same ray.
 
     Args:
-        weights: (R, N); starts, ends: (R, N) sorted, non-overlapping intervals in a normalized distance
+        weights: (N,); samples: with ``spans``, sorted non-overlapping stretches in a normalized distance
             (mip-NeRF 360's s; here the marching steps' own, in which the steps are of equal length).
     Returns:
         (R,) the loss of each ray.
     """
-    w, s, e = _float(weights), _float(starts), _float(ends)
+    s, e = _float(samples.spans[0]), _float(samples.spans[1])
+    w = _float(weights)
     mid = 0.5 * (s + e)
-    before_w = torch.cumsum(w, dim=-1) - w
-    before_wm = torch.cumsum(w * mid, dim=-1) - w * mid
-    across = 2.0 * (w * (mid * before_w - before_wm)).sum(dim=-1)
-    within = (w * w * (e - s)).sum(dim=-1) / 3.0
+    across = 2.0 * samples.per_ray(w * (mid * samples.exclusive_sums(w) - samples.exclusive_sums(w * mid)))
+    within = samples.per_ray(w * w * (e - s)) / 3.0
     return across + within

@@ -1,11 +1,12 @@
-"""Samplers: where along each ray a model evaluates its field, and how those samples are composited.
+"""Samplers: where along each ray a model evaluates its field (nerfacc's split of sampling from rendering).
 
-A sampler answers one question for the model and the trainer, whatever it is: render these rays. The
-model (``nerfpipe.nerf.model.RadianceModel``) and the trainer never ask which kind it is. Two are
-registered (``nerfpipe.nerf.registry.SAMPLERS``):
+A sampler's one job is ``sample(rays, ...) -> RaySamples``: packed samples, each with its ray and the stretch
+of ray it stands for; ``nerfpipe.nerf.rendering.volume_render`` composites them and ``RadianceModel.render``
+is the one place that does. ``update(step, density, generator)`` keeps what a sampler learns from the field
+(an occupancy grid) up to date while training. Two are registered (``nerfpipe.nerf.registry.SAMPLERS``):
 
-- ``HierarchicalSampler``: Section 5.2, N_c stratified samples through the coarse field, N_f more drawn
-  from its weights (Eq. 5) through the fine one (``nerfpipe.nerf.renderer``).
+- ``HierarchicalSampler``: Section 5.2, N_c stratified samples rendered through the coarse field, N_f more
+  drawn from its weights (Eq. 5) for the fine one; the coarse rendering is also fitted (Eq. 6).
 - ``MarchingSampler``: Instant-NGP's empty-space skipping, marching an occupancy grid that training keeps
   up to date (``nerfpipe.nerf.occupancy``, ``nerfpipe.nerf.marching``); the coarse field only.
 
@@ -14,53 +15,69 @@ A new sampler is a class with these methods and a line in the registry.
 
 from __future__ import annotations
 
-from dataclasses import asdict
-from typing import Any, Callable, ClassVar, Protocol
+from dataclasses import asdict, dataclass
+from typing import Any, ClassVar, Protocol
 
 import torch
 from torch import Tensor
 
-from nerfpipe.nerf.contraction import Contraction
-from nerfpipe.nerf.marching import render_marched, render_marched_segments
+from nerfpipe.nerf.marching import DensityFn, march, visible, within_budget
 from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid, cells_seen
-from nerfpipe.nerf.renderer import FieldFn, RayBatch, SamplingConfig, render_rays
-from nerfpipe.nerf.rendering import Composite
+from nerfpipe.nerf.rays import RayBatch
+from nerfpipe.nerf.rendering import RaySamples, RenderOutput
+from nerfpipe.nerf.sampling import sample_intervals, sample_pdf, stratified_samples
 
-DensityFn = Callable[[Tensor], Tensor]
 Box = tuple[tuple[float, ...], tuple[float, ...]]
 
 
+class Probe(Protocol):
+    """What a sampler may ask of the model while it samples (``RadianceModel.render`` hands one over)."""
+
+    def density_features(self, points: Tensor) -> tuple[Tensor, Tensor]:
+        """Densities (M,) of the first field at field coordinates (M, 3) and its features there
+        (``Field.density_features``), without gradients."""
+
+    def render(self, samples: RaySamples, level: int) -> RenderOutput:
+        """``samples`` rendered through field ``level`` (0: coarse, 1: fine), with gradients while training."""
+
+
+@dataclass(frozen=True)
+class SamplingConfig:
+    """N_c stratified samples, N_f more from the coarse weights (0: no hierarchical sampling)."""
+
+    n_coarse: int = 64
+    n_fine: int = 128
+    lindisp: bool = False
+
+
 class Sampler(Protocol):
-    """Where a model samples its rays. ``coarse`` / ``fine`` are world-space fields (``FieldFn``)."""
+    """Where a model samples its rays."""
 
     kind: ClassVar[str]
     fields: ClassVar[int]  # fields it evaluates: 1 (coarse), or 2 (coarse, then fine)
     adaptive: ClassVar[bool]  # whether its samples per ray vary, so the trainer adapts its rays per batch
 
-    def render_train(self, coarse: FieldFn, fine: FieldFn | None, density: DensityFn, rays: RayBatch,
-                     generator: torch.Generator, max_samples: int) -> tuple[dict[str, Composite], int]:
-        """Randomized, with gradients: {name: Composite} for each rendering in the loss (Eq. 6), and the
-        field evaluations spent. Each Composite may cover only the leading rays, within ``max_samples``."""
+    def sample(self, rays: RayBatch, space: Any, probe: Probe, *, train: bool, generator: torch.Generator | None,
+               max_samples: int = 0) -> tuple[RaySamples, int, tuple[RenderOutput, ...]]:
+        """Samples of ``rays`` (in ``space``'s ray coordinates), randomized when ``train``; with
+        ``max_samples`` > 0 those of the leading rays only, within about that many. Returns the samples,
+        the field level to evaluate them with, and the renderings made on the way (``Probe.render``)."""
 
-    def render(self, coarse: FieldFn, fine: FieldFn | None, rays: RayBatch, background: Tensor | None,
-               ) -> tuple[dict[str, Tensor], int]:
-        """Deterministic, without gradients: rgb (R, 3), depth, disparity, acc (R,), and the evaluations."""
+    def update(self, step: int, density: DensityFn, generator: torch.Generator) -> None:
+        """What the sampler keeps up to date with the field, before training step ``step``."""
 
-    def before_step(self, step: int, density: DensityFn, generator: torch.Generator) -> None:
-        """What the sampler keeps up to date with the field, before each training step."""
-
-    def start(self, to_world: Callable[[Tensor], Tensor] | None, intrinsics: Tensor, c2w: Tensor) -> None:
-        """Before training: the training cameras (``to_world``: field to world points; None: keep all)."""
+    def start(self, space: Any, intrinsics: Tensor, c2w: Tensor) -> None:
+        """Before training: the training cameras (intrinsics (I, 4), c2w (I, 4, 4)) and the ray space."""
 
     def reset(self) -> None:
         """Back to the state training starts from."""
 
-    def occupied_share(self) -> float | None:
-        """The share of its grid that is occupied, for a sampler that skips empty space; else None."""
+    def stats(self) -> dict[str, float]:
+        """Figures for the training log (an occupancy grid's occupied share)."""
 
     def candidates_per_ray(self) -> int:
         """The most samples it lays out along one ray at once (before any are culled): what a call's memory
-        grows with, so that callers bound the rays they hand it (``RadianceModel.render_batch``)."""
+        grows with, so that callers bound the rays they hand it (``RadianceModel.render``)."""
 
     def state_dict(self) -> dict[str, Any]: ...
 
@@ -73,7 +90,7 @@ class Sampler(Protocol):
         """The spec ``nerfpipe.nerf.config.SamplerParams`` asks for."""
 
     @classmethod
-    def from_spec(cls, spec: dict[str, Any], contraction: Contraction | None = None) -> "Sampler":
+    def from_spec(cls, spec: dict[str, Any]) -> "Sampler":
         """Built from a spec (model.json), training state fresh."""
 
     def spec(self) -> dict[str, Any]:
@@ -88,17 +105,17 @@ class StatelessSampler:
     """What a sampler that keeps nothing beside the fields does between renders: nothing. A sampler with no
     training state of its own (``HierarchicalSampler``) takes these rather than writing them out again."""
 
-    def before_step(self, step: int, density: DensityFn, generator: torch.Generator) -> None:
+    def update(self, step: int, density: DensityFn, generator: torch.Generator) -> None:
         pass
 
-    def start(self, to_world: Callable[[Tensor], Tensor] | None, intrinsics: Tensor, c2w: Tensor) -> None:
+    def start(self, space: Any, intrinsics: Tensor, c2w: Tensor) -> None:
         pass
 
     def reset(self) -> None:
         pass
 
-    def occupied_share(self) -> float | None:
-        return None
+    def stats(self) -> dict[str, float]:
+        return {}
 
     def state_dict(self) -> dict[str, Any]:
         return {}
@@ -126,7 +143,7 @@ class HierarchicalSampler(StatelessSampler):
         return {"sampling": asdict(SamplingConfig(params.n_coarse, params.n_fine if params.hierarchical else 0, lindisp))}
 
     @classmethod
-    def from_spec(cls, spec: dict[str, Any], contraction: Contraction | None = None) -> "HierarchicalSampler":
+    def from_spec(cls, spec: dict[str, Any]) -> "HierarchicalSampler":
         return cls(SamplingConfig(**spec["sampling"]))
 
     def spec(self) -> dict[str, Any]:
@@ -137,25 +154,33 @@ class HierarchicalSampler(StatelessSampler):
         """The paper's sampling needs no sentence in the train log."""
         return None
 
-    def samples_per_ray(self) -> int:
+    def candidates_per_ray(self) -> int:
         c = self.config
         return c.n_coarse + (c.n_coarse + c.n_fine if c.n_fine > 0 else 0)
 
-    def candidates_per_ray(self) -> int:
-        return self.samples_per_ray()
+    def sample(self, rays: RayBatch, space: Any, probe: Probe, *, train: bool, generator: torch.Generator | None,
+               max_samples: int = 0) -> tuple[RaySamples, int, tuple[RenderOutput, ...]]:
+        """N_c stratified samples (Eq. 2); with N_f > 0 they are rendered through the coarse field and N_f
+        more drawn from its weights (Eq. 5), the fine field evaluated at the union, N_c + N_f samples.
+        Randomized when ``train``, deterministic otherwise. The cost a ray is fixed: ``max_samples`` is not read.
 
-    def render_train(self, coarse: FieldFn, fine: FieldFn | None, density: DensityFn, rays: RayBatch,
-                     generator: torch.Generator, max_samples: int) -> tuple[dict[str, Composite], int]:
-        out = render_rays(coarse, fine, rays, self.config, None, randomized=True, generator=generator)
-        return out, len(rays) * self.samples_per_ray()
-
-    @torch.no_grad()
-    def render(self, coarse: FieldFn, fine: FieldFn | None, rays: RayBatch, background: Tensor | None,
-               ) -> tuple[dict[str, Tensor], int]:
-        result = render_rays(coarse, fine, rays, self.config, background, randomized=False)
-        final = result.get("fine", result["coarse"])
-        return {key: getattr(final, key) for key in ("rgb", "depth", "disparity", "acc")}, \
-            len(rays) * self.samples_per_ray()
+        Each sample stands for the stretch of ray closer to it than to its neighbours (``sample_intervals``:
+        from near, through the midpoints, to far), the bins Eq. 5's PDF is drawn from. Eq. 3's
+        delta_i = t_{i+1} - t_i tiles the same stretch shifted by half a sample; centring the stretches on
+        the samples makes the weights of the bins the PDF draws from those of the same bins, and puts a
+        ray's stopping depth within half a spacing of a surface rather than up to a whole one behind it."""
+        c = self.config
+        t = stratified_samples(rays.near, rays.far, c.n_coarse, train, c.lindisp, generator)
+        edges = sample_intervals(t, rays.near, rays.far)
+        samples = RaySamples.dense(t, edges[:, :-1], edges[:, 1:])
+        if c.n_fine <= 0:
+            return samples, 0, ()
+        coarse = probe.render(samples, 0)
+        weights = coarse.weights.detach().reshape(len(rays), c.n_coarse)
+        extra = sample_pdf(edges.detach(), weights, c.n_fine, not train, generator).detach()
+        t_all = torch.sort(torch.cat([t, extra], dim=-1), dim=-1).values
+        edges = sample_intervals(t_all, rays.near, rays.far)
+        return RaySamples.dense(t_all, edges[:, :-1], edges[:, 1:]), 1, (coarse,)
 
 
 class MarchingSampler:
@@ -166,8 +191,8 @@ class MarchingSampler:
     fields = 1
     adaptive = True
 
-    def __init__(self, grid: OccupancyGrid, config: MarchingConfig, contraction: Contraction | None = None) -> None:
-        self.grid, self.config, self.contraction = grid, config, contraction
+    def __init__(self, grid: OccupancyGrid, config: MarchingConfig) -> None:
+        self.grid, self.config = grid, config
 
     @staticmethod
     def spec_of(params: Any, box: Box | None, lindisp: bool) -> dict[str, Any]:
@@ -177,10 +202,10 @@ class MarchingSampler:
                               "marching": asdict(config)}}
 
     @classmethod
-    def from_spec(cls, spec: dict[str, Any], contraction: Contraction | None = None) -> "MarchingSampler":
+    def from_spec(cls, spec: dict[str, Any]) -> "MarchingSampler":
         occ = spec["occupancy"]
         grid = OccupancyGrid(tuple(occ["box"][0]), tuple(occ["box"][1]), occ["resolution"])
-        return cls(grid, MarchingConfig(**occ["marching"]), contraction)
+        return cls(grid, MarchingConfig(**occ["marching"]))
 
     def spec(self) -> dict[str, Any]:
         grid = self.grid
@@ -194,35 +219,41 @@ class MarchingSampler:
                 f"{occ['marching']['steps']} marching steps along its diagonal, rays stop at transmittance "
                 f"{occ['marching']['early_stop']:g} (instead of N_c + N_f samples per ray)")
 
-    def render_train(self, coarse: FieldFn, fine: FieldFn | None, density: DensityFn, rays: RayBatch,
-                     generator: torch.Generator, max_samples: int) -> tuple[dict[str, Composite], int]:
-        final, samples = render_marched(coarse, density, rays.origins, rays.directions, rays.viewdirs, rays.near,
-                                        rays.far, self.grid, self.config, None, True, generator,
-                                        max_samples=max_samples, contraction=self.contraction)
-        return {"coarse": final}, samples
+    def sample(self, rays: RayBatch, space: Any, probe: Probe, *, train: bool, generator: torch.Generator | None,
+               max_samples: int = 0) -> tuple[RaySamples, int, tuple[RenderOutput, ...]]:
+        """The occupied steps of each ray (``march``) that it reaches before its transmittance falls below
+        ``early_stop`` (``visible``). ``max_samples`` (0: no limit) bounds the work of one call, whatever
+        the grid became since the caller chose how many rays to draw: the visibility pass looks at the
+        leading rays with at most ``4 max_samples`` marched samples, and the samples kept are those of the
+        leading rays with at most ``max_samples`` visible ones."""
+        samples = march(rays, space, self.grid, self.config.steps, train, generator)
+        if max_samples > 0:
+            samples = samples.leading(within_budget(samples, 4 * max_samples))
+        # training looks at every sample of its rays at once; rendering a window at a time, so that a ray that
+        # stopped evaluates nothing more
+        samples = visible(rays, space, samples, probe.density_features, self.config.early_stop, 0 if train else 16)
+        if max_samples > 0:
+            samples = samples.leading(within_budget(samples, max_samples))
+        return samples, 0, ()
 
-    def render(self, coarse: FieldFn, fine: FieldFn | None, rays: RayBatch, background: Tensor | None,
-               ) -> tuple[dict[str, Tensor], int]:
-        return render_marched_segments(coarse, rays.origins, rays.directions, rays.viewdirs, rays.near, rays.far,
-                                       self.grid, self.config, background, contraction=self.contraction)
-
-    def before_step(self, step: int, density: DensityFn, generator: torch.Generator) -> None:
+    def update(self, step: int, density: DensityFn, generator: torch.Generator) -> None:
         """Refresh the grid from the field's density every ``update_every`` steps."""
         if step % self.config.update_every:
             return
         self.grid.update(density, self.grid.diagonal / self.config.steps, self.config.threshold,
                          step < self.config.warmup, generator)
 
-    def start(self, to_world: Callable[[Tensor], Tensor] | None, intrinsics: Tensor, c2w: Tensor) -> None:
-        """Only cells a training camera sees can ever be occupied."""
+    def start(self, space: Any, intrinsics: Tensor, c2w: Tensor) -> None:
+        """Only cells a training camera sees can ever be occupied (where the space can tell)."""
+        to_world = space.seen_map()
         if to_world is not None:
             self.grid.restrict_to(cells_seen(self.grid, to_world, intrinsics, c2w))
 
     def reset(self) -> None:
         self.grid.reset()
 
-    def occupied_share(self) -> float | None:
-        return self.grid.occupancy()
+    def stats(self) -> dict[str, float]:
+        return {"occupancy": round(self.grid.occupancy(), 4)}
 
     def candidates_per_ray(self) -> int:
         return 4 * self.config.steps + 1  # what ``march`` lays out along a ray before the grid culls them

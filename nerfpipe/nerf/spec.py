@@ -5,17 +5,10 @@ loading, ``nerfpipe bench`` and every export build a model the same way."""
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
-from nerfpipe.nerf.ray_space import RaySpace
-
-Box = tuple[tuple[float, ...], tuple[float, ...]]
-
-
-def _box(value: Any) -> Box | None:
-    return None if value is None else (tuple(value[0]), tuple(value[1]))
-
+from nerfpipe.nerf.ray_space import RaySpace, space_from_json
 
 @dataclass(frozen=True)
 class ModelSpec:
@@ -39,19 +32,14 @@ class ModelSpec:
     info: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
-        doc = asdict(self)
+        doc = {f.name: getattr(self, f.name) for f in fields(self)}
+        doc["ray_space"] = self.ray_space.to_json()
         doc["background"] = None if self.background is None else list(self.background)
         return doc
 
     @classmethod
     def from_json(cls, doc: dict[str, Any]) -> "ModelSpec":
-        rs = doc["ray_space"]
-        ray_space = RaySpace(
-            ndc=rs["ndc"], ndc_c2w=None if rs["ndc_c2w"] is None else tuple(tuple(r) for r in rs["ndc_c2w"]),
-            ndc_focal=rs["ndc_focal"], ndc_size=tuple(rs["ndc_size"]), ndc_near=rs["ndc_near"],
-            box=_box(rs["box"]), contraction=_box(rs.get("contraction")),
-        )
-        return cls(field=doc["field"], sampler=doc["sampler"], ray_space=ray_space,
+        return cls(field=doc["field"], sampler=doc["sampler"], ray_space=space_from_json(doc["ray_space"]),
                    fine_network=bool(doc["fine_network"]),
                    background=None if doc["background"] is None else tuple(doc["background"]),
                    appearance=doc.get("appearance"), refinement=doc.get("refinement"), info=doc.get("info", {}))

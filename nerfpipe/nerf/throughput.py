@@ -10,8 +10,7 @@ import torch
 
 from nerfpipe.nerf.device import synchronize
 from nerfpipe.nerf.model import RadianceModel
-from nerfpipe.nerf.rays import pixel_centers
-from nerfpipe.nerf.renderer import RayBatch
+from nerfpipe.nerf.rays import RayBatch, pixel_centers
 
 PROBE_RAYS = 4096  # rays timed to predict what rendering whole views costs
 WARM_UP_RAYS = 256
@@ -39,10 +38,10 @@ def seconds_per_ray(model: RadianceModel, intrinsics: tuple[float, float, float,
     a predicted 79 s for 9 beer views at 720x1280 that took 8 s). A few of them are rendered first,
     untimed: the first call of a process pays for warming up what every later one reuses."""
     batch = _probe(model, intrinsics, c2w, width, height, near, far, max(rays, chunk))
-    model.render_batch(batch.slice(0, WARM_UP_RAYS), chunk)
+    model.render_rays(batch.slice(0, WARM_UP_RAYS), chunk)
     synchronize(model.device)
     started = time.perf_counter()
-    model.render_batch(batch, chunk)
+    model.render_rays(batch, chunk)
     synchronize(model.device)
     return (time.perf_counter() - started) / max(len(batch), 1)
 
@@ -53,7 +52,7 @@ def seconds_per_view(model: RadianceModel, intrinsics: tuple[float, float, float
     timed on that view after a short warm-up. Dearer than ``seconds_per_ray`` by the view's size, and closer:
     a chunk of neighbouring pixels marches alike, where a probe of pixels spread over the view pays for the
     ray with the most samples in each chunk."""
-    model.render_batch(_probe(model, intrinsics, c2w, width, height, near, far, WARM_UP_RAYS), chunk)
+    model.render_rays(_probe(model, intrinsics, c2w, width, height, near, far, WARM_UP_RAYS), chunk)
     synchronize(model.device)
     started = time.perf_counter()
     model.render_image(intrinsics, c2w, width, height, near, far, chunk)

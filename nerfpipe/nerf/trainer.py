@@ -17,7 +17,7 @@ from torch import Tensor
 
 from nerfpipe.nerf.checkpoints import load_latest_checkpoint, save_checkpoint
 from nerfpipe.nerf.device import synchronize
-from nerfpipe.nerf.model import Field, RadianceModel
+from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.stall import StallGuard, mean_colour_psnr, mse_to_psnr
 from nerfpipe.pipeline.errors import StageError
 
@@ -148,9 +148,7 @@ class Trainer:
         self.total_samples = 0
         self.total_rays = 0
         self.lr_scale = 1.0  # halved by a restart after a stall
-        # NDC's frustum is the cameras' view by design: nothing there to restrict to what they see
-        model.sampler.start(None if model.ray_space.ndc else model.ray_space.from_field, self.pixels.intrinsics,
-                            self.pixels.c2w)
+        model.sampler.start(model.ray_space, self.pixels.intrinsics, self.pixels.c2w)
         check = 200 if config.steps <= 0 else min(max(200, config.steps // 8), config.steps)
         self.guard = StallGuard(mean_colour_psnr(self.pixels.rgb), check_step=check)
         self._initial = copy.deepcopy(model.state())
@@ -196,7 +194,7 @@ class Trainer:
         """Let the sampler catch up with the field (an occupancy grid refreshed from its density)."""
         was_training = self.model.coarse.training
         self.model.coarse.eval()
-        self.model.sampler.before_step(step, self.model.coarse.query_density, generator)
+        self.model.sampler.update(step, self.model.coarse.query_density, generator)
         self.model.coarse.train(was_training)
 
     def train_step(self, step: int) -> tuple[float, float]:
@@ -208,15 +206,7 @@ class Trainer:
         c2w = px.c2w if model.refinement is None else model.refinement(px.c2w)  # (I, 4, 4)
         rays = model.ray_space.rays(px.uv[index], px.intrinsics[image], c2w[image], px.near[image], px.far[image])
         target, backdrop = self.backdrop_targets(index, px.rgb[index], generator)
-        if backdrop is None:
-            backdrop = self.background
-        noise = self.config.density_noise
-
-        def field(fn: Field) -> Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]:
-            world = self.model.world_field(fn)
-            return lambda x, d: world(x, d, noise)
-
-        if noise > 0:  # the noise, too, is a function of (seed, step): resuming does not change it
+        if self.config.density_noise > 0:  # the noise, too, is a function of (seed, step): resuming does not change it
             torch.manual_seed(self.config.seed * 1_000_003 + step)
         progress = self.progress(step)
         for group in self.optimizer.param_groups:
@@ -228,29 +218,21 @@ class Trainer:
             self.before_step(step, generator)
             # a grid update can make every ray longer at once: at most twice the samples wanted, whatever the
             # number of rays drawn (a sampler whose cost per ray is fixed ignores the bound)
-            out, self.samples = model.sampler.render_train(
-                field(model.coarse), None if model.fine is None else field(model.fine), model.world_density(model.coarse),
-                rays, generator, 2 * self.config.batch_samples)
-            self.rays = len(out["coarse"].rgb)
+            out = model.render(rays, train=True, generator=generator, max_samples=2 * self.config.batch_samples,
+                               background="model" if backdrop is None else backdrop, images=image, density_noise=self.config.density_noise)
+            self.rays, self.samples = len(out), out.evaluated
             target = target[:self.rays]
             if self.config.batch_samples > 0 and model.sampler.adaptive:  # Instant-NGP: samples per batch about constant
                 per_ray = max(self.samples / self.rays, 1.0)
                 wanted = min(max(self.config.batch_samples / per_ray, 256.0), 16.0 * self.config.batch_rays)
                 # grow smoothly; shrink at once, since a batch too large costs time and memory
                 self.rays_per_batch = min(0.8 * self.rays_per_batch + 0.2 * wanted, wanted)
-        if backdrop is not None and backdrop.dim() == 2:
-            backdrop = backdrop[:self.rays]
-        for c in out.values():
-            if model.appearance is not None:  # as the photo's camera recorded the light (nerfpipe.nerf.appearance)
-                c.rgb = model.appearance(c.rgb, image[:self.rays])
-            if backdrop is not None:  # "over" onto the background, as composite() does (Eq. 3 + background): a
-                # backdrop whose colour is a stand-in (alpha, a masked cloth) is not exposed by the camera
-                c.rgb = c.rgb + (1.0 - c.acc).clamp_min(0.0).unsqueeze(-1) * backdrop
-        # Eq. 6: squared error of the coarse and the fine rendering (a mean rather than a sum over the batch)
-        losses = {name: torch.mean((c.rgb - target) ** 2) for name, c in out.items()}
-        loss = sum(losses.values())
+        # Eq. 6: squared error of every rendering the sampler made (coarse and fine) (a mean rather than a sum
+        # over the batch)
+        losses = [torch.mean((o.rgb - target) ** 2) for o in out.passes()]
+        loss = sum(losses)
         if self.config.distortion > 0:
-            measured = [d.mean() for d in (c.distortion_loss() for c in out.values()) if d is not None]
+            measured = [d.mean() for d in (o.distortion() for o in out.passes()) if d is not None]
             loss = loss + self.config.distortion * sum(measured)
         if model.refinement is not None:
             loss = loss + self.config.pose_penalty * model.refinement.penalty()
@@ -258,8 +240,7 @@ class Trainer:
         self.scaler.scale(loss).backward()
         self.scaler.step(self.optimizer)
         self.scaler.update()
-        final = losses.get("fine", losses["coarse"])
-        return float(loss.detach()), mse_to_psnr(float(final.detach()))
+        return float(loss.detach()), mse_to_psnr(float(losses[-1].detach()))
 
     def backdrop_targets(self, index: Tensor, target: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor | None]:
         """Targets (R, 3) and the colour (R, 3) each ray's render is composited onto, with backdrop masks
@@ -360,9 +341,7 @@ class Trainer:
                               "samples_per_ray": round(window_samples / max(window_rays, 1), 2),
                               "rays_per_batch": rays}
                     window_start, window_steps, window_samples, window_rays = self.elapsed, 0, 0, 0
-                    occupied = self.model.sampler.occupied_share()
-                    if occupied is not None:
-                        record["occupancy"] = round(occupied, 4)
+                    record.update(self.model.sampler.stats())
                     metrics.write(json.dumps(record) + "\n")
                     metrics.flush()
                     units = self.total if last else self.done_units()

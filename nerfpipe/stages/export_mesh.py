@@ -153,7 +153,7 @@ class ExportMeshStage(Stage):
         scene = SceneDecisions.load(inputs["scene"])
         method = chosen_method(params.method, scene)
         if method == "marching_cubes":
-            box = mesh_box(model.ray_space, far, (lo, hi), params.region)
+            box = model.ray_space.mesh_box(far, (tuple(lo), tuple(hi)), params.region)
             grid = Grid.over(box[0], box[1], params.resolution)
             field = model.fine if model.fine is not None else model.coarse
             predicted = timed(lambda pts: evaluate_density(field.query_density, pts, device=device), box, grid.voxel,
@@ -163,11 +163,8 @@ class ExportMeshStage(Stage):
             check_affordable(ctx.allotment, predicted, f"export_mesh: marching cubes at resolution {params.resolution}",
                              "lower export_mesh.resolution")
             mesh = marching_cubes(field.query_density, grid, params.density_threshold, params.block, device=device)
-            warped = model.ray_space.ndc or model.ray_space.contraction is not None
-            if warped:
-                mesh.vertices = model.ray_space.from_field(torch.as_tensor(mesh.vertices)).numpy()
-            # NDC and contracted voxels vary in world size: the scene box's share stands in for them
-            voxel = float((hi - lo).max()) / params.resolution if warped else grid.voxel
+            mesh.vertices = model.ray_space.from_field(torch.as_tensor(mesh.vertices)).numpy()
+            voxel = model.ray_space.world_voxel(grid.voxel, params.resolution, (tuple(lo), tuple(hi)))
         elif method == "poisson":
             points = agreed_points(inputs, bounds)
             box = (lo, hi) if scene.layout.value != "forward" else (points.xyz.min(axis=0), points.xyz.max(axis=0))
@@ -214,7 +211,7 @@ class ExportMeshStage(Stage):
             "faces_before_cleaning": report.faces_before, "poisson_faces": None, **scores,
         }
         if params.watertight:
-            grid = Grid.over(*mesh_box(model.ray_space, far, (lo, hi), params.region), params.resolution)
+            grid = Grid.over(*model.ray_space.mesh_box(far, (tuple(lo), tuple(hi)), params.region), params.resolution)
             summary["watertight"] = write_watertight(out, model, grid, params, device, textured, bounds, to_gltf)
             ctx.log.info("export_mesh: a watertight remesh of %(faces)d triangles, Euler number %(euler)d, watertight "
                          "%(watertight)s, edge-manifold %(edge_manifold)s -> mesh_watertight.ply, .glb",
@@ -279,8 +276,7 @@ def write_watertight(out: Path, model: Any, grid: Any, params: ExportMeshParams,
     mesh = solid_surface(solid, grid.origin, grid.voxel, params.close_voxels)
     if mesh.faces == 0:
         raise StageError("export_mesh: the watertight remesh found no solid; lower export_mesh.density_threshold")
-    if model.ray_space.ndc or model.ray_space.contraction is not None:
-        mesh.vertices = model.ray_space.from_field(torch.as_tensor(mesh.vertices)).numpy()
+    mesh.vertices = model.ray_space.from_field(torch.as_tensor(mesh.vertices)).numpy()
     if textured is not None:
         mesh.colors = colours_at(textured, mesh.vertices)
     write_mesh(transformed(mesh, bounds.to_sfm), out / "mesh_watertight.ply")
@@ -372,13 +368,3 @@ def timed(query, box, spacing: float, count: int) -> float:
     began = time.perf_counter()
     query(points)
     return time.perf_counter() - began
-
-
-def mesh_box(ray_space, far: float, scene_box: tuple[np.ndarray, np.ndarray], region: str):
-    """The box of field coordinates marching cubes samples: NDC's frustum out to ``far``; in contracted
-    space the scene box ([-1, 1]^3 there) or, for ``region="all"``, the whole contracted cube short of its
-    surface (which lies at infinity); the scene box otherwise."""
-    if ray_space.contraction is not None:
-        edge = 1.0 if region == "box" else 1.99
-        return (-edge,) * 3, (edge,) * 3
-    return ray_space.field_box(far) or (tuple(scene_box[0]), tuple(scene_box[1]))

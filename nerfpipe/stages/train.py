@@ -287,7 +287,7 @@ class TrainStage(Stage):
             "samples_per_s": round(trainer.total_samples / max(trainer.elapsed, 1e-9)),
             "samples_per_ray": round(trainer.total_samples / max(trainer.total_rays, 1), 2),
             "field": model.field_kind,
-            "occupancy": None if (share := model.sampler.occupied_share()) is None else round(share, 4),
+            "occupancy": model.sampler.stats().get("occupancy"),
             "device": str(device),
             "train_images": len(views.train),
             "heldout": len(views.heldout),

@@ -26,10 +26,9 @@ from nerfpipe.export.points import transformed as cloud_transformed
 from nerfpipe.imaging.png import srgb_decode
 from nerfpipe.nerf.analytic import SphereField
 from nerfpipe.nerf.model import RadianceModel
-from nerfpipe.nerf.ray_space import RaySpace
+from nerfpipe.nerf.ray_space import BoxSpace
 from nerfpipe.nerf.rays import camera_rays, pixel_centers
-from nerfpipe.nerf.renderer import SamplingConfig
-from nerfpipe.nerf.samplers import HierarchicalSampler
+from nerfpipe.nerf.samplers import HierarchicalSampler, SamplingConfig
 from tests.helpers import look_at
 
 CENTER = np.array([0.05, -0.03, 0.02])
@@ -43,7 +42,7 @@ SIZE, FOCAL = 48, 50.0
 
 def sphere_model(n_fine: int = 0) -> RadianceModel:
     field = SphereField(tuple(CENTER), RADIUS, DENSITY)
-    return RadianceModel(field, None, HierarchicalSampler(SamplingConfig(N_COARSE, n_fine)), RaySpace(box=BOX), (1.0, 1.0, 1.0))
+    return RadianceModel(field, None, HierarchicalSampler(SamplingConfig(N_COARSE, n_fine)), BoxSpace(BOX), (1.0, 1.0, 1.0))
 
 
 def ring_cameras(count: int = 8) -> list[np.ndarray]:

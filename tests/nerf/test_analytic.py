@@ -7,7 +7,9 @@ import torch
 
 from nerfpipe.nerf.analytic import SphereField
 from nerfpipe.nerf.rays import camera_rays, pixel_centers
-from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
+from nerfpipe.nerf.rays import RayBatch
+from nerfpipe.nerf.samplers import HierarchicalSampler, SamplingConfig
+from tests.nerf.fieldfns import model_of
 from tests.helpers import look_at
 
 
@@ -24,7 +26,7 @@ def test_intersect_by_hand() -> None:
 def test_rendered_depth_is_the_sphere_surface_within_half_a_sample_spacing() -> None:
     """With a near-opaque sphere all weight falls on the first sample inside it; its stretch of ray starts
     halfway from the sample before, so within half a spacing of the entry point, and a ray stops 1 / sigma
-    into a medium of density sigma."""
+    into a medium of density sigma. Rendered as a trained model renders (``RadianceModel.render_rays``)."""
     sphere = SphereField(center=(0.1, -0.05, 0.0), radius=0.4, density=1e4)
     width = height = 48
     c2w = torch.tensor(look_at(np.array([1.6, 0.9, 0.5]), np.zeros(3)), dtype=torch.float32)
@@ -36,7 +38,7 @@ def test_rendered_depth_is_the_sphere_surface_within_half_a_sample_spacing() -> 
     rays = RayBatch(origins, directions, torch.nn.functional.normalize(directions, dim=-1),
                     torch.full((n,), near), torch.full((n,), far))
     sampling = SamplingConfig(n_coarse=128, n_fine=0)
-    out = render_chunked(sphere, None, rays, sampling, background=torch.ones(3))
+    out = model_of(sphere, None, HierarchicalSampler(sampling)).render_rays(rays, background=torch.ones(3))
     spacing = (far - near) / sampling.n_coarse
     t_entry = sphere.intersect(origins, directions)
     t_exit = sphere.intersect(origins + (t_entry.clamp(max=10.0) + 1e-4).unsqueeze(-1) * directions, directions)
@@ -55,6 +57,7 @@ def test_rendered_depth_is_the_sphere_surface_within_half_a_sample_spacing() -> 
     assert torch.allclose(out["disparity"][missed], torch.tensor(1 / far))
 
     # hierarchical sampling packs samples near the surface, and the depth follows them
-    fine = render_chunked(sphere, None, rays, SamplingConfig(n_coarse=128, n_fine=64), background=torch.ones(3))
+    fine = model_of(sphere, None, HierarchicalSampler(SamplingConfig(n_coarse=128, n_fine=64))).render_rays(
+        rays, background=torch.ones(3))
     fine_error = (fine["depth"][solid] - expected).abs()
     assert fine_error.max() <= spacing / 2 + 1e-5 and fine_error.mean() < error.abs().mean() / 4

@@ -21,6 +21,7 @@ from nerfpipe.nerf.assembly import (
 )
 from nerfpipe.nerf.field import NerfField
 from nerfpipe.nerf.grid_field import GridField
+from nerfpipe.nerf.ray_space import BoxSpace, ContractedSpace, NdcSpace
 from nerfpipe.nerf.samplers import MarchingSampler
 from nerfpipe.pipeline.params import override
 from nerfpipe.stages.train import TrainParams
@@ -60,29 +61,29 @@ def test_ablation_switches_build_the_tables_models(overrides, first_in, view_in,
 def test_scene_decisions_choose_the_ray_space_and_background() -> None:
     world, bounds = world_of_one_camera(), bounds_of((2.0, 9.0))
     inward, said = build_model(TrainParams(), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, CPU)
-    assert inward.ray_space.box == ((-1, -1, -1), (1, 1, 1)) and not inward.ray_space.ndc
+    assert inward.ray_space == BoxSpace(((-1, -1, -1), (1, 1, 1)))
     assert inward.background == (1.0, 1.0, 1.0) and isinstance(inward.sampler, MarchingSampler)
     assert said[0] == "inward 360: world rays, each clipped to the scene box and its image's near/far"
     assert inward.info == {"layout": "inward360", "photometric": "srgb", "to_sfm": np.eye(4).tolist()}
     forward, said = build_model(train_params({"field.kind": "mlp"}), scene_of("forward"), world, bounds, CPU)
-    assert forward.ray_space.ndc and forward.ray_space.ndc_near == pytest.approx(NDC_NEAR_FACTOR * 2.0)
-    assert forward.ray_space.ndc_focal == 50 and forward.ray_space.ndc_size == (40, 30) and forward.background is None
+    assert isinstance(forward.ray_space, NdcSpace) and forward.ray_space.near == pytest.approx(NDC_NEAR_FACTOR * 2.0)
+    assert forward.ray_space.focal == 50 and forward.ray_space.size == (40, 30) and forward.background is None
     assert said == [  # one sentence a choice, in this order: ray space, (field, occupancy,) background, noise
         "forward-facing: rays in NDC of the mean camera, near plane 1.5, samples linear in NDC depth (near to infinity)",
         "no background model: the background is part of the scene (composited onto black)",
         "noise of std 1 on raw density while training",  # the authors' regularizer for real forward scenes
     ]
-    assert forward.sampler.occupied_share() is None  # the paper's sampler unless asked
+    assert forward.sampler.stats() == {}  # the paper's sampler unless asked
     unbounded, said = build_model(train_params({"field.kind": "mlp"}), scene_of("unbounded360", photometric="linear_raw"),
                                   world, bounds, CPU)
-    assert unbounded.sampler.config.lindisp and unbounded.ray_space.box is None
-    assert unbounded.ray_space.contraction == ((-1, -1, -1), (1, 1, 1))  # the scene box, kept as it is
+    assert unbounded.sampler.config.lindisp
+    assert unbounded.ray_space == ContractedSpace(((-1, -1, -1), (1, 1, 1)))  # the scene box, kept as it is
     assert said == ["unbounded 360: world rays over each image's near/far; the scene box at full resolution and the "
                     "space beyond it contracted into a shell around it (mip-NeRF 360, Eq. 10), steps growing with distance",
                     "no background model: the background is part of the scene (composited onto black)",
                     "linear RAW: trained on linear values; previews are sRGB-encoded"]
     clipped, said = build_model(train_params({"field.kind": "mlp", "space.contract": "off"}), scene_of("unbounded360"), world, bounds, CPU)
-    assert clipped.ray_space.contraction is None and said[0] == (
+    assert isinstance(clipped.ray_space, BoxSpace) and said[0] == (
         "unbounded 360: world rays over each image's near/far, samples linear in disparity")
 
 
@@ -90,13 +91,13 @@ def test_inward_captures_contract_unless_a_backdrop_or_alpha_bounds_them() -> No
     world, bounds = world_of_one_camera(), bounds_of((2.0, 9.0))
     for background, color in (("alpha", [1, 1, 1]), ("color", [0, 0, 0])):
         model, _ = build_model(TrainParams(), scene_of("inward360", background, color), world, bounds, CPU)
-        assert model.ray_space.box is not None and model.ray_space.contraction is None
+        assert isinstance(model.ray_space, BoxSpace) and model.ray_space.box is not None
     room, said = build_model(TrainParams(), scene_of("inward360", "none"), world, bounds, CPU)
-    assert room.ray_space.box is None and room.ray_space.contraction == ((-1, -1, -1), (1, 1, 1))
+    assert room.ray_space == ContractedSpace(((-1, -1, -1), (1, 1, 1)))
     assert said[0].startswith("inward 360 with the background part of the scene: world rays over each image's near/far")
     assert room.coarse.lo.tolist() == [-2] * 3 and room.sampler.grid.hi.tolist() == [2] * 3  # the contracted cube
     forced, _ = build_model(train_params({"space.contract": "on"}), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, CPU)
-    assert forced.ray_space.contraction is not None
+    assert isinstance(forced.ray_space, ContractedSpace)
 
 
 def test_contracted_space_keeps_the_scene_box_or_the_cameras_too_at_full_resolution() -> None:
@@ -106,20 +107,20 @@ def test_contracted_space_keeps_the_scene_box_or_the_cameras_too_at_full_resolut
     world, bounds = CameraSet({1: Camera.pinhole(50, 50, 20, 15, 40, 30)}, frames), bounds_of((2.0, 9.0))
     around, said = build_model(train_params({"space.contract_around": "cameras"}), scene_of("inward360", "none"),
                                world, bounds, CPU)
-    lo, hi = np.array(around.ray_space.contraction)
+    lo, hi = np.array(around.ray_space.box)
     # x from -4 to 4, y from -1 (the box) to 4, z from -1 to 1 (the box, above the cameras' 1), 5 % more a side
     np.testing.assert_allclose(lo, [-4.4, -1.25, -1.1], atol=1e-9)
     np.testing.assert_allclose(hi, [4.4, 4.25, 1.1], atol=1e-9)
     assert "the box of the scene and the cameras at full resolution" in said[0]
     scene_only, said = build_model(TrainParams(), scene_of("inward360", "none"), world, bounds, CPU)
-    assert scene_only.ray_space.contraction == ((-1, -1, -1), (1, 1, 1)) and "the scene box at full resolution" in said[0]
+    assert scene_only.ray_space == ContractedSpace(((-1, -1, -1), (1, 1, 1))) and "the scene box at full resolution" in said[0]
 
 
 def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:
     world, bounds = world_of_one_camera(), bounds_of((2.0, 9.0))
     inward, said = build_model(TrainParams(), scene_of("inward360", "alpha", [1, 1, 1]), world, bounds, CPU)
     assert isinstance(inward.coarse, GridField) and inward.fine is None
-    assert inward.sampler.occupied_share() is not None and inward.sampler.grid.resolution == 64
+    assert "occupancy" in inward.sampler.stats() and inward.sampler.grid.resolution == 64
     assert inward.sampler.grid.lo.tolist() == [-1] * 3 and inward.coarse.hi.tolist() == [1] * 3
     assert said[1] == "grid field: 3 levels of [32, 64, 128] cells a side, 4 features each, and a 64-wide MLP"
     # colour reads the 15 geometric features and the unit direction d itself, no sines of it (L = 0)
@@ -131,10 +132,10 @@ def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:
     assert forward.sampler.grid.hi.tolist() == pytest.approx([1, 1, z_max]) and forward.sampler.grid.lo.tolist() == [-1] * 3
     assert not any("noise" in line for line in said)  # a regularizer of the MLP's raw density only
     unbounded, said = build_model(TrainParams(), scene_of("unbounded360"), world, bounds, CPU)
-    assert isinstance(unbounded.coarse, GridField) and unbounded.sampler.occupied_share() is not None  # no MLP fallback
+    assert isinstance(unbounded.coarse, GridField) and "occupancy" in unbounded.sampler.stats()  # no MLP fallback
     assert unbounded.coarse.lo.tolist() == [-2] * 3 and unbounded.coarse.hi.tolist() == [2] * 3
     uncontracted, said = build_model(train_params({"space.contract": "off"}), scene_of("unbounded360"), world, bounds, CPU)
-    assert isinstance(uncontracted.coarse, NerfField) and uncontracted.sampler.occupied_share() is None
+    assert isinstance(uncontracted.coarse, NerfField) and uncontracted.sampler.stats() == {}
     assert "unbounded 360: the grid field needs a bounded box, so the MLP (Fig. 7) is trained" in said
     mlp_grid, _ = build_model(train_params({"field.kind": "mlp", "sampler.kind": "marching"}), scene_of("inward360"),
                               world, bounds, CPU)
@@ -226,7 +227,7 @@ def test_silhouettes_shrink_the_scene_box_and_the_grids_over_it_to_their_visual_
                          (train_params({"field.kind": "mlp"}), scene_of("forward", "alpha", [1, 1, 1]))):
         kept, said = build_model(params, kind, world, bounds, CPU, silhouettes=views)
         assert not said[0].startswith("visual hull")
-        assert kept.ray_space.box in (None, ((-1, -1, -1), (1, 1, 1)))
+        assert getattr(kept.ray_space, "box", None) in (None, ((-1, -1, -1), (1, 1, 1)))  # NDC has none
     kept, _ = build_model(TrainParams(), scene, world, bounds, CPU)  # no silhouettes
     assert kept.ray_space.box == ((-1, -1, -1), (1, 1, 1))
 

@@ -6,8 +6,10 @@ from __future__ import annotations
 import torch
 
 from nerfpipe.nerf.contraction import Contraction, contract, uncontract
-from nerfpipe.nerf.marching import contracted_steps, march
+from nerfpipe.nerf.marching import march
 from nerfpipe.nerf.occupancy import OccupancyGrid
+from nerfpipe.nerf.ray_space import ContractedSpace
+from nerfpipe.nerf.rays import RayBatch
 
 
 def test_values_by_hand():
@@ -69,7 +71,8 @@ def test_steps_are_even_in_contracted_space_and_grow_in_the_world():
     o = torch.zeros((1, 3))
     d = torch.tensor([[1.0, 0.0, 0.0]])
     step = 0.05
-    starts, ends = contracted_steps(o, d, torch.zeros(1), torch.tensor([50.0]), c, step, 4000)
+    space = ContractedSpace((c.lo, c.hi))
+    starts, ends = space.steps(o, d, torch.zeros(1), torch.tensor([50.0]), step, 4000)
     assert float(ends[0, -1]) == 50.0 and torch.equal(starts[0, 1:], ends[0, :-1])  # they tile [near, far]
     lengths = ends[0] - starts[0]
     assert torch.allclose(lengths[:19], torch.full((19,), step))  # inside the box: the plain step
@@ -87,8 +90,9 @@ def test_march_in_contracted_space_keeps_only_occupied_cells():
     shell = grid.cell_index(torch.tensor([[1.75, 0.0, 0.0]]))[0]  # the cell that holds world x = 4
     grid.occupied[shell] = True
     o, d = torch.zeros((1, 3)), torch.tensor([[1.0, 0.0, 0.0]])
-    samples = march(o, d, torch.zeros(1), torch.tensor([100.0]), grid, 32, False, contraction=c)
-    kept = samples.t[samples.valid]
+    samples = march(RayBatch(o, d, d, torch.zeros(1), torch.tensor([100.0])), ContractedSpace((c.lo, c.hi)), grid, 32,
+                    False)
+    kept = samples.t
     assert len(kept) > 0
     x = c.to_field(torch.stack([kept, torch.zeros_like(kept), torch.zeros_like(kept)], -1))[:, 0]
     assert bool(((x >= 1.5) & (x <= 2.0)).all())  # world 2 .. infinity: the cell [1.5, 2.0] of contracted x

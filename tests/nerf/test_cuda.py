@@ -60,7 +60,7 @@ def twins(values: dict, layout: str = "inward360") -> tuple[RadianceModel, Radia
 def test_every_field_and_sampler_renders_on_the_gpu_what_it_renders_on_the_cpu(kind, sampler, layout) -> None:
     cpu, gpu = twins({"field.kind": kind, "sampler.kind": sampler, "field.max_resolution": 256}, layout)
     assert gpu.device.type == "cuda" and all(p.is_cuda for f in gpu.fields() for p in f.parameters())
-    a, b = cpu.render_batch(view_rays(cpu), chunk=256), gpu.render_batch(view_rays(gpu), chunk=256)
+    a, b = cpu.render_rays(view_rays(cpu), chunk=256), gpu.render_rays(view_rays(gpu), chunk=256)
     assert b["rgb"].is_cuda and float(b["acc"].max()) > 0.0  # something was rendered
     for key in ("rgb", "acc", "depth"):
         torch.testing.assert_close(b[key].cpu(), a[key], atol=2e-3, rtol=2e-3, msg=f"{key} of {kind} / {sampler}")
@@ -106,7 +106,7 @@ def test_a_model_trained_on_the_gpu_loads_on_the_cpu_and_renders_the_same(tmp_pa
     model.save(tmp_path)
     back = RadianceModel.load(tmp_path, CPU)
     assert back.device.type == "cpu"
-    a, b = model.render_batch(view_rays(model), 256), back.render_batch(view_rays(back), 256)
+    a, b = model.render_rays(view_rays(model), 256), back.render_rays(view_rays(back), 256)
     torch.testing.assert_close(a["rgb"].cpu(), b["rgb"], atol=2e-3, rtol=2e-3)
     again = Trainer(build_model(params, scene_of("inward360"), world_of_one_camera(), bounds_of(), CUDA, ["a.png"])[0],
                     one_view_pixels(CUDA), training_config(params, "inward360"), tmp_path, CUDA)

@@ -1,61 +1,11 @@
-"""RaySpace: world <-> field coordinates and the camera depth of a ray parameter, in NDC and in world rays."""
+"""RadianceModel: saved and loaded with its per-image parts, built from its spec, refusing pickles."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 import torch
 
-from nerfpipe.nerf.ray_space import RaySpace
-from nerfpipe.nerf.rays import camera_rays, pixel_centers
-from tests.helpers import look_at
-
-
-def ndc_space() -> RaySpace:
-    reference = look_at(np.array([0.0, -3.0, 0.2]), np.array([0.0, 0.0, 0.0]))
-    return RaySpace(ndc=True, ndc_c2w=tuple(map(tuple, reference.tolist())), ndc_focal=40.0, ndc_size=(64, 48), ndc_near=1.2)
-
-
-def test_field_coordinates_round_trip():
-    space = ndc_space()
-    points = torch.tensor([[0.1, 0.0, 0.0], [-0.5, 1.0, 0.3], [0.2, 7.0, -0.4]], dtype=torch.float64)
-    field = space.to_field(points)
-    assert torch.all(field[:, 2] > -1) and torch.all(field[:, 2] < 1)  # beyond the near plane, before infinity
-    assert torch.allclose(space.from_field(field), points, atol=1e-10)
-    # the reference camera's centre line maps to x' = y' = 0; depth 2 near lies at z' = 0
-    reference = np.array(space.ndc_c2w)
-    on_axis = torch.tensor(reference[:3, 3] + 2.4 * reference[:3, 2])[None]
-    assert torch.allclose(space.to_field(on_axis), torch.zeros(1, 3, dtype=torch.float64), atol=1e-9)
-    world = RaySpace(box=((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)))
-    assert torch.equal(world.to_field(points), points) and torch.equal(world.from_field(points), points)
-
-
-def test_camera_depth_inverts_the_ndc_ray_parameter():
-    """A world point at camera depth s lies on the pixel's NDC ray at some t'; camera_depth(t') gives s back,
-    for a camera other than the reference."""
-    space = ndc_space()
-    c2w = torch.tensor(look_at(np.array([0.4, -2.8, 0.0]), np.array([0.1, 0.0, 0.1])), dtype=torch.float32)
-    uv = pixel_centers(8, 6)
-    k = torch.tensor([10.0, 10.0, 4.0, 3.0]).expand(len(uv), 4)
-    origins, directions = camera_rays(uv, k, c2w)
-    n = len(uv)
-    rays = space.rays(uv, k, c2w, torch.zeros(n), torch.ones(n))
-    s = torch.linspace(1.5, 6.0, n)
-    field_points = space.to_field(origins + s[:, None] * directions)
-    t = (field_points - rays.origins)[:, 2] / rays.directions[:, 2]
-    assert torch.all((t > 0) & (t < 1))
-    # the point is on the NDC ray, not only at its z'
-    assert torch.allclose(rays.origins + t[:, None] * rays.directions, field_points, atol=1e-4)
-    assert torch.allclose(space.camera_depth(origins, directions, t), s, rtol=1e-4)
-    world = RaySpace()
-    assert torch.equal(world.camera_depth(origins, directions, s), s)
-
-
-def test_field_box_ends_at_the_far_depth():
-    space = ndc_space()
-    lo, hi = space.field_box(far=12.0)
-    assert lo == (-1.0, -1.0, -1.0) and hi[:2] == (1.0, 1.0)
-    assert np.isclose(hi[2], 1 - 2 * 1.2 / 12.0)
+from nerfpipe.nerf.ray_space import NdcSpace
 
 
 def test_per_image_exposure_and_camera_corrections_are_saved_and_loaded(tmp_path) -> None:
@@ -90,7 +40,7 @@ def test_a_model_is_built_from_its_spec_and_the_spec_survives_json(tmp_path) -> 
     spec, said = resolve_spec(*args, ["a.png", "b.png"])
     model, said_again = build_model(*args, torch.device("cpu"), ["a.png", "b.png"])
     assert said == said_again and model.spec == spec  # resolving, then building, is what build_model does
-    assert spec.field["kind"] == "grid" and spec.sampler["kind"] == "marching" and spec.ray_space.ndc
+    assert spec.field["kind"] == "grid" and spec.sampler["kind"] == "marching" and isinstance(spec.ray_space, NdcSpace)
     assert ModelSpec.from_json(json.loads(json.dumps(spec.to_json()))) == spec
     # the same seed builds the same weights; a saved model loads back through the same build
     torch.manual_seed(0)

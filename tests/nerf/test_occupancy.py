@@ -1,5 +1,6 @@
-"""Empty-space skipping: the occupancy grid's update rule, marching, packing, early termination, and
-agreement of marched rendering with the paper's dense sampling on a sphere of known geometry."""
+"""Empty-space skipping: the occupancy grid's update rule, marching, early termination, the sample budget, and
+agreement of marched rendering with the paper's dense sampling on a sphere of known geometry, all rendered
+through ``RadianceModel.render``."""
 
 from __future__ import annotations
 
@@ -9,35 +10,39 @@ import pytest
 import torch
 
 from nerfpipe.nerf.analytic import SphereField
-from nerfpipe.nerf.marching import (
-    PackedSamples,
-    march,
-    pack_left,
-    rays_within,
-    render_marched,
-    render_marched_segments,
-    transmittance_before,
-    visible,
-)
+from nerfpipe.nerf.marching import march, visible, within_budget
+from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
-from nerfpipe.nerf.rays import intersect_box
-from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_chunked
-from nerfpipe.nerf.samplers import MarchingSampler
+from nerfpipe.nerf.ray_space import BoxSpace
+from nerfpipe.nerf.rays import RayBatch, intersect_box
+from nerfpipe.nerf.rendering import RaySamples
+from nerfpipe.nerf.samplers import HierarchicalSampler, MarchingSampler, SamplingConfig
 
 BOX = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
 
 
-def rays_at(points: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, ...]:
-    """Rays from ``points`` towards ``target``, clipped to BOX: origins, unit directions, near, far."""
+SPACE = BoxSpace(BOX)
+
+
+def rays_at(points: torch.Tensor, target: torch.Tensor) -> RayBatch:
+    """Rays from ``points`` towards ``target``, clipped to BOX, unit directions."""
     d = torch.nn.functional.normalize(target - points, dim=-1)
     lo, hi = torch.tensor(BOX[0]), torch.tensor(BOX[1])
     enter, exit_ = intersect_box(points, d, lo, hi)
     near = enter.clamp_min(0.0)
     far = torch.maximum(exit_, near)
-    return points, d, near, far
+    return RayBatch(points, d, d, near, far)
 
 
-def camera_rays(n: int = 400, seed: int = 0, spread: float = 1.6) -> tuple[torch.Tensor, ...]:
+def marching(field, grid: OccupancyGrid, config: MarchingConfig) -> RadianceModel:
+    return RadianceModel(field, None, MarchingSampler(grid, config), SPACE, None)
+
+
+def of_ray(samples: RaySamples, r: int) -> RaySamples:
+    return samples.select(samples.ray == r)
+
+
+def camera_rays(n: int = 400, seed: int = 0, spread: float = 1.6) -> RayBatch:
     g = torch.Generator().manual_seed(seed)
     origins = torch.tensor([0.0, 0.0, 3.0]).expand(n, 3).clone()
     targets = (torch.rand((n, 3), generator=g) - 0.5) * torch.tensor([spread, spread, 0.0])
@@ -82,44 +87,40 @@ def test_partial_updates_leave_unvisited_cells_occupied_until_seen() -> None:
     assert bool(grid.occupied[~seen].all()) and not bool(grid.occupied[seen].any())
 
 
-def test_pack_left_keeps_order_and_pads_with_far() -> None:
-    valid = torch.tensor([[False, True, False, True], [False, False, False, False], [True, True, True, False]])
-    t = torch.tensor([[0.1, 0.2, 0.3, 0.4], [0.1, 0.2, 0.3, 0.4], [0.5, 0.6, 0.7, 0.8]])
-    packed_valid, (packed,) = pack_left(valid, t, fill=torch.tensor([[9.0], [8.0], [7.0]]))
-    assert packed_valid.tolist() == [[True, True, False], [False, False, False], [True, True, True]]
-    torch.testing.assert_close(packed, torch.tensor([[0.2, 0.4, 9.0], [8.0, 8.0, 8.0], [0.5, 0.6, 0.7]]))
-
-
 def test_march_through_an_occupied_grid_tiles_near_to_far_in_equal_steps() -> None:
     grid = OccupancyGrid(*BOX, resolution=4)
-    o, d, near, far = rays_at(torch.tensor([[0.0, 0.0, 3.0], [0.3, -0.2, 3.0]]), torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]))
-    s = march(o, d, near, far, grid, steps=64, randomized=False)
+    rays = rays_at(torch.tensor([[0.0, 0.0, 3.0], [0.3, -0.2, 3.0]]), torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]))
+    s = march(rays, SPACE, grid, steps=64, randomized=False)
     dt = grid.diagonal / 64  # unit directions: one step of diagonal / steps in t
+    assert bool((s.ray[1:] >= s.ray[:-1]).all())  # packed ray after ray
     for r in range(2):
-        n = int(s.count[r])
-        assert n == math.ceil(float((far[r] - near[r]) / dt))
-        t = s.t[r, :n]
+        near, far = float(rays.near[r]), float(rays.far[r])
+        mine = of_ray(s, r)
+        n = len(mine)
+        assert n == math.ceil((far - near) / dt)
+        t = mine.t
         assert torch.allclose(t[1:-1] - t[:-2], torch.full((n - 2,), dt), atol=1e-5)
-        assert float(t[-1]) == pytest.approx(float(s.starts[r, n - 1] + far[r]) / 2, abs=1e-5)  # the cut last step
-        assert float(t[0]) == pytest.approx(float(near[r]) + 0.5 * dt, abs=1e-5)
-        lengths = (s.ends[r, :n] - s.starts[r, :n])
-        assert float(lengths.sum()) == pytest.approx(float(far[r] - near[r]), abs=1e-4)  # the intervals tile the ray
-        assert torch.allclose(s.starts[r, 1:n], s.ends[r, :n - 1], atol=1e-6)
-        assert bool((s.t[r, n:] == far[r]).all()) and bool((s.ends[r, n:] == s.starts[r, n:]).all())
+        assert float(t[-1]) == pytest.approx((float(mine.starts[-1]) + far) / 2, abs=1e-5)  # the cut last step
+        assert float(t[0]) == pytest.approx(near + 0.5 * dt, abs=1e-5)
+        lengths = mine.ends - mine.starts
+        assert float(lengths.sum()) == pytest.approx(far - near, abs=1e-4)  # the intervals tile the ray
+        assert torch.allclose(mine.starts[1:], mine.ends[:-1], atol=1e-6)
+        # spans count whole steps: step k of 64 spans [k, k + 1] / 64
+        torch.testing.assert_close(mine.spans[0] * 64, torch.arange(n, dtype=torch.float32))
 
 
 def test_march_skips_empty_cells_and_rays_that_miss() -> None:
     sphere = SphereField(radius=0.4)
     grid = OccupancyGrid(*BOX, resolution=16)
     grid.update(sphere.query_density, grid.diagonal / 128, 0.01, all_cells=True, generator=torch.Generator().manual_seed(0))
-    o, d, near, far = rays_at(torch.tensor([[0.0, 0.0, 3.0], [0.9, 0.9, 3.0]]), torch.tensor([[0.0, 0.0, 0.0], [0.9, 0.9, 0.0]]))
-    s = march(o, d, near, far, grid, steps=128, randomized=False)
-    n = int(s.count[0])
-    points = o[0] + s.t[0, :n, None] * d[0]
+    rays = rays_at(torch.tensor([[0.0, 0.0, 3.0], [0.9, 0.9, 3.0]]), torch.tensor([[0.0, 0.0, 0.0], [0.9, 0.9, 0.0]]))
+    s = march(rays, SPACE, grid, steps=128, randomized=False)
+    points = rays.points(s.ray, s.t)
     # every kept sample is within a cell diagonal of the sphere; the ray through the corner keeps nothing
     cell = grid.diagonal / 16
     assert float(points.norm(dim=-1).max()) <= 0.4 + cell
-    assert 0 < n < 40 and int(s.count[1]) == 0
+    counts = s.counts()
+    assert 0 < int(counts[0]) < 40 and int(counts[1]) == 0
 
 
 def test_marched_rendering_matches_dense_sampling_with_fewer_samples() -> None:
@@ -140,80 +141,81 @@ def test_marched_rendering_matches_dense_sampling_with_fewer_samples() -> None:
     assert bool((grid.occupied <= exact).all())  # the updates never mark a cell the sphere misses
     assert float((exact & ~grid.occupied).sum()) < 0.15 * float(exact.sum())  # measured: 282 of 2752
     grid.occupied.copy_(exact)
-    o, d, near, far = camera_rays()
+    rays = camera_rays()
     white = torch.ones(3)
-    marched, evaluated = render_marched_segments(sphere, o, d, d, near, far, grid, config, white)
-    dense = render_chunked(sphere, None, RayBatch(o, d, d, near, far), SamplingConfig(1024, 0), white)
+    marched = marching(sphere, grid, config).render_rays(rays, background=white)
+    dense = RadianceModel(sphere, None, HierarchicalSampler(SamplingConfig(1024, 0)), SPACE, None).render_rays(
+        rays, background=white)
     assert torch.allclose(marched["acc"], dense["acc"], atol=0.02)
     assert torch.allclose(marched["rgb"], dense["rgb"], atol=0.02)
     hit = dense["acc"] > 0.99
     assert torch.allclose(marched["depth"][hit], dense["depth"][hit], atol=0.01)
-    assert evaluated / len(o) < 1024 / 3
+    assert float(marched["samples"]) < 1024 / 3
 
 
 def test_early_termination_drops_only_what_is_hidden() -> None:
     sphere = SphereField(radius=0.5, density=200.0)
     grid = OccupancyGrid(*BOX, resolution=32)
-    o, d, near, far = camera_rays(200, spread=0.6)  # every ray hits the sphere
-    everything = MarchingConfig(steps=256, early_stop=0.0)
-    stopping = MarchingConfig(steps=256, early_stop=1e-3)
-    full, n_full = render_marched_segments(sphere, o, d, d, near, far, grid, everything, torch.ones(3))
-    early, n_early = render_marched_segments(sphere, o, d, d, near, far, grid, stopping, torch.ones(3))
-    assert n_early < n_full / 3  # an opaque sphere: most samples lie behind its surface
-    # what is dropped weighs at most the transmittance left, plus one segment's worth of background
-    assert float((full["acc"] - early["acc"]).abs().max()) <= 1e-3
-    assert float((full["rgb"] - early["rgb"]).abs().max()) <= 2e-3
-    # the training path: one density pass without gradients keeps a prefix of each ray
-    samples = march(o, d, near, far, grid, 256, randomized=False)
-    kept = visible(sphere.query_density, o, d, samples, 1e-3)
-    counts = kept.valid.sum(-1)
-    assert bool((kept.valid == (torch.arange(kept.valid.shape[1]) < counts[:, None])).all())
-    sigmas = sphere.query_density((o[:, None] + kept.t[..., None] * d[:, None]).reshape(-1, 3)).reshape(kept.t.shape)
-    T = transmittance_before(torch.where(kept.valid, sigmas, torch.zeros_like(sigmas)), kept)
-    assert bool((T[kept.valid] > 1e-3).all())
-    trained, n_trained = render_marched(sphere, sphere.query_density, o, d, d, near, far, grid, stopping, torch.ones(3),
-                                        randomized=False)
-    assert n_trained == int(counts.sum())
-    assert torch.allclose(trained.rgb, early["rgb"], atol=2e-3)
+    rays = camera_rays(200, spread=0.6)  # every ray hits the sphere
+    white = torch.ones(3)
+    full = marching(sphere, grid, MarchingConfig(steps=256, early_stop=0.0)).render(rays, background=white)
+    early = marching(sphere, grid, MarchingConfig(steps=256, early_stop=1e-3)).render(rays, background=white)
+    assert early.evaluated < full.evaluated / 3  # an opaque sphere: most samples lie behind its surface
+    # what is dropped weighs at most the transmittance left
+    assert float((full.acc - early.acc).abs().max()) <= 1e-3
+    assert float((full.rgb - early.rgb).abs().max()) <= 2e-3
+    # each ray keeps a prefix of its samples, every one of them reached with transmittance above 1e-3, and
+    # the window that looks at a few samples at a time keeps exactly what one pass over all of them does
+    samples = march(rays, SPACE, grid, 256, randomized=False)
+    kept = visible(rays, SPACE, samples, sphere.density_features, 1e-3)
+    counts = kept.counts()
+    assert all(torch.equal(of_ray(kept, r).t, of_ray(samples, r).t[:int(counts[r])]) for r in range(len(rays)))
+    windowed = visible(rays, SPACE, samples, sphere.density_features, 1e-3, window=16)
+    assert torch.equal(windowed.t, kept.t) and torch.equal(windowed.ray, kept.ray)
+    sigmas = sphere.query_density(rays.points(kept.ray, kept.t))
+    tau = sigmas * (kept.ends - kept.starts)
+    assert bool((torch.exp(-kept.exclusive_sums(tau)) > 1e-3).all())
+    assert torch.equal(kept.counts(), torch.bincount(kept.ray, minlength=len(rays)))
+    assert early.evaluated == len(windowed)
 
 
-def test_rays_within_counts_the_leading_rays_that_fit() -> None:
-    valid = torch.tensor([[True, True, True, False, False], [False] * 5, [True] * 5, [True, True, False, False, False]])
-    samples = PackedSamples(torch.zeros(4, 5), torch.zeros(4, 5), torch.zeros(4, 5), valid)  # counts 3, 0, 5, 2
-    assert rays_within(samples, 10) == 4
-    assert rays_within(samples, 9) == 3  # 3 + 0 + 5 = 8 fit, + 2 does not
-    assert rays_within(samples, 7) == 2
-    assert rays_within(samples, 1) == 1  # always at least one ray, however long
+def test_within_budget_counts_the_leading_rays_that_fit() -> None:
+    ray = torch.tensor([0, 0, 0, 2, 2, 2, 2, 2, 3, 3])  # counts 3, 0, 5, 2
+    samples = RaySamples(ray, torch.zeros(10), torch.zeros(10), torch.zeros(10), 4)
+    assert within_budget(samples, 10) == 4
+    assert within_budget(samples, 9) == 3  # 3 + 0 + 5 = 8 fit, + 2 does not
+    assert within_budget(samples, 7) == 2
+    assert within_budget(samples, 1) == 1  # always at least one ray, however long
+    assert within_budget(samples, 0) == 4  # no budget: every ray
 
 
 def test_a_sample_budget_renders_a_prefix_of_the_rays_unchanged() -> None:
     sphere = SphereField(radius=0.5, density=200.0)
     grid = OccupancyGrid(*BOX, resolution=16)  # every cell occupied: a fresh grid
-    o, d, near, far = camera_rays(300, spread=1.2)
-    config = MarchingConfig(steps=128, early_stop=1e-3)
-    whole, n_whole = render_marched(sphere, sphere.query_density, o, d, d, near, far, grid, config, torch.ones(3),
-                                    randomized=False)
-    budget = n_whole // 5
-    part, n_part = render_marched(sphere, sphere.query_density, o, d, d, near, far, grid, config, torch.ones(3),
-                                  randomized=False, max_samples=budget)
-    kept = len(part.rgb)
-    assert 0 < kept < 300 and n_part <= budget
+    rays = camera_rays(300, spread=1.2)
+    model = marching(sphere, grid, MarchingConfig(steps=128, early_stop=1e-3))
+    whole = model.render(rays, train=True, generator=torch.Generator().manual_seed(0), background=torch.ones(3))
+    budget = whole.evaluated // 5
+    part = model.render(rays, train=True, generator=torch.Generator().manual_seed(0), background=torch.ones(3),
+                        max_samples=budget)
+    kept = len(part)
+    assert 0 < kept < 300 and part.evaluated <= budget
     torch.testing.assert_close(part.rgb, whole.rgb[:kept])
     torch.testing.assert_close(part.depth, whole.depth[:kept])
     # the next ray would not have fitted
-    counts = visible(sphere.query_density, o, d, march(o, d, near, far, grid, 128, randomized=False), 1e-3).count
-    assert int(counts[:kept].sum()) == n_part and int(counts[:kept + 1].sum()) > budget
+    counts = whole.samples.counts()
+    assert int(counts[:kept].sum()) == part.evaluated and int(counts[:kept + 1].sum()) > budget
 
 
 def test_randomized_marching_jitters_each_ray_within_one_step() -> None:
     grid = OccupancyGrid(*BOX, resolution=4)
-    o, d, near, far = camera_rays(50)
-    s = march(o, d, near, far, grid, 64, randomized=True, generator=torch.Generator().manual_seed(1))
+    rays = camera_rays(50)
+    s = march(rays, SPACE, grid, 64, randomized=True, generator=torch.Generator().manual_seed(1))
     dt = grid.diagonal / 64
-    first = s.t[:, 0] - near
+    first = s.t[s.rank() == 0] - rays.near
     assert bool(((first >= 0) & (first < dt + 1e-6)).all()) and float(first.std()) > dt / 10
-    assert bool((s.starts[s.valid] >= near.unsqueeze(-1).expand_as(s.t)[s.valid] - 1e-6).all())
-    assert bool((s.ends[s.valid] <= far.unsqueeze(-1).expand_as(s.t)[s.valid] + 1e-6).all())
+    assert bool((s.starts >= rays.near[s.ray] - 1e-6).all()) and bool((s.ends <= rays.far[s.ray] + 1e-6).all())
+    assert bool(((s.t >= s.starts) & (s.t <= s.ends)).all())
 
 
 def test_bad_grids_and_settings_are_refused() -> None:
@@ -229,22 +231,18 @@ def test_bad_grids_and_settings_are_refused() -> None:
 
 def test_a_marching_model_saves_and_loads_with_its_grid(tmp_path) -> None:
     from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
-    from nerfpipe.nerf.model import RadianceModel
-    from nerfpipe.nerf.ray_space import RaySpace
-
     torch.manual_seed(0)
     field = GridField(*BOX, GridFieldConfig(levels=2, min_resolution=4, max_resolution=8))
     grid = OccupancyGrid(*BOX, resolution=8)
     grid.update(SphereField(radius=0.6).query_density, grid.diagonal / 64, 0.01, all_cells=True)
-    model = RadianceModel(field, None, MarchingSampler(grid, MarchingConfig(steps=64)), RaySpace(box=BOX),
+    model = RadianceModel(field, None, MarchingSampler(grid, MarchingConfig(steps=64)), SPACE,
                           (1.0, 1.0, 1.0), {})
     model.save(tmp_path)
     loaded = RadianceModel.load(tmp_path)
     assert isinstance(loaded.coarse, GridField) and loaded.sampler.config == MarchingConfig(steps=64)
     assert torch.equal(loaded.sampler.grid.occupied, grid.occupied) and 0 < loaded.sampler.grid.occupancy() < 1
-    o, d, near, far = camera_rays(64)
-    rays = RayBatch(o, d, d, near, far)
-    a, b = model.render_batch(rays), loaded.render_batch(rays)
+    rays = camera_rays(64)
+    a, b = model.render_rays(rays), loaded.render_rays(rays)
     for key in ("rgb", "depth", "acc"):
         torch.testing.assert_close(a[key], b[key])
     assert 0 < float(a["samples"]) < 64
@@ -267,3 +265,41 @@ def test_cells_no_camera_sees_are_empty_for_good() -> None:
     assert torch.equal(grid.occupied, seen)  # dense everywhere, yet the unseen cells stay empty
     grid.reset()
     assert torch.equal(grid.occupied, seen)
+
+
+class CountingSphere(SphereField):
+    """A sphere that counts the points whose density it was asked for, in either half or whole."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.densities = 0
+
+    def forward(self, points, viewdirs=None, density_noise=0.0):
+        self.densities += len(points)
+        return super().forward(points, viewdirs, density_noise)
+
+    def density_features(self, points):
+        self.densities += len(points)
+        return super().forward(points)[1], points
+
+    def colour(self, points, viewdirs):
+        return super().forward(points)[0]
+
+
+def test_rendering_without_gradients_evaluates_each_density_once_and_renders_the_same() -> None:
+    """The visibility pass's densities (``RaySamples.known``) are reused when nothing needs gradients, so each
+    visited sample's density is computed once; with gradients the kept samples are evaluated again (the pass
+    itself has none), and both give the same picture."""
+    grid = OccupancyGrid(*BOX, resolution=16)
+    rays = camera_rays(100, spread=1.2)
+    sphere = CountingSphere(radius=0.5, density=200.0)
+    model = marching(sphere, grid, MarchingConfig(steps=128, early_stop=1e-3))
+    with torch.no_grad():
+        fast = model.render(rays, background=torch.ones(3))
+    once = sphere.densities
+    sphere.densities = 0
+    slow = model.render(rays, background=torch.ones(3))
+    assert sphere.densities == once + slow.evaluated  # the kept samples again, with gradients
+    assert 0 < fast.evaluated < once  # the pass looked at more samples than the rays kept
+    for key in ("rgb", "depth", "acc"):
+        torch.testing.assert_close(getattr(fast, key), getattr(slow, key))

@@ -14,8 +14,7 @@ from torch import nn
 from nerfpipe.nerf import registry
 from nerfpipe.nerf.assembly import build_model
 from nerfpipe.nerf.model import RadianceModel
-from nerfpipe.nerf.renderer import evaluate
-from nerfpipe.nerf.rendering import composite
+from nerfpipe.nerf.rendering import RaySamples
 from nerfpipe.nerf.samplers import StatelessSampler
 from nerfpipe.nerf.trainer import TrainConfig, Trainer
 from nerfpipe.pipeline import ParamError
@@ -41,7 +40,7 @@ class ToyField(nn.Module):
     def __init__(self, config: ToyConfig = ToyConfig()) -> None:
         super().__init__()
         self.config = config
-        self.colour = nn.Linear(3, 3)
+        self.colour_net = nn.Linear(3, 3)
         self.density = nn.Linear(3, 1)
 
     @staticmethod
@@ -60,14 +59,20 @@ class ToyField(nn.Module):
         return f"toy field of scale {spec['field']['scale']:g}"
 
     def forward(self, x: torch.Tensor, d: torch.Tensor | None = None, density_noise: float = 0.0):
-        return torch.sigmoid(self.colour(x)), self.query_density(x)
+        return self.colour(x, d), self.query_density(x)
 
     def query_density(self, x: torch.Tensor) -> torch.Tensor:
         return nn.functional.softplus(self.density(x)).squeeze(-1) * self.config.scale
 
+    def density_features(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.query_density(x), x
+
+    def colour(self, x: torch.Tensor, d: torch.Tensor | None) -> torch.Tensor:
+        return torch.sigmoid(self.colour_net(x))
+
 
 class EvenSampler(StatelessSampler):
-    """``n`` evenly spaced samples between near and far, composited with Eq. 3."""
+    """``n`` evenly spaced samples between near and far, each in the middle of its stretch."""
 
     kind = "even"
     fields = 1
@@ -81,7 +86,7 @@ class EvenSampler(StatelessSampler):
         return {"n": params.n_coarse}
 
     @classmethod
-    def from_spec(cls, spec: dict[str, Any], contraction: Any = None) -> "EvenSampler":
+    def from_spec(cls, spec: dict[str, Any]) -> "EvenSampler":
         return cls(spec["n"])
 
     def spec(self) -> dict[str, Any]:
@@ -94,19 +99,9 @@ class EvenSampler(StatelessSampler):
     def describe(spec: dict[str, Any]) -> str:
         return f"{spec['n']} evenly spaced samples a ray"
 
-    def _composite(self, field, rays, background):
-        steps = torch.linspace(0.0, 1.0, self.n)
-        t = rays.near[:, None] + (rays.far - rays.near)[:, None] * steps
-        rgb, sigma = evaluate(field, rays, t)
-        return composite(sigma, rgb, t, rays.far, background)
-
-    def render_train(self, coarse, fine, density, rays, generator, max_samples):
-        return {"coarse": self._composite(coarse, rays, None)}, len(rays) * self.n
-
-    @torch.no_grad()
-    def render(self, coarse, fine, rays, background):
-        c = self._composite(coarse, rays, background)
-        return {"rgb": c.rgb, "depth": c.depth, "disparity": c.disparity, "acc": c.acc}, len(rays) * self.n
+    def sample(self, rays, space, probe, *, train, generator, max_samples=0):
+        edges = rays.near[:, None] + (rays.far - rays.near)[:, None] * torch.linspace(0.0, 1.0, self.n + 1)
+        return RaySamples.dense((edges[:, :-1] + edges[:, 1:]) / 2, edges[:, :-1], edges[:, 1:]), 0, ()
 
 
 @pytest.fixture
@@ -138,7 +133,7 @@ def test_a_registered_field_and_sampler_are_built_trained_saved_and_loaded(toys,
     assert isinstance(loaded.coarse, ToyField) and isinstance(loaded.sampler, EvenSampler) and loaded.sampler.n == 16
     rays = model.ray_space.rays(*(torch.tensor(v) for v in ([[8.0, 8.0]], [[13.3, 13.3, 8.0, 8.0]])),
                                 trainer.pixels.c2w, torch.tensor([2.0]), torch.tensor([6.0]))
-    assert torch.equal(loaded.render_batch(rays)["rgb"], model.render_batch(rays)["rgb"])
+    assert torch.equal(loaded.render_rays(rays)["rgb"], model.render_rays(rays)["rgb"])
 
 
 def test_an_unregistered_kind_is_a_parameter_error_naming_the_choices() -> None:

@@ -8,6 +8,7 @@ supports it on the CPU), and checks concrete bounds, not just "does not crash".
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 
 import pytest
@@ -18,12 +19,37 @@ from torch import nn
 
 from nerfpipe.nerf.encoding import positional_encoding
 from nerfpipe.nerf.field import FieldConfig, NerfField
-from nerfpipe.nerf.rays import ndc_rays
-from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, render_rays
-from nerfpipe.nerf.rendering import alphas_from_density, composite
+from nerfpipe.nerf.rays import RayBatch, ndc_rays
+from nerfpipe.nerf.rendering import RaySamples, optical_depth, volume_render
+from nerfpipe.nerf.samplers import HierarchicalSampler, SamplingConfig
 from nerfpipe.nerf.sampling import sample_intervals, sample_pdf, stratified_samples
+from tests.nerf.fieldfns import render_fields
 
 EXTREME_DENSITIES = [0.0, 1e-8, 1e6, 1e10]
+
+
+@dataclasses.dataclass
+class Dense:
+    """A ``RenderOutput`` of rays with the same number of samples, weights as (R, N)."""
+
+    rgb: torch.Tensor
+    depth: torch.Tensor
+    disparity: torch.Tensor
+    acc: torch.Tensor
+    weights: torch.Tensor
+
+
+def composite(sigmas, colors, t, far, background=None, deltas=None) -> Dense:
+    """``volume_render`` of (R, N) samples at sorted ``t``: each standing for the stretch nearest it (from t_1,
+    through the midpoints, to ``far``), as ``HierarchicalSampler`` lays them out; or [t_i, t_i + deltas_i]."""
+    if deltas is None:
+        edges = sample_intervals(t, t[:, 0], far)
+        starts, ends = edges[:, :-1], edges[:, 1:]
+    else:
+        starts, ends = t, t + deltas
+    samples = RaySamples.dense(t, starts, ends)
+    out = volume_render(sigmas.reshape(-1), colors.reshape(-1, 3), samples, t[:, 0], far, background)
+    return Dense(out.rgb, out.depth, out.disparity, out.acc, out.weights.reshape(t.shape))
 F32_MAX = torch.finfo(torch.float32).max
 
 
@@ -61,7 +87,8 @@ def assert_sane(result, background=None, colors_max: float = 1.0) -> None:
     assert w.dtype in (torch.float32, torch.float64)
     assert torch.isfinite(w).all()
     assert (w >= 0).all() and (w <= 1).all()
-    assert (w.sum(-1) <= 1 + 1e-6).all()
+    per_ray = w.sum(-1) if isinstance(result, Dense) else result.samples.per_ray(w)
+    assert (per_ray <= 1 + 1e-6).all()
     assert torch.isfinite(result.acc).all() and (result.acc >= 0).all() and (result.acc <= 1 + 1e-6).all()
     assert torch.isfinite(result.rgb).all()
     assert (result.rgb >= 0).all() and (result.rgb <= colors_max + 1e-6).all()
@@ -130,13 +157,14 @@ def test_extreme_density_half_precision_inputs(density, mode):
 def test_tiny_density_alpha_keeps_its_value():
     # sigma 1e-8, delta 0.5: alpha = 1 - exp(-5e-9) = 5e-9 to 1e-3, where 1 - exp() in float32 would give 0.
     sigmas, colors, t, far, background = scene(1e-8)
-    deltas = torch.full_like(sigmas, 0.5)
-    alphas = alphas_from_density(sigmas.detach(), deltas)
-    assert torch.allclose(alphas, torch.full_like(alphas, 5e-9), rtol=1e-3, atol=0)
-    # and inside composite: bins of 0.5 on [2, 6], the first weight is alpha_1 (T_1 = 1)
+    samples = RaySamples.dense(t, t, t + 0.5)
+    out = volume_render(sigmas.detach().reshape(-1), colors.detach().reshape(-1, 3), samples, t[:, 0], far)
+    assert torch.allclose(out.weights[:8], torch.full((8,), 5e-9), rtol=1e-3, atol=0)
+    assert float(optical_depth(torch.tensor(1e-8), torch.tensor(0.5))) == pytest.approx(5e-9, rel=1e-6)
+    # and with the stretches nearest each sample: t = 2.25, 2.75, ..., 5.75 stand for [2.25, 2.5], six of 0.5,
+    # and [5.5, 6]: the first weight is alpha_1 = 1e-8 * 0.25 (T_1 = 1), acc = 1e-8 * 3.75
     result = composite(sigmas.detach(), colors.detach(), t, far, background.detach())
-    assert torch.allclose(result.weights[:, 0], torch.full((3,), 5e-9), rtol=1e-3, atol=0)
-    # t = 2.25, 2.75, ..., 5.75: seven deltas of 0.5 and a last one of 0.25, acc = 1e-8 * 3.75
+    assert torch.allclose(result.weights[:, 0], torch.full((3,), 2.5e-9), rtol=1e-3, atol=0)
     assert torch.allclose(result.acc, torch.full((3,), 3.75e-8), rtol=1e-3, atol=0)
 
 
@@ -328,11 +356,11 @@ def test_network_gradients_finite(mode, scale, bounds, n_coarse):
     rays = ray_batch(4, *bounds)
     target = torch.full((4, 3), 0.5)
     with precision(mode):
-        out = render_rays(field, None, rays, SamplingConfig(n_coarse=n_coarse, n_fine=4), torch.ones(3),
-                          randomized=True, generator=torch.Generator().manual_seed(0))
+        out = render_fields(field, None, rays, HierarchicalSampler(SamplingConfig(n_coarse=n_coarse, n_fine=4)),
+                            torch.ones(3), train=True, generator=torch.Generator().manual_seed(0))
         loss = sum(((level.rgb - target) ** 2).mean() + level.depth.mean() + level.disparity.mean() + level.acc.mean()
-                   for level in out.values())
-    for level in out.values():
+                   for level in out.passes())
+    for level in out.passes():
         assert_sane(level)
     assert torch.isfinite(loss)
     loss.backward()
@@ -433,15 +461,15 @@ def test_depth_and_disparity_of_an_empty_ray(density):
 
 
 def test_depth_just_above_the_hit_threshold():
-    # sigma 1e-8 on deltas of 1: acc about 4e-8, above ACC_EPS: depth is the weighted mean, inside [t_1, far].
-    # Equal weights, each on a nearly transparent stretch, stopping in its middle: the stretches are
-    # [1, 1.5], [1.5, 2.5], [2.5, 3.5], [3.5, 5], so depth = (1.25 + 2 + 3 + 4.25) / 4 = 2.625.
+    # sigma 1e-8: acc about 4e-8, above ACC_EPS: depth is the weighted mean, inside [t_1, far]. The stretches
+    # are [1, 1.5], [1.5, 2.5], [2.5, 3.5], [3.5, 5], nearly transparent: weights in proportion to their
+    # lengths 0.5, 1, 1, 1.5, each ray stopping in a stretch's middle: (0.625 + 2 + 3 + 6.375) / 4 = 3.
     sigmas = torch.full((1, 4), 1e-8, requires_grad=True)
     t = torch.tensor([[1.0, 2.0, 3.0, 4.0]])
     result = composite(sigmas, torch.rand(1, 4, 3), t, torch.tensor([5.0]))
     assert result.acc.item() > 1e-10
-    assert result.depth.item() == pytest.approx(2.625, rel=1e-4)
-    assert result.disparity.item() == pytest.approx(1 / 2.625, rel=1e-4)
+    assert result.depth.item() == pytest.approx(3.0, rel=1e-4)
+    assert result.disparity.item() == pytest.approx(1 / 3.0, rel=1e-4)
     (result.depth.sum() + result.disparity.sum()).backward()
     assert_finite_grads(sigmas)
 
@@ -470,77 +498,90 @@ class _Constant(nn.Module):
     def query_density(self, x):
         return self(x)[1]
 
+    def density_features(self, x):
+        return self(x)[1], x
 
-def _box_rays(n: int = 16):
+    def colour(self, x, d=None):
+        return self(x)[0]
+
+
+def _box_rays(n: int = 16) -> RayBatch:
     from nerfpipe.nerf.rays import intersect_box
 
     g = torch.Generator().manual_seed(0)
     o = torch.tensor([0.0, 0.0, 3.0]).expand(n, 3).clone()
     d = torch.nn.functional.normalize(torch.rand((n, 3), generator=g) * torch.tensor([0.4, 0.4, 0.0]) - torch.tensor([0.2, 0.2, 1.0]), dim=-1)
     enter, exit_ = intersect_box(o, d, -torch.ones(3), torch.ones(3))
-    return o, d, enter, exit_
+    return RayBatch(o, d, d, enter, exit_)
+
+
+def _marching(field: nn.Module, grid, config, space=None):
+    from nerfpipe.nerf.model import RadianceModel
+    from nerfpipe.nerf.ray_space import BoxSpace
+    from nerfpipe.nerf.samplers import MarchingSampler
+
+    return RadianceModel(field, None, MarchingSampler(grid, config), space or BoxSpace(), None)
 
 
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("density", EXTREME_DENSITIES)
 def test_marching_keeps_bounds_and_gradients_at_extreme_densities(mode: str, density: float) -> None:
-    from nerfpipe.nerf.marching import render_marched, render_marched_segments
     from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
 
     field = _Constant(density)
     grid = OccupancyGrid((-1.0,) * 3, (1.0,) * 3, 8)
-    config = MarchingConfig(steps=64, early_stop=1e-4)
-    o, d, near, far = _box_rays()
+    model = _marching(field, grid, MarchingConfig(steps=64, early_stop=1e-4))
+    rays = _box_rays()
     white = torch.ones(3)
     with precision(mode):
-        result, evaluated = render_marched(field, field.query_density, o, d, d, near, far, grid, config, white,
-                                           generator=torch.Generator().manual_seed(0))
+        result = model.render(rays, train=True, generator=torch.Generator().manual_seed(0), background=white)
     assert_sane(result, white)
     # the distortion loss of the marched weights: finite, at most the ray's weight squared times its length
     # (here at most 1 x the whole march), and with finite gradients too
-    loss = result.distortion_loss()
+    loss = result.distortion()
     assert loss.shape == result.acc.shape and bool(torch.isfinite(loss).all())
     assert bool(((loss >= -1e-6) & (loss <= 1.0 + 1e-6)).all())
     (result.rgb.sum() + loss.sum()).backward()
     assert torch.isfinite(field.raw.grad) and bool(torch.isfinite(field.color.grad).all())
     # early termination: an opaque field stops each ray after its first sample or two; a clear one never
     if density >= 1e6:
-        assert evaluated <= 2 * len(o)
+        assert result.evaluated <= 2 * len(rays)
     elif density <= 1e-8:
-        assert evaluated > 60 * len(o) // 2
+        assert result.evaluated > 60 * len(rays) // 2
     with torch.no_grad(), precision(mode):
-        rendered, _ = render_marched_segments(field, o, d, d, near, far, grid, config, white)
+        rendered = model.render_rays(rays, background=white)
     assert bool(torch.isfinite(rendered["rgb"]).all()) and bool(((rendered["acc"] >= 0) & (rendered["acc"] <= 1 + 1e-6)).all())
-    assert bool(((rendered["depth"] >= near - 1e-5) & (rendered["depth"] <= far + 1e-5)).all())
+    assert bool(((rendered["depth"] >= rays.near - 1e-5) & (rendered["depth"] <= rays.far + 1e-5)).all())
     torch.testing.assert_close(rendered["acc"], result.acc.detach(), atol=2e-4, rtol=0)
 
 
 def test_marching_degenerate_rays_give_the_background() -> None:
     """Zero-length rays (near == far), rays outside the box and an all-empty grid: no samples, the
     background colour, zero opacity, depth at far, and no NaN anywhere, gradients included."""
-    from nerfpipe.nerf.marching import render_marched, render_marched_segments
     from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
 
     field = _Constant(10.0)
     grid = OccupancyGrid((-1.0,) * 3, (1.0,) * 3, 4)
-    config = MarchingConfig(steps=32)
+    model = _marching(field, grid, MarchingConfig(steps=32))
     o = torch.tensor([[0.0, 0.0, 3.0], [5.0, 5.0, 5.0], [0.0, 0.0, 0.5]])
     d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
     near = torch.tensor([2.0, 1.0, 0.0])
     far = torch.tensor([2.0, 1.0, 1.0])  # zero length; outside the box; inside but the grid is empty
+    rays = RayBatch(o, d, d, near, far)
     grid.occupied.zero_()
     grey = torch.tensor([0.5, 0.5, 0.5])
-    result, evaluated = render_marched(field, field.query_density, o, d, d, near, far, grid, config, grey)
-    assert evaluated == 0
+    result = model.render(rays, train=True, background=grey)
+    assert result.evaluated == 0
     torch.testing.assert_close(result.rgb, grey.expand(3, 3))
     assert result.acc.tolist() == [0.0, 0.0, 0.0] and torch.equal(result.depth, far)
     result.rgb.sum().backward()
     assert field.color.grad is None or bool(torch.isfinite(field.color.grad).all())
-    rendered, n = render_marched_segments(field, o, d, d, near, far, grid, config, grey)
-    assert n == 0 and torch.equal(rendered["depth"], far) and torch.allclose(rendered["rgb"], grey.expand(3, 3))
+    rendered = model.render_rays(rays, background=grey)
+    assert float(rendered["samples"]) == 0 and torch.equal(rendered["depth"], far)
+    assert torch.allclose(rendered["rgb"], grey.expand(3, 3))
     # and an empty batch
-    none, n = render_marched_segments(field, o[:0], d[:0], d[:0], near[:0], far[:0], grid, config, grey)
-    assert n == 0 and none["rgb"].shape == (0, 3)
+    none = model.render_rays(rays.slice(0, 0), background=grey)
+    assert none["rgb"].shape == (0, 3)
 
 
 @pytest.mark.parametrize("mode", MODES)
@@ -548,30 +589,27 @@ def test_marching_degenerate_rays_give_the_background() -> None:
 def test_contracted_marching_keeps_bounds_and_gradients(mode: str, density: float) -> None:
     """World rays from outside the scene box to far bounds up to 1e6 through contracted space, at every
     extreme density: a bounded number of steps, sane composites, finite gradients, depth within [near, far]."""
-    from nerfpipe.nerf.contraction import Contraction
-    from nerfpipe.nerf.marching import render_marched, render_marched_segments
     from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
+    from nerfpipe.nerf.ray_space import ContractedSpace
 
     field = _Constant(density)
-    contraction = Contraction((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
     grid = OccupancyGrid((-2.0,) * 3, (2.0,) * 3, 8)
     config = MarchingConfig(steps=64, early_stop=1e-4)
-    o, d, _, _ = _box_rays()
-    o = o * 2.0  # cameras at 6 units, outside the box, in the contracted shell
+    model = _marching(field, grid, config, ContractedSpace(((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))))
+    box = _box_rays()
+    o = box.origins * 2.0  # cameras at 6 units, outside the box, in the contracted shell
     near = torch.full((len(o),), 0.1)
     far = torch.logspace(0, 6, len(o))  # 1 .. 1e6 units away
+    rays = RayBatch(o, box.directions, box.viewdirs, near, far)
     white = torch.ones(3)
-    world = lambda x, v, *rest: field(contraction.to_field(x), v, *rest)  # noqa: E731
-    density_fn = lambda x: field.query_density(contraction.to_field(x))  # noqa: E731
     with precision(mode):
-        result, evaluated = render_marched(world, density_fn, o, d, d, near, far, grid, config, white,
-                                           generator=torch.Generator().manual_seed(0), contraction=contraction)
+        result = model.render(rays, train=True, generator=torch.Generator().manual_seed(0), background=white)
     assert_sane(result, white)
-    assert evaluated <= len(o) * (4 * config.steps + 1)
+    assert result.evaluated <= len(o) * (4 * config.steps + 1)
     result.rgb.sum().backward()
     assert torch.isfinite(field.raw.grad) and bool(torch.isfinite(field.color.grad).all())
     with torch.no_grad(), precision(mode):
-        rendered, _ = render_marched_segments(world, o, d, d, near, far, grid, config, white, contraction=contraction)
+        rendered = model.render_rays(rays, background=white)
     assert bool(torch.isfinite(rendered["rgb"]).all())
     assert bool(((rendered["depth"] >= near - 1e-4) & (rendered["depth"] <= far * (1 + 1e-5))).all())
     torch.testing.assert_close(rendered["acc"], result.acc.detach(), atol=2e-4, rtol=0)

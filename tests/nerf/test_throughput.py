@@ -21,8 +21,8 @@ from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
 def test_the_probe_times_at_least_one_chunk_of_the_views_rays(size, chunk, rays, timed, monkeypatch) -> None:
     model, _ = build_model(TrainParams(), scene_of("inward360"), world_of_one_camera(), bounds_of(), torch.device("cpu"))
     seen = []
-    render = model.render_batch
-    monkeypatch.setattr(model, "render_batch", lambda batch, c: (seen.append((len(batch), c)), render(batch, c))[1])
+    render = model.render_rays
+    monkeypatch.setattr(model, "render_rays", lambda batch, c: (seen.append((len(batch), c)), render(batch, c))[1])
     w, h = size
     c2w = look_at(np.array([0.0, -3.0, 0.5]), np.zeros(3))
     per_ray = throughput.seconds_per_ray(model, (w / 1.2, w / 1.2, w / 2, h / 2), c2w, w, h, 1.0, 5.0, chunk, rays)

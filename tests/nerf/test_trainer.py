@@ -10,10 +10,9 @@ import torch
 from nerfpipe.nerf.field import FieldConfig, NerfField
 from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
-from nerfpipe.nerf.ray_space import RaySpace
+from nerfpipe.nerf.ray_space import BoxSpace
 from nerfpipe.nerf.rays import pixel_centers
-from nerfpipe.nerf.renderer import SamplingConfig
-from nerfpipe.nerf.samplers import HierarchicalSampler, MarchingSampler
+from nerfpipe.nerf.samplers import HierarchicalSampler, MarchingSampler, SamplingConfig
 from nerfpipe.nerf.stall import StallGuard, mean_colour_psnr
 from nerfpipe.nerf.trainer import PixelSet, TrainConfig, Trainer, set_precision
 from tests.helpers import look_at
@@ -36,7 +35,7 @@ def marching_model() -> RadianceModel:
                                   density_activation="softplus"))
     grid = OccupancyGrid(*BOX, resolution=8)  # fresh: every cell occupied, every ray marched end to end
     return RadianceModel(field, None, MarchingSampler(grid, MarchingConfig(steps=64, early_stop=1e-4, update_every=1000)),
-                         RaySpace(box=BOX), (1.0, 1.0, 1.0), {})
+                         BoxSpace(BOX), (1.0, 1.0, 1.0), {})
 
 
 def test_a_step_evaluates_at_most_twice_the_samples_it_asks_for_and_the_batch_shrinks_at_once(tmp_path) -> None:
@@ -162,7 +161,7 @@ def test_the_random_backdrop_reaches_both_passes_of_section_5_2_sampling(tmp_pat
     with torch.no_grad():  # softplus(-100) ~ 4e-44: an empty field
         field.density.weight.zero_()
         field.density.bias.fill_(-100.0)
-    model = RadianceModel(field, None, HierarchicalSampler(SamplingConfig(8, 8)), RaySpace(box=BOX), (1.0, 1.0, 1.0), {})
+    model = RadianceModel(field, None, HierarchicalSampler(SamplingConfig(8, 8)), BoxSpace(BOX), (1.0, 1.0, 1.0), {})
     config = TrainConfig(steps=10, batch_rays=256, lr=1e-3, lr_final=1e-4)
     trainer = Trainer(model, masked(pixels_of_one_view(8), 0.0), config, tmp_path, torch.device("cpu"))
     loss, _ = trainer.train_step(1)

@@ -22,9 +22,8 @@ from nerfpipe.imaging.png import read_png, srgb_encode
 from nerfpipe.nerf.assembly import NDC_NEAR_FACTOR
 from nerfpipe.nerf.field import FieldConfig, NerfField
 from nerfpipe.nerf.model import RadianceModel
-from nerfpipe.nerf.ray_space import RaySpace
-from nerfpipe.nerf.renderer import SamplingConfig
-from nerfpipe.nerf.samplers import HierarchicalSampler
+from nerfpipe.nerf.ray_space import BoxSpace, NdcSpace
+from nerfpipe.nerf.samplers import HierarchicalSampler, SamplingConfig
 from nerfpipe.pipeline.budget import Allotment
 from nerfpipe.pipeline.errors import ParamError, StageError
 from nerfpipe.pipeline.params import build_params
@@ -95,11 +94,11 @@ def write_scene(folder: Path, layout: str, photometric: str = "srgb") -> StageIn
     if layout == "forward":
         # the cube sits in NDC space, where the field is queried: the middle of x', y' and most of z'
         field = cube_field((0.3, 0.3, 0.9))
-        ray_space = RaySpace(ndc=True, ndc_c2w=tuple(map(tuple, mean_camera(np.array(c2ws)).tolist())),
-                             ndc_focal=CAMERA.fx, ndc_size=(CAMERA.width, CAMERA.height), ndc_near=NDC_NEAR_FACTOR * NEAR)
+        ray_space = NdcSpace(tuple(map(tuple, mean_camera(np.array(c2ws)).tolist())), CAMERA.fx,
+                             (CAMERA.width, CAMERA.height), NDC_NEAR_FACTOR * NEAR)
     else:
         field = cube_field((0.3, 0.3, 0.3))
-        ray_space = RaySpace(box=(tuple(box[0]), tuple(box[1])))
+        ray_space = BoxSpace((tuple(box[0]), tuple(box[1])))
     info = {"layout": layout, "photometric": photometric, "to_sfm": TO_SFM.tolist()}
     model = RadianceModel(field, None, HierarchicalSampler(SamplingConfig(n_coarse=32, n_fine=16)), ray_space, None, info)
     (folder / "train").mkdir()

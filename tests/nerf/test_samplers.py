@@ -1,4 +1,5 @@
-"""Coarse + fine rendering of ray batches (Section 5.2) with small analytic fields."""
+"""HierarchicalSampler: coarse + fine rendering of ray batches (Section 5.2) with small analytic fields,
+through ``RadianceModel.render``."""
 
 from __future__ import annotations
 
@@ -8,8 +9,10 @@ import pytest
 import torch
 from torch import nn
 
-from nerfpipe.nerf.renderer import RayBatch, SamplingConfig, evaluate, render_chunked, render_rays
+from nerfpipe.nerf.rays import RayBatch
+from nerfpipe.nerf.samplers import HierarchicalSampler, SamplingConfig
 from nerfpipe.nerf.sampling import stratified_samples
+from tests.nerf.fieldfns import model_of, render_fields
 
 LN2 = math.log(2.0)
 
@@ -50,43 +53,37 @@ class Recorder:
         return torch.tensor([0.2, 0.4, 0.6]).expand(m, 3), torch.full((m,), LN2)
 
 
-def test_evaluate_queries_o_plus_t_d():
+def render_rays(coarse, fine, rays, sampling, background=None, randomized=True, generator=None):
+    return render_fields(coarse, fine, rays, HierarchicalSampler(sampling), background, randomized, generator)
+
+
+def test_points_are_o_plus_t_d():
     # o = (1, 2, 3), d = (0, 0, 2), t = 0.5, 1 -> (1, 2, 4), (1, 2, 5).
     rays = RayBatch(torch.tensor([[1.0, 2.0, 3.0]]), torch.tensor([[0.0, 0.0, 2.0]]), torch.tensor([[0.0, 0.0, 1.0]]),
                     torch.tensor([0.0]), torch.tensor([1.0]))
-    seen = {}
-
-    def field(points, viewdirs):
-        seen["points"], seen["viewdirs"] = points, viewdirs
-        return torch.zeros(points.shape[0], 3), torch.zeros(points.shape[0])
-
-    rgb, sigma = evaluate(field, rays, torch.tensor([[0.5, 1.0]]))
-    assert torch.equal(seen["points"], torch.tensor([[1.0, 2.0, 4.0], [1.0, 2.0, 5.0]]))
-    assert torch.equal(seen["viewdirs"], torch.tensor([[0.0, 0.0, 1.0]] * 2))
-    assert rgb.shape == (1, 2, 3) and sigma.shape == (1, 2)
+    points = rays.points(torch.tensor([0, 0]), torch.tensor([0.5, 1.0]))
+    assert torch.equal(points, torch.tensor([[1.0, 2.0, 4.0], [1.0, 2.0, 5.0]]))
 
 
 def test_constant_density_coarse_by_hand():
-    # near 0, far 4, N_c 4: t = 0.5, 1.5, 2.5, 3.5; deltas 1, 1, 1, 0.5; sigma ln 2:
-    # alpha = 1/2, 1/2, 1/2, 1 - 2^-0.5; w = 1/2, 1/4, 1/8, 1/8 (1 - 2^-0.5); acc = 1 - 2^-3.5.
+    # near 0, far 4, N_c 4: t = 0.5, 1.5, 2.5, 3.5, each standing for the stretch nearest it: [0, 1], [1, 2],
+    # [2, 3], [3, 4]; sigma ln 2: alpha = 1/2 each, w = 1/2, 1/4, 1/8, 1/16, acc = 1 - 2^-4.
     # rgb over a white background = acc (0.2, 0.4, 0.6) + (1 - acc).
     field = Recorder()
     out = render_rays(field, None, axis_rays(2), SamplingConfig(n_coarse=4, n_fine=0),
                       background=torch.ones(3), randomized=False)
-    assert set(out) == {"coarse"}
-    w4 = 0.125 * (1 - 2**-0.5)
-    expected_w = torch.tensor([[0.5, 0.25, 0.125, w4]] * 2)
-    acc = 1 - 2**-3.5
-    assert torch.allclose(out["coarse"].weights, expected_w, rtol=0, atol=1e-6)
-    assert torch.allclose(out["coarse"].acc, torch.full((2,), acc), rtol=0, atol=1e-6)
+    assert out.earlier == () and out.evaluated == 8
+    expected_w = torch.tensor([[0.5, 0.25, 0.125, 0.0625]] * 2)
+    acc = 1 - 2**-4
+    assert torch.allclose(out.weights.reshape(2, 4), expected_w, rtol=0, atol=1e-6)
+    assert torch.allclose(out.acc, torch.full((2,), acc), rtol=0, atol=1e-6)
     colour = torch.tensor([0.2, 0.4, 0.6])
-    assert torch.allclose(out["coarse"].rgb, (acc * colour + (1 - acc)).expand(2, 3), rtol=0, atol=1e-6)
-    # mean stopping depths (rendering.termination_depths): stretches [0.5, 1], [1, 2], [2, 3], [3, 4] with
-    # tau = ln2 / 2, ln2, ln2, ln2, g(tau) = 1/tau - 1/(e^tau - 1)
-    g_half, g_one = 2 / math.log(2) - 1 / (2**0.5 - 1), 1 / math.log(2) - 1
-    z = (0.5 + 0.5 * g_half, 1 + g_one, 2 + g_one, 3 + g_one)
-    depth = (0.5 * z[0] + 0.25 * z[1] + 0.125 * z[2] + w4 * z[3]) / acc
-    assert torch.allclose(out["coarse"].depth, torch.full((2,), depth), rtol=0, atol=1e-5)
+    assert torch.allclose(out.rgb, (acc * colour + (1 - acc)).expand(2, 3), rtol=0, atol=1e-6)
+    # mean stopping depths (rendering.interval_stop_depths): in a stretch [s, s + 1] of tau = ln 2 a ray stops
+    # g = 1/tau - 1/(e^tau - 1) = 1/ln2 - 1 past s
+    g = 1 / math.log(2) - 1
+    depth = sum(w * (s + g) for s, w in enumerate((0.5, 0.25, 0.125, 0.0625))) / acc
+    assert torch.allclose(out.depth, torch.full((2,), depth), rtol=0, atol=1e-5)
     # the field saw z = 0.5, 1.5, 2.5, 3.5 on each ray
     assert torch.equal(field.calls[0][:, 2], torch.tensor([0.5, 1.5, 2.5, 3.5] * 2))
 
@@ -101,7 +98,8 @@ def test_fine_pass_uses_the_union_of_samples():
     # the 8 coarse samples are among the 24
     coarse = stratified_samples(torch.zeros(3), torch.full((3,), 4.0), 8, perturb=False)
     assert all(torch.isin(coarse[i], z[i]).all() for i in range(3))
-    assert out["fine"].weights.shape == (3, 24)
+    assert out.weights.shape == (3 * 24,) and len(out.earlier) == 1 and out.earlier[0].weights.shape == (3 * 8,)
+    assert out.evaluated == 3 * (8 + 24)
 
 
 def test_fine_samples_concentrate_where_the_coarse_weights_are():
@@ -136,28 +134,30 @@ def test_batched_equals_per_ray(sampling, dtype):
     background = torch.tensor([0.1, 0.9, 0.5], dtype=dtype)
     together = render_rays(blob_field, None, rays, sampling, background, randomized=False)
     tol = 1e-6 if dtype == torch.float32 else 1e-12
-    assert together["coarse"].acc.max() > 0.1  # the blob is actually hit
+    assert together.acc.max() > 0.1  # the blob is actually hit
+    per_ray = sampling.n_coarse + sampling.n_fine
     for i in range(len(rays)):
         alone = render_rays(blob_field, None, rays.slice(i, i + 1), sampling, background, randomized=False)
-        for level in together:
-            for key in ("rgb", "depth", "disparity", "acc", "weights"):
-                a, b = getattr(together[level], key)[i], getattr(alone[level], key)[0]
+        for level, (a_out, b_out) in enumerate(zip(together.passes(), alone.passes())):
+            for key in ("rgb", "depth", "disparity", "acc"):
+                a, b = getattr(a_out, key)[i], getattr(b_out, key)[0]
                 assert torch.allclose(a, b, rtol=tol, atol=tol), (level, key, i)
+        assert torch.allclose(together.weights.reshape(6, per_ray)[i], alone.weights, rtol=tol, atol=tol)
 
 
-def test_render_chunked_equals_render_rays():
+def test_render_rays_in_chunks_equals_one_render():
     rays = random_rays(7, seed=3)
-    sampling = SamplingConfig(n_coarse=8, n_fine=8)
-    whole = render_rays(blob_field, blob_field, rays, sampling, randomized=False)["fine"]
-    chunked = render_chunked(blob_field, blob_field, rays, sampling, chunk=3)
+    model = model_of(blob_field, blob_field, HierarchicalSampler(SamplingConfig(n_coarse=8, n_fine=8)))
+    whole = model.render(rays)
+    chunked = model.render_rays(rays, chunk=3)
     for key in ("rgb", "depth", "disparity", "acc"):
         assert torch.allclose(chunked[key], getattr(whole, key), rtol=1e-6, atol=1e-6), key
-    assert chunked["rgb"].shape == (7, 3)
+    assert chunked["rgb"].shape == (7, 3) and float(chunked["samples"]) == 8 + 16
 
 
-def test_render_chunked_of_no_rays():
-    out = render_chunked(blob_field, None, random_rays(0), SamplingConfig(n_coarse=4, n_fine=0))
-    assert all(v.numel() == 0 for v in out.values())
+def test_render_rays_of_no_rays():
+    out = model_of(blob_field, None, HierarchicalSampler(SamplingConfig(n_coarse=4, n_fine=0))).render_rays(random_rays(0))
+    assert all(v.numel() == 0 for k, v in out.items() if k != "samples")
 
 
 def test_randomized_rendering_is_seeded():
@@ -166,11 +166,11 @@ def test_randomized_rendering_is_seeded():
 
     def run(seed):
         return render_rays(blob_field, None, rays, sampling, randomized=True,
-                           generator=torch.Generator().manual_seed(seed))["fine"].rgb
+                           generator=torch.Generator().manual_seed(seed)).rgb
 
     assert torch.equal(run(5), run(5))
     assert not torch.equal(run(5), run(6))
-    deterministic = render_rays(blob_field, None, rays, sampling, randomized=False)["fine"].rgb
+    deterministic = render_rays(blob_field, None, rays, sampling, randomized=False).rgb
     assert not torch.equal(run(5), deterministic)
     assert torch.isfinite(run(5)).all()
 
@@ -190,8 +190,8 @@ def test_fine_pass_sends_no_gradient_to_the_coarse_field():
         return rgb * b / 3.0, b * sigma
 
     out = render_rays(coarse, fine, random_rays(4), SamplingConfig(n_coarse=8, n_fine=8), randomized=False)
-    out["fine"].rgb.sum().backward()
+    out.rgb.sum().backward()
     assert a.grad is None
     assert b.grad is not None and b.grad.abs() > 0
-    out["coarse"].rgb.sum().backward()
+    out.earlier[0].rgb.sum().backward()
     assert a.grad is not None and a.grad.abs() > 0
