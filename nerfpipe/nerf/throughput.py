@@ -1,5 +1,5 @@
-"""What rendering a trained model costs, timed before the work starts, and the size of that work that fits a
-time allotment (held-out evaluation, depth export, the render stage, under a job's budget)."""
+"""What rendering a trained model costs, timed before the work starts (held-out evaluation, depth export, the
+render stage), for sizing that work to a job's budget (``nerfpipe.pipeline.budget.fit_to_allotment``)."""
 
 from __future__ import annotations
 
@@ -57,12 +57,3 @@ def seconds_per_view(model: RadianceModel, intrinsics: tuple[float, float, float
     started = time.perf_counter()
     model.render_image(intrinsics, c2w, width, height, near, far, chunk)
     return time.perf_counter() - started
-
-
-def fitting_scale(per_ray: float, pixels: float, seconds: float, floor: float, ceiling: float = 1.0) -> float:
-    """The largest scale s in [floor, ceiling] of every side of ``pixels`` worth of views whose cost,
-    ``per_ray * pixels * s**2``, is at most ``seconds``; rounded down to hundredths where that stays above
-    ``floor``."""
-    scale = min(ceiling, float(np.sqrt(max(seconds, 0.0) / max(per_ray * pixels, 1e-12))))
-    rounded = np.floor(scale * 100.0) / 100.0
-    return float(max(floor, rounded if rounded > 0 else scale))

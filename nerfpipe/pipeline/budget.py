@@ -101,6 +101,42 @@ class Allotment:
         return f"{format_duration(self.seconds)} ({role})"
 
 
+@dataclass(frozen=True)
+class Fit:
+    """An output sized to a stage's allotment (``fit_to_allotment``): ``scale`` of every side of the size asked
+    for, ``seconds`` predicted at it, and ``over``: the seconds beyond the allotment it takes at its floor, when
+    even that does not fit (0 when it fits)."""
+
+    scale: float
+    seconds: float
+    over: float = 0.0
+
+    def longer(self, what: str, allotment: Allotment) -> str | None:
+        """The one line that says the job takes longer, or None when the output fits."""
+        if self.over <= 0:
+            return None
+        return (f"{what} takes about {format_duration(self.seconds)}, {format_duration(self.over)} more than its "
+                f"{allotment.describe()}: the job takes that much longer rather than make it smaller (a larger "
+                "--budget, or --budget off, runs it as set)")
+
+
+def fit_to_allotment(full_seconds: float, left: float | None, floor: float, fixed: float = 0.0) -> Fit:
+    """The largest scale s in [floor, 1] of an output whose cost is ``full_seconds`` s^2 + ``fixed`` (its pixels,
+    each side times s, and what it costs whatever its size) that fits the ``left`` seconds of the stage's
+    allotment (None: no budget, so the size asked for, s = 1); rounded down to hundredths. Never below
+    ``floor``, the scale under which the output is useless: when even the floor does not fit, the floor, and
+    ``Fit.over`` says by how much it runs past."""
+    def cost(scale: float) -> float:
+        return full_seconds * scale**2 + fixed
+
+    floor = min(max(floor, 0.0), 1.0)
+    if left is None or cost(1.0) <= left:
+        return Fit(1.0, cost(1.0))
+    scale = (max(left - fixed, 0.0) / max(full_seconds, 1e-12)) ** 0.5
+    scale = max(floor, min(1.0, float(int(scale * 100.0)) / 100.0 if scale >= 0.01 else scale))
+    return Fit(scale, cost(scale), max(cost(scale) - max(left, 0.0), 0.0) if scale <= floor else 0.0)
+
+
 def takes_part(share: float, elastic_params: tuple[str, ...], chosen: Iterable[str]) -> tuple[bool, bool]:
     """(budgeted, elastic) for a stage with ``share`` and ``elastic_params`` whose parameters set by the user
     or a preset are ``chosen``: elastic unless one of those was chosen; budgeted if either."""

@@ -17,6 +17,7 @@ from typing import Any, Literal
 
 from nerfpipe.artifacts import Bounds, ViewSplit, view_file_stem
 from nerfpipe.geometry.cameras import CameraSet
+from nerfpipe.pipeline.budget import fit_to_allotment
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 
@@ -38,9 +39,10 @@ class ExportDepthParams:
             raise ValueError(f"chunk must be >= 1, got {self.chunk}")
 
 
-# Under a job budget the views shrink to fit the stage's share, never below this fraction of export_depth.scale;
-# writing a view's files costs about this fraction of rendering its rays.
-MIN_SHRINK = 0.25
+# Under a job budget the views shrink to fit the stage's share, never below this share of the photos' side (or
+# export_depth.scale, when that is smaller): a depth map is useless smaller; when even that does not fit, the job
+# takes longer and says so. Writing a view's files costs about this fraction of rendering its rays.
+DEPTH_FLOOR = 0.25
 VIEW_OVERHEAD = 1.15
 
 
@@ -94,9 +96,9 @@ class ExportDepthStage(Stage):
     @staticmethod
     def _fitting_scale(model, frames, world: CameraSet, near_far, params: ExportDepthParams, ctx: StageContext,
                        began: float) -> float:
-        """``params.scale``, or less where the views at that scale would not fit the stage's allotment; logs the
-        size and the predicted seconds."""
-        from nerfpipe.nerf.throughput import fitting_scale, seconds_per_view
+        """``params.scale``, or less where the views at that scale would not fit the stage's allotment, never below
+        ``DEPTH_FLOOR``; logs the size and the predicted seconds, and a warning when the floor takes longer."""
+        from nerfpipe.nerf.throughput import seconds_per_view
 
         if not frames:
             return params.scale
@@ -106,16 +108,21 @@ class ExportDepthStage(Stage):
         per_ray = VIEW_OVERHEAD * seconds_per_view(model, (k.fx, k.fy, k.cx, k.cy), frames[0].c2w, width, height,
                                                    *near_far[frames[0].name], params.chunk) / (width * height)
         rays = sum(w * h for w, h in (scaled_size(c.width, c.height, params.scale) for c in map(world.camera_of, frames)))
-        scale, fits = params.scale, ""
+        left = None if ctx.allotment is None else ctx.allotment.seconds - (time.perf_counter() - began)
+        fit = fit_to_allotment(per_ray * rays, left, min(1.0, DEPTH_FLOOR / params.scale))
+        scale, fits = params.scale * fit.scale, ""
         if ctx.allotment is not None:
-            left = ctx.allotment.seconds - (time.perf_counter() - began)
-            scale = params.scale * fitting_scale(per_ray, rays, left, MIN_SHRINK)
             fits = f" to fit its {ctx.allotment.describe()}"
             if scale < params.scale:
                 fits += f"; at export_depth.scale {params.scale:g} they would take {per_ray * rays:.0f} s"
         size = scaled_size(first.width, first.height, scale)
         ctx.log.info("export_depth: %d views at %dx%d (scale %.3g), about %.0f s%s", len(frames), *size, scale,
-                     per_ray * rays * (scale / params.scale) ** 2, fits)
+                     fit.seconds, fits)
+        longer = fit.longer(f"export_depth: {len(frames)} views at {size[0]}x{size[1]} (never smaller than a quarter of the "
+                            "photos' side)",
+                            ctx.allotment)
+        if longer is not None:
+            ctx.log.warning(longer)
         return scale
 
     def run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:

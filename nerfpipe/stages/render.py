@@ -28,7 +28,7 @@ import numpy as np
 from nerfpipe.artifacts import Bounds, SceneDecisions
 from nerfpipe.geometry.cameras import Camera, CameraSet
 from nerfpipe.imaging.png import read_png, srgb_encode, write_png
-from nerfpipe.pipeline.budget import check_affordable
+from nerfpipe.pipeline.budget import check_affordable, fit_to_allotment
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
@@ -96,9 +96,11 @@ class RenderParams:
 # grid renders about 60,000 rays a second on 2 cores (the demo: 40 frames of 160 x 120 in 12 s), so 40 frames
 # of at most 320 x 240 take about 50 s (half of 1600 px photos, ingest's default, would be 800 x 600: 5 min).
 # The preview: 12 frames of at most 96 x 72, a few seconds.
-# Under a job budget the frames shrink to fit the stage's share, never below this fraction of their size; what
-# a frame costs beside rendering its rays (two PNGs, the videos) is about this fraction of the rays' time.
-MIN_SHRINK = 0.25
+# Under a job budget the frames shrink to fit the stage's share, never below the floor of a video worth watching:
+# this many pixels on its short side (or the size asked for, when that is smaller); when even that does not fit,
+# the job takes longer and says so. What a frame costs beside rendering its rays (two PNGs, the videos) is
+# about this fraction of the rays' time.
+VIDEO_FLOOR_SIDE = 360
 FRAME_SECONDS = 0.01  # a frame's cost whatever its size: the render call, two PNGs written and read back
 FRAME_OVERHEAD = 1.1
 PREVIEW = {"frames": 12, "scale": 0.25, "max_side": 96}
@@ -162,7 +164,7 @@ class RenderStage(Stage):
         from nerfpipe.export.paths import path_for_scene
         from nerfpipe.export.video import write_mp4
         from nerfpipe.nerf.model import RadianceModel
-        from nerfpipe.nerf.throughput import fitting_scale, seconds_per_view
+        from nerfpipe.nerf.throughput import seconds_per_view
 
         began = time.perf_counter()
         model = RadianceModel.load(inputs["model"].parent, device)
@@ -199,16 +201,19 @@ class RenderStage(Stage):
         per_ray = FRAME_OVERHEAD * seconds_per_view(model, (scaled.fx, scaled.fy, scaled.cx, scaled.cy), poses[middle],
                                                     width, height, *ranges[middle], params.chunk) / (width * height)
         wanted = (width, height)
-        if ctx.allotment is not None:
-            left = ctx.allotment.seconds - (time.perf_counter() - began)
-            shrink = fitting_scale(per_ray, len(poses) * width * height, left, MIN_SHRINK)
-            width, height = (max(2, 2 * round(side * shrink / 2)) for side in wanted)
-            scaled = camera.scaled(width / camera.width, height / camera.height)
-        check_affordable(ctx.allotment, per_ray * len(poses) * width * height + FRAME_SECONDS * len(poses),
-                         f"render: {len(poses)} frames, even at {width}x{height},", "lower render.frames")
+        left = None if ctx.allotment is None else ctx.allotment.seconds - (time.perf_counter() - began)
+        fit = fit_to_allotment(per_ray * len(poses) * width * height, left, min(1.0, VIDEO_FLOOR_SIDE / min(wanted)),
+                               FRAME_SECONDS * len(poses))
+        width, height = (max(2, 2 * round(side * fit.scale / 2)) for side in wanted)
+        scaled = camera.scaled(width / camera.width, height / camera.height)
+        check_affordable(ctx.allotment, fit.seconds, f"render: {len(poses)} frames, even at {width}x{height},",
+                         "lower render.frames")
         fits = "" if ctx.allotment is None else f" to fit its {ctx.allotment.describe()}" + (
             f"; {wanted[0]}x{wanted[1]} would take {per_ray * len(poses) * wanted[0] * wanted[1]:.0f} s"
             if (width, height) != wanted else "")
+        if (longer := fit.longer(f"render: {len(poses)} frames at {width}x{height}, the smallest worth watching,",
+                                 ctx.allotment)) is not None:
+            ctx.log.warning(longer)
         ctx.log.info("render: %d frames of %dx%d (the camera of %s scaled by %.3g) on %s, about %.0f s%s", len(poses),
                      width, height, world.frames[0].name, width / camera.width, device,
                      per_ray * len(poses) * width * height, fits)

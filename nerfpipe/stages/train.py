@@ -59,9 +59,9 @@ class TrainParams:
     holdout_every: int = param(8, "without a val/test split, hold out every n-th image (the paper: 8)", bounds=(1, 10_000))
     eval_stride: int = param(1, "evaluate every n-th held-out view", bounds=(1, 10_000))
     eval_scale: str = param("auto", "render and score the held-out views at this share of their size (1: full "
-                                    "resolution); auto: the largest share predicted to cost at most eval_budget of "
-                                    "the training time")
-    eval_budget: float = param(0.1, "with eval_scale=auto: the held-out evaluation's share of the training time", bounds=(0.001, 10.0))
+                                    "resolution); auto: half, the same for every run of a capture")
+    eval_budget: float = param(0.1, "under a job budget, the time kept for the held-out evaluation, as a share of the "
+                                    "training time (an evaluation that takes longer makes the job longer)", bounds=(0.001, 10.0))
     checkpoint_every: int = param(500, "write a checkpoint every n steps (a killed run resumes from the last)", bounds=(1, 10_000_000))
     keep_checkpoints: int = param(2, "checkpoints kept (0: all)", bounds=(0, 1000))
     seed: int = param(0, "seed of initialization, batches and samples", bounds=(0, 2_147_483_647))
@@ -270,14 +270,17 @@ class TrainStage(Stage):
             cameras, per_image = trained_cameras(model, loader.world, views.train)
             (out / "cameras").mkdir(exist_ok=True)
             cameras.save(out / "cameras")
-            scale, predicted = evaluation_scale(params.eval_scale, params.eval_budget, trainer.elapsed, model, loader,
-                                                views.heldout, params.chunk)
+            scale, predicted = evaluation_scale(params.eval_scale, model, loader, views.heldout, params.chunk)
             if views.heldout:
                 first = loader.world.camera_of(views.heldout[0])
-                ctx.log.info("train: evaluation: %d views at %dx%d (%s of their size%s), about %.0f s",
-                             len(views.heldout), *scaled_size(first.width, first.height, scale), f"{scale:g}",
-                             "" if params.eval_scale != "auto" else
-                             f", to stay within {params.eval_budget:g} of the training time", predicted)
+                ctx.log.info("train: evaluation: %d views at %dx%d (%s of their size), about %.0f s",
+                             len(views.heldout), *scaled_size(first.width, first.height, scale), f"{scale:g}", predicted)
+                kept = params.eval_budget * trainer.elapsed
+                if ctx.allotment is not None and params.steps == 0 and predicted > kept + 1.0:
+                    ctx.log.warning("train: the evaluation at %dx%d takes about %.0f s, %.0f s more than the %.0f s kept "
+                                    "for it: the job takes that much longer rather than score the views smaller (a "
+                                    "larger --budget, or --budget off, runs it as set)",
+                                    *scaled_size(first.width, first.height, scale), predicted, predicted - kept, kept)
             with ctx.progress(len(views.heldout), "evaluate") as advance:
                 evaluation = evaluate(model, loader, views.heldout, out / "eval", params.chunk, advance, scale=scale)
         summary = {

@@ -142,3 +142,25 @@ def test_an_optional_stage_that_makes_nothing_warns_and_the_run_goes_on(capture,
     required[2].optional = False
     with pytest.raises(StageError, match="found no surface"):
         Pipeline(required, capture, tmp_path / "run2").run()
+
+
+def test_fit_to_allotment_shrinks_to_the_allotment_and_never_below_the_floor() -> None:
+    from nerfpipe.pipeline.budget import Fit, fit_to_allotment
+
+    # 100 s at full size, 1 s whatever the size
+    assert fit_to_allotment(100.0, None, 0.25, 1.0) == Fit(1.0, 101.0)  # no budget: as asked
+    assert fit_to_allotment(100.0, 500.0, 0.25, 1.0) == Fit(1.0, 101.0)  # fits as asked
+    # 26 s: sqrt(25 / 100) = 0.5 of each side, 25 + 1 s
+    assert fit_to_allotment(100.0, 26.0, 0.25, 1.0) == Fit(0.5, 26.0)
+    # 20 s: sqrt(19 / 100) = 0.4359, rounded down to 0.43
+    fit = fit_to_allotment(100.0, 20.0, 0.25, 1.0)
+    assert fit.scale == 0.43 and fit.seconds == pytest.approx(100 * 0.43**2 + 1) and fit.over == 0.0
+    # 2 s: the floor, a quarter of each side, 7.25 s: 5.25 s more than the allotment
+    fit = fit_to_allotment(100.0, 2.0, 0.25, 1.0)
+    assert fit == Fit(0.25, 7.25, 5.25)
+    line = fit.longer("render: 40 frames", Allotment(2.0, 20.0))
+    assert line == ("render: 40 frames takes about 7 s, 5 s more than its 2 s (10% of the 20 s budget): the job takes "
+                    "that much longer rather than make it smaller (a larger --budget, or --budget off, runs it as set)")
+    assert fit_to_allotment(100.0, 26.0, 0.25, 1.0).longer("x", Allotment(26.0, 260.0)) is None
+    # a floor of 1 (the size asked for is already the smallest useful one) never shrinks; spent time counts as 0
+    assert fit_to_allotment(100.0, -3.0, 1.0) == Fit(1.0, 100.0, 100.0)

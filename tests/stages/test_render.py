@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 from pathlib import Path
 
 import numpy as np
@@ -182,22 +183,35 @@ def test_spiral_of_a_forward_raw_scene_is_srgb_encoded(tmp_path: Path) -> None:
     check_outputs(out, summary, calls, srgb_encode(COLOUR))
 
 
-def test_frames_shrink_to_fit_the_stages_share_of_a_job_budget(tmp_path: Path, monkeypatch, caplog) -> None:
+def test_frames_shrink_to_fit_a_job_budget_but_never_below_a_watchable_video(tmp_path: Path, monkeypatch, caplog) -> None:
+    """A slow machine (an injected cost: 10 s a frame of 32 x 24) under a tight budget: the frames shrink to the
+    stage's share, down to the floor of a video worth watching and no further; below it the stage renders at the
+    floor and says in one line how much longer the job takes."""
     import nerfpipe.nerf.throughput as throughput
+    from nerfpipe.stages import render as stage
 
     monkeypatch.setattr(throughput, "seconds_per_view", lambda *args: 10.0)  # 4 frames of 32 x 24: 44 s
     caplog.set_level(logging.INFO, "test")
-    _, summary, _ = run_render(tmp_path / "roomy", "inward360", allotment=Allotment(600.0, 6000.0))
+    _, summary, _ = run_render(tmp_path / "big", "inward360", allotment=Allotment(11.0, 110.0))
+    # the real floor, 360 pixels on the short side, is above these frames' 24: they are not shrunk at all
     assert summary["resolution"] == [32, 24]
+    assert re.search(r"render: 4 frames at 32x24, the smallest worth watching, takes about 44 s, 33 s more than its "
+                     r"11 s \(10% of the 1 min 50 s budget\): the job takes that much longer", caplog.text)
+    monkeypatch.setattr(stage, "VIDEO_FLOOR_SIDE", 12)  # a floor of half each side of these tiny frames
+    caplog.clear()
+    _, summary, _ = run_render(tmp_path / "roomy", "inward360", allotment=Allotment(600.0, 6000.0))
+    assert summary["resolution"] == [32, 24] and "takes that much longer" not in caplog.text
     assert "about 44 s to fit its 10 min (10% of the 100 min budget)" in caplog.text
-    _, summary, _ = run_render(tmp_path / "tight", "inward360", allotment=Allotment(11.0, 110.0))
-    # 11 s of 44 s: half of each side, less the few milliseconds spent loading the model
-    assert summary["resolution"] in ([16, 12], [14, 10])
-    assert "32x24 would take 44 s" in caplog.text
+    _, summary, _ = run_render(tmp_path / "tight", "inward360", allotment=Allotment(22.0, 220.0))
+    # 22 s of 44 s: 0.7 of each side (sqrt 0.5, rounded down to hundredths), less the milliseconds of loading
+    assert summary["resolution"] == [22, 16] and "32x24 would take 44 s" in caplog.text
+    assert "takes that much longer" not in caplog.text
     _, summary, _ = run_render(tmp_path / "starved", "inward360", allotment=Allotment(0.001, 100.0))
-    assert summary["resolution"] == [8, 6]  # never below a quarter of each side
+    assert summary["resolution"] == [16, 12]  # the floor, not smaller
+    assert re.search(r"render: 4 frames at 16x12, the smallest worth watching, takes about 11 s, 11 s more than its "
+                     r"0 s .*: the job takes that much longer", caplog.text)
     # and when even that costs more than the whole job's budget, the stage says so instead of overrunning it
-    with pytest.raises(StageError, match=r"render: 4 frames, even at 8x6, would take about \d+ s, more than the job's "
+    with pytest.raises(StageError, match=r"render: 4 frames, even at 16x12, would take about \d+ s, more than the job's "
                                          r"whole budget of 0 s; lower render.frames, or pass --budget off"):
         run_render(tmp_path / "hopeless", "inward360", allotment=Allotment(0.001, 0.01))
 
@@ -281,3 +295,30 @@ def test_describe() -> None:
         "path: orbit (inward360 scene): radius 2.15 around (0, 0, 0) at 21.8 deg elevation (the cameras' mean)",
     ]
     assert RenderStage().describe(Path("."), {}) == []
+
+
+def test_depth_maps_shrink_to_a_job_budget_but_never_below_a_quarter_of_the_photos_side(monkeypatch, caplog) -> None:
+    """export_depth's sizing under an injected cost (1 s a view at full size): the share it is given, down to
+    a quarter of the photos' side, and at that floor one line saying how much longer the job takes."""
+    import time
+
+    import nerfpipe.nerf.throughput as throughput
+    from nerfpipe.stages.export_depth import ExportDepthParams, ExportDepthStage
+    from tests.nerf.scenes import world_of_one_camera
+
+    world = world_of_one_camera()  # one 40 x 30 camera
+    monkeypatch.setattr(throughput, "seconds_per_view", lambda *args: 1.0 * (args[3] * args[4]) / (40 * 30))
+    caplog.set_level(logging.INFO, "test")
+
+    def scale(seconds: float, asked: float = 1.0) -> float:
+        ctx = StageContext(log=logging.getLogger("test"), progress=count_progress([]), allotment=Allotment(seconds, 10 * seconds))
+        return ExportDepthStage._fitting_scale(None, world.frames, world, {"a.png": (1.0, 5.0)},
+                                               ExportDepthParams(scale=asked), ctx, time.perf_counter())
+
+    assert scale(100.0) == 1.0  # 1.15 s fits
+    assert 0.5 <= scale(0.3) < 0.52  # sqrt(0.3 / 1.15) = 0.51
+    assert "takes that much longer" not in caplog.text
+    assert scale(0.001) == 0.25  # the floor
+    assert re.search(r"export_depth: 1 views at 10x8 \(never smaller than a quarter of the photos' side\) takes about "
+                     r"0 s, 0 s more than its 0 s .*the job takes that much longer", caplog.text)
+    assert scale(0.001, asked=0.1) == 0.1  # asked smaller than the floor: as asked, never shrunk
