@@ -32,6 +32,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0, help="training before the measurements")
     parser.add_argument("--window", type=float, default=15.0, help="seconds of training measured")
     parser.add_argument("--frames", type=int, default=8, help="render-stage frames measured")
+    parser.add_argument("--eval-views", type=int, default=0, help="held-out views evaluated (0: all)")
     parser.add_argument("--set", dest="sets", action="append", default=[], help="stage.param=value, as for run")
     parser.add_argument("--out", type=Path, default=None, help="run directory for the stages up to scene")
     args = parser.parse_args()
@@ -72,7 +73,7 @@ def measure(args: argparse.Namespace) -> None:
         train_samples = (trainer.total_samples - samples0) / seconds
         steps = trainer.step - step0
 
-    heldout = setup.heldout
+    heldout = setup.heldout[:args.eval_views] if args.eval_views > 0 else setup.heldout
     started = time.perf_counter()
     result = evaluate(model, setup.loader, heldout, None, setup.chunk)
     eval_seconds = time.perf_counter() - started

@@ -211,8 +211,8 @@ class RenderStage(Stage):
         fits = "" if ctx.allotment is None else f" to fit its {ctx.allotment.describe()}" + (
             f"; {wanted[0]}x{wanted[1]} would take {per_ray * len(poses) * wanted[0] * wanted[1]:.0f} s"
             if (width, height) != wanted else "")
-        if (longer := fit.longer(f"render: {len(poses)} frames at {width}x{height}, the smallest worth watching,",
-                                 ctx.allotment)) is not None:
+        if (longer := fit.longer(f"render: {len(poses)} frames at {width}x{height} (never smaller than {VIDEO_FLOOR_SIDE} "
+                                 "pixels on the short side, or the size asked for)", ctx.allotment)) is not None:
             ctx.log.warning(longer)
         ctx.log.info("render: %d frames of %dx%d (the camera of %s scaled by %.3g) on %s, about %.0f s%s", len(poses),
                      width, height, world.frames[0].name, width / camera.width, device,

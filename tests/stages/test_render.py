@@ -195,8 +195,9 @@ def test_frames_shrink_to_fit_a_job_budget_but_never_below_a_watchable_video(tmp
     _, summary, _ = run_render(tmp_path / "big", "inward360", allotment=Allotment(11.0, 110.0))
     # the real floor, 360 pixels on the short side, is above these frames' 24: they are not shrunk at all
     assert summary["resolution"] == [32, 24]
-    assert re.search(r"render: 4 frames at 32x24, the smallest worth watching, takes about 44 s, 33 s more than its "
-                     r"11 s \(10% of the 1 min 50 s budget\): the job takes that much longer", caplog.text)
+    assert re.search(r"render: 4 frames at 32x24 \(never smaller than 360 pixels on the short side, or the size asked "
+                     r"for\) takes about 44 s, 33 s more than its 11 s \(10% of the 1 min 50 s budget\): the job takes "
+                     r"that much longer", caplog.text)
     monkeypatch.setattr(stage, "VIDEO_FLOOR_SIDE", 12)  # a floor of half each side of these tiny frames
     caplog.clear()
     _, summary, _ = run_render(tmp_path / "roomy", "inward360", allotment=Allotment(600.0, 6000.0))
@@ -208,8 +209,8 @@ def test_frames_shrink_to_fit_a_job_budget_but_never_below_a_watchable_video(tmp
     assert "takes that much longer" not in caplog.text
     _, summary, _ = run_render(tmp_path / "starved", "inward360", allotment=Allotment(0.001, 100.0))
     assert summary["resolution"] == [16, 12]  # the floor, not smaller
-    assert re.search(r"render: 4 frames at 16x12, the smallest worth watching, takes about 11 s, 11 s more than its "
-                     r"0 s .*: the job takes that much longer", caplog.text)
+    assert re.search(r"render: 4 frames at 16x12 \(never smaller than 12 pixels on the short side, or the size asked "
+                     r"for\) takes about 11 s, 11 s more than its 0 s .*: the job takes that much longer", caplog.text)
     # and when even that costs more than the whole job's budget, the stage says so instead of overrunning it
     with pytest.raises(StageError, match=r"render: 4 frames, even at 16x12, would take about \d+ s, more than the job's "
                                          r"whole budget of 0 s; lower render.frames, or pass --budget off"):
