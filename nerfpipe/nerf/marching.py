@@ -85,7 +85,8 @@ def _visible(rays: RayBatch, space, samples: RaySamples, evaluate: FeaturesFn, e
     first = torch.cumsum(counts, dim=0) - counts
     depth = torch.zeros(samples.n_rays, dtype=torch.float64, device=counts.device)  # optical depth so far, per ray
     keep = torch.zeros(len(samples), dtype=torch.bool, device=counts.device)
-    sigmas, features = torch.zeros(len(samples), device=counts.device), None
+    sigmas = torch.zeros(len(samples), device=counts.device) if remember else None
+    features = None
     limit = -math.log(early_stop)  # T > early_stop <=> optical depth < limit
     longest = int(counts.max())
     start, width = 0, window if window > 0 else longest

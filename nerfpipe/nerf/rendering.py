@@ -109,12 +109,6 @@ class RaySamples:
         """(R,) samples of each ray."""
         return torch.bincount(self.ray, minlength=self.n_rays)
 
-    def rank(self) -> Tensor:
-        """(N,) each sample's place along its ray: 0 for a ray's first sample."""
-        counts = self.counts()
-        first = torch.cumsum(counts, dim=0) - counts
-        return torch.arange(len(self), device=self.ray.device) - first[self.ray]
-
     def exclusive_sums(self, values: Tensor) -> Tensor:
         """sum_{j before i on i's ray} values_j for each sample i (N,) -> (N,): a cumulative sum over all
         samples in float64 less its value where the ray begins, so that rays of any length cost one pass."""
