@@ -33,7 +33,7 @@ LEGACY_NAMES = {"sampler": "occupancy"}  # what a part's state was saved under i
 # what one field call may hold without gradients (rendering): a large chunk of rays, or many samples a ray left
 # after early termination, is evaluated in pieces whose activations (each linear layer's output and its
 # activation's, float32) stay within this, however wide the field's layers (train.field.hidden up to 1024)
-EVAL_BYTES = 1 << 26
+EVAL_BYTES = 1 << 25
 EVAL_POINTS = (1 << 10, 1 << 16)  # the fewest and most points a piece holds
 
 # samples one rendering call may lay out (rays x the sampler's candidates a ray; about 48 bytes each): a chunk of
