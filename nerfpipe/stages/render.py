@@ -42,14 +42,18 @@ DEPTH_RANGE_PERCENTILES = (2.0, 98.0)
 
 
 PATH_KINDS = ("auto", "spiral", "orbit", "sweep")
+# the least a video is worth watching at: this many pixels on its short side, at least 3 s (issue 47)
+VIDEO_FLOOR_SIDE = 360
 
 
 @dataclass(frozen=True)
 class RenderParams:
-    frames: int = field(default=40, metadata={"bounds": (1, 100_000), "help": "frames along the path"})
-    fps: float = field(default=20.0, metadata={"bounds": (1.0, 240.0), "help": "frames per second of the videos"})
-    scale: float = field(default=0.5, metadata={"bounds": (0.01, 4.0), "help": "render size relative to the first training camera (0.5: half width and height)"})
-    max_side: int = field(default=320, metadata={"bounds": (0, 16_384), "help": "cap on the longest side of the render in pixels, after scale (0: none)"})
+    frames: int = field(default=45, metadata={"bounds": (1, 100_000), "help": "frames along the path (45 at 15 fps: 3 s)"})
+    fps: float = field(default=15.0, metadata={"bounds": (1.0, 240.0), "help": "frames per second of the videos"})
+    short_side: int = field(default=VIDEO_FLOOR_SIDE, metadata={"bounds": (0, 16_384), "help": "the frames' short side in pixels, the "
+                            "first training camera's aspect kept (360: the least worth watching); 0: its size times scale"})
+    scale: float = field(default=0.5, metadata={"bounds": (0.01, 4.0), "help": "with short_side 0: render size relative to the first training camera (0.5: half width and height)"})
+    max_side: int = field(default=0, metadata={"bounds": (0, 16_384), "help": "with short_side 0: cap on the longest side of the render in pixels, after scale (0: none)"})
     path: str = field(
         default="auto", metadata={"help": "camera path: auto, spiral, orbit, sweep, or a camera_path.json (keyframes "
                                           "recorded in `nerfpipe view --web`; its frames and fps apply); auto: "
@@ -76,6 +80,8 @@ class RenderParams:
             raise ValueError(f"fps must be > 0, got {self.fps}")
         if not 0 < self.scale <= 4:
             raise ValueError(f"scale must be in (0, 4], got {self.scale}")
+        if self.short_side == 1:
+            raise ValueError(f"short_side must be 0 (scale decides) or at least 2, got {self.short_side}")
         if self.max_side < 0 or self.max_side == 1:
             raise ValueError(f"max_side must be 0 (no cap) or at least 2, got {self.max_side}")
         if not self.n_rotations > 0:
@@ -92,25 +98,23 @@ class RenderParams:
         return None if self.elevation == "auto" else float(self.elevation)
 
 
-# The defaults keep a CPU render within about a minute: the default (fast) grid field marching its occupancy
-# grid renders about 60,000 rays a second on 2 cores (the demo: 40 frames of 160 x 120 in 12 s), so 40 frames
-# of at most 320 x 240 take about 50 s (half of 1600 px photos, ingest's default, would be 800 x 600: 5 min).
-# The preview: 12 frames of at most 96 x 72, a few seconds.
-# Under a job budget the frames shrink to fit the stage's share, never below the floor of a video worth watching:
-# this many pixels on its short side (or the size asked for, when that is smaller); when even that does not fit,
-# the job takes longer and says so. What a frame costs beside rendering its rays (two PNGs, the videos) is
-# about this fraction of the rays' time.
-VIDEO_FLOOR_SIDE = 360
+# The default is the floor of a video worth watching: 3 s (45 frames at 15 fps) of 360 pixels on the short side
+# (480 x 360 for 4:3 photos, 360 x 640 for portrait phone photos). The preview: 12 frames of at most 96 x 72.
+# Under a job budget the frames shrink to fit the stage's share, never below that floor (or the size asked for,
+# when that is smaller); when even that does not fit, the job takes longer and says so. What a frame costs
+# beside rendering its rays (two PNGs, the videos) is about this fraction of the rays' time.
 FRAME_SECONDS = 0.01  # a frame's cost whatever its size: the render call, two PNGs written and read back
 FRAME_OVERHEAD = 1.1
-PREVIEW = {"frames": 12, "scale": 0.25, "max_side": 96}
-FULL = {"frames": 120, "scale": 1.0, "max_side": 0}
+PREVIEW = {"frames": 12, "short_side": 0, "scale": 0.25, "max_side": 96}
+FULL = {"frames": 120, "short_side": 0, "scale": 1.0, "max_side": 0}
 
 
-def render_size(camera: Camera, scale: float, max_side: int = 0) -> tuple[int, int]:
-    """(width, height) of the renders: the camera's size times ``scale``, shrunk to fit ``max_side`` (0: no
-    cap) with its aspect kept, rounded to even numbers (MPEG-4 encodes 2x2 chroma blocks and would
-    otherwise crop or pad the video), at least 2 x 2."""
+def render_size(camera: Camera, scale: float, max_side: int = 0, short_side: int = 0) -> tuple[int, int]:
+    """(width, height) of the renders: the camera's with its short side ``short_side`` pixels, or (0) its size
+    times ``scale``, shrunk to fit ``max_side`` (0: no cap); its aspect kept, rounded to even numbers (MPEG-4
+    encodes 2x2 chroma blocks and would otherwise crop or pad the video), at least 2 x 2."""
+    if short_side:
+        scale = short_side / min(camera.width, camera.height)
     width, height = camera.width * scale, camera.height * scale
     if max_side and max(width, height) > max_side:
         shrink = max_side / max(width, height)
@@ -195,7 +199,7 @@ class RenderStage(Stage):
         # a path along the photos' cameras has their depth range; keyframes anywhere, each its own around the scene
         ranges = [(bounds.near, bounds.far) if fovs is None else view_range(c2w, bounds.far) for c2w in poses]
 
-        width, height = render_size(camera, params.scale, params.max_side)
+        width, height = render_size(camera, params.scale, params.max_side, params.short_side)
         scaled = camera.scaled(width / camera.width, height / camera.height)
         middle = len(poses) // 2  # timed on the path's middle frame: its first may look away from the scene
         per_ray = FRAME_OVERHEAD * seconds_per_view(model, (scaled.fx, scaled.fy, scaled.cx, scaled.cy), poses[middle],

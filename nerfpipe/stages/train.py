@@ -178,8 +178,10 @@ class TrainStage(Stage):
         if s.get("psnr") is None:
             return [f"{s['steps']} steps in {s['train_seconds']:.0f} s on {s['device']}; no held-out views to evaluate"]
         size = f" at {s['eval_size'][0]}x{s['eval_size'][1]}" if s.get("eval_size") else ""
+        seen = (f", {s['rays']:,} rays ({s['rays_per_s']:,.0f} a second, {s['rays_per_pixel']:.3g} a training pixel)"
+                if "rays" in s else "")
         lines = [f"{s['steps']} steps in {s['train_seconds']:.0f} s on {s['device']} "
-                 f"({s['samples_per_s']:.0f} samples/s); {s['heldout']} held-out views ({s['heldout_rule']}){size}: "
+                 f"({s['samples_per_s']:.0f} samples/s{seen}); {s['heldout']} held-out views ({s['heldout_rule']}){size}: "
                  f"PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f}"
                  + (f" against the masked photos ({s['psnr_photo']:.2f} dB against the photos as taken)"
                     if s.get("psnr_photo") is not None else "")]
@@ -266,6 +268,10 @@ class TrainStage(Stage):
         with _watching(ctx, loader, model):
             with ctx.progress(trainer.total - trainer.done_units(), "train") as advance:
                 trainer.run(advance)
+            ctx.log.info("train: %d steps drew %s rays, %.0f a second, %.3g per training pixel, at %.1f samples a ray",
+                         trainer.step, f"{trainer.total_rays:,}", trainer.total_rays / max(trainer.elapsed, 1e-9),
+                         trainer.total_rays / max(int(pixels.rgb.shape[0]), 1),
+                         trainer.total_samples / max(trainer.total_rays, 1))
             model.save(out)
             cameras, per_image = trained_cameras(model, loader.world, views.train)
             (out / "cameras").mkdir(exist_ok=True)
@@ -289,6 +295,10 @@ class TrainStage(Stage):
             "train_seconds": round(trainer.elapsed, 2),
             "samples_per_s": round(trainer.total_samples / max(trainer.elapsed, 1e-9)),
             "samples_per_ray": round(trainer.total_samples / max(trainer.total_rays, 1), 2),
+            # what a step is spent on: the rays drawn, and how often each training pixel was drawn on average
+            "rays": trainer.total_rays,
+            "rays_per_s": round(trainer.total_rays / max(trainer.elapsed, 1e-9)),
+            "rays_per_pixel": round(trainer.total_rays / max(int(pixels.rgb.shape[0]), 1), 4),
             "field": model.field_kind,
             "occupancy": model.sampler.stats().get("occupancy"),
             "device": str(device),

@@ -133,7 +133,7 @@ def test_a_config_file_sets_parameters_set_wins_and_the_run_writes_its_own(captu
     written = yaml.safe_load((run_dir / "config.yaml").read_text())
     assert written["ingest"]["max_size"] == 300  # --set won
     assert written["train"]["field.levels"] == 2 and written["train"]["optim.lr"] == 0.01
-    assert written["render"]["frames"] == 40 and len(written) == 11  # the budget, every parameter of every stage
+    assert written["render"]["frames"] == 45 and len(written) == 11  # the budget, every parameter of every stage
     # the budget as asked (auto), and not the train.seconds it sets, so the file repeats the run as it was asked
     assert written["budget"] == "auto" and "seconds" not in written["train"] and "steps" not in written["train"]
     again = run_cli("run", capture, "--out", run_dir, "--config", run_dir / "config.yaml", "--until", "ingest")

@@ -128,7 +128,7 @@ def run_render(tmp_path: Path, layout: str, photometric: str = "srgb", allotment
     out.mkdir()
     calls: list = []
     ctx = StageContext(log=logging.getLogger("test"), progress=count_progress(calls), allotment=allotment)
-    summary = RenderStage().run(inputs, out, RenderParams(frames=4, scale=0.5, device="cpu", **params), ctx)
+    summary = RenderStage().run(inputs, out, RenderParams(frames=4, short_side=0, scale=0.5, device="cpu", **params), ctx)
     return out, summary, calls
 
 
@@ -280,8 +280,14 @@ def test_params_presets_and_errors(tmp_path: Path) -> None:
     photo = Camera.pinhole(100, 100, 50, 37, 101, 75)
     assert render_size(photo, 0.5) == (50, 38)  # even sides: 50.5 -> 50, 37.5 -> 38
     assert render_size(photo, 2.0, max_side=80) == (80, 60)  # 202 x 150 shrunk to fit 80: 80 x 59.4 -> 60
-    # the default cap: half of 1600 x 1200 is 800 x 600, shrunk to 320 x 240 (the demo renders 40 of them in about 50 s)
-    assert render_size(Camera.pinhole(1e3, 1e3, 800, 600, 1600, 1200), 0.5, RenderParams().max_side) == (320, 240)
+    # the default: 360 pixels on the short side, whatever the photos' size, for 3 s
+    default = RenderParams()
+    assert render_size(Camera.pinhole(1e3, 1e3, 800, 600, 1600, 1200), default.scale, default.max_side,
+                       default.short_side) == (480, 360)
+    assert render_size(Camera.pinhole(1e3, 1e3, 360, 640, 720, 1280), default.scale, default.max_side,
+                       default.short_side) == (360, 640)
+    assert render_size(photo, default.scale, default.max_side, default.short_side) == (484, 360)  # 484.8 -> 484
+    assert default.frames / default.fps >= 3.0
     if not torch.cuda.is_available():
         inputs = write_scene(tmp_path, "inward360")
         with pytest.raises(StageError, match="render.device=cuda"):

@@ -124,6 +124,8 @@ def test_training_writes_model_metrics_and_held_out_renders(tmp_path: Path, capl
     assert 0.0 < metrics["ssim"] <= 1.0
     log = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in log] == list(range(25, 301, 25))
+    # 300 steps of 256 rays (hierarchical sampling: a fixed batch), over 100 training photos of 32 x 32 pixels
+    assert metrics["rays"] == 300 * 256 and metrics["rays_per_pixel"] == 0.75
     assert all(r["wall"] > 0 and np.isfinite(r["loss"]) for r in log)
     assert [r["wall"] for r in log] == sorted(r["wall"] for r in log)
     # checkpoints and the model load with weights_only=True, and the model renders

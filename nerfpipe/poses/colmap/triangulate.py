@@ -118,7 +118,8 @@ def triangulate_in(
     names = [f.name for f in cameras.frames]
     by_name = {r["name"]: r for r in records}
     matcher, why = choose_triangulation_matcher([by_name[n] for n in names], params)
-    info: dict[str, Any] = {"photos": len(names), "matcher": matcher, "matcher_reason": why}
+    info: dict[str, Any] = {"photos": len(names), "matcher": matcher, "matcher_reason": why,
+                            "max_image_size": min(params.triangulate_max_size, params.max_image_size)}
     if len(names) < 2:
         return None, {**info, "status": "failed", "reason": f"triangulation needs 2 posed photos, the pose file has {len(names)}"}
     colmap_dir = work / "colmap"
@@ -127,12 +128,13 @@ def triangulate_in(
     pycolmap.set_random_seed(params.seed)
     pycolmap.Database.open(database).close()
     extraction = pycolmap.FeatureExtractionOptions()
-    extraction.max_image_size = params.max_image_size
+    extraction.max_image_size = min(params.triangulate_max_size, params.max_image_size)
     extraction.sift.max_num_features = params.max_features
     options = pycolmap.IncrementalPipelineOptions()
     options.random_seed = params.seed
     options.mapper.random_seed = params.seed
-    ctx.log.info("sfm: triangulating points for the %d known poses: SIFT, %s matching (%s)", len(names), matcher, why)
+    ctx.log.info("sfm: triangulating points for the %d known poses: SIFT at %d px, %s matching (%s)", len(names),
+                 extraction.max_image_size, matcher, why)
     model = known_poses_model(cameras)
     try:
         with colmap_log(log_path):
