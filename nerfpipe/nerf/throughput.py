@@ -14,6 +14,7 @@ from nerfpipe.nerf.rays import RayBatch, pixel_centers
 
 PROBE_RAYS = 4096  # rays timed to predict what rendering whole views costs
 WARM_UP_RAYS = 256
+VIEW_RAYS = 1 << 18  # a larger view is timed at a smaller size with the same field of view (a 4K frame: 8.3 M rays)
 
 
 def _probe(model: RadianceModel, intrinsics: tuple[float, float, float, float], c2w: np.ndarray, width: int,
@@ -21,7 +22,8 @@ def _probe(model: RadianceModel, intrinsics: tuple[float, float, float, float], 
     """The rays of ``rays`` pixels of the pinhole view, spread evenly over it."""
     device = model.device
     uv = pixel_centers(width, height, device)
-    uv = uv[torch.linspace(0, len(uv) - 1, min(rays, len(uv)), device=device).long()]
+    n = min(rays, len(uv))  # evenly spaced, in integers: float32 steps past 2^24 pixels round beyond the last
+    uv = uv[torch.arange(n, device=device) * (len(uv) - 1) // max(n - 1, 1)]
     n = len(uv)
     k = torch.tensor(intrinsics, dtype=torch.float32, device=device).expand(n, 4)
     pose = torch.as_tensor(np.asarray(c2w), dtype=torch.float32, device=device)
@@ -49,11 +51,16 @@ def seconds_per_ray(model: RadianceModel, intrinsics: tuple[float, float, float,
 def seconds_per_view(model: RadianceModel, intrinsics: tuple[float, float, float, float], c2w: np.ndarray,
                      width: int, height: int, near: float, far: float, chunk: int) -> float:
     """Seconds ``model`` takes to render the whole pinhole view (as ``seconds_per_ray`` takes its arguments),
-    timed on that view after a short warm-up. Dearer than ``seconds_per_ray`` by the view's size, and closer:
+    timed on that view after a short warm-up (a view of more than ``VIEW_RAYS`` pixels on the same view at
+    that many, its time scaled by the pixels). Dearer than ``seconds_per_ray`` by the view's size, and closer:
     a chunk of neighbouring pixels marches alike, where a probe of pixels spread over the view pays for the
     ray with the most samples in each chunk."""
     model.render_rays(_probe(model, intrinsics, c2w, width, height, near, far, WARM_UP_RAYS), chunk)
     synchronize(model.device)
+    shrink = min(1.0, (VIEW_RAYS / max(width * height, 1)) ** 0.5)  # timing a huge view would cost what it predicts
+    small = (max(1, round(width * shrink)), max(1, round(height * shrink)))
+    sx, sy = small[0] / width, small[1] / height
     started = time.perf_counter()
-    model.render_image(intrinsics, c2w, width, height, near, far, chunk)
-    return time.perf_counter() - started
+    model.render_image((intrinsics[0] * sx, intrinsics[1] * sy, intrinsics[2] * sx, intrinsics[3] * sy), c2w, *small,
+                       near, far, chunk)
+    return (time.perf_counter() - started) * (width * height) / (small[0] * small[1])

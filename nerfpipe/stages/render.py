@@ -50,8 +50,8 @@ VIDEO_FLOOR_SIDE = 360
 class RenderParams:
     frames: int = field(default=45, metadata={"bounds": (1, 100_000), "help": "frames along the path (45 at 15 fps: 3 s)"})
     fps: float = field(default=15.0, metadata={"bounds": (1.0, 240.0), "help": "frames per second of the videos"})
-    short_side: int = field(default=VIDEO_FLOOR_SIDE, metadata={"bounds": (0, 16_384), "help": "the frames' short side in pixels, the "
-                            "first training camera's aspect kept (360: the least worth watching); 0: its size times scale"})
+    short_side: int = field(default=VIDEO_FLOOR_SIDE, metadata={"bounds": (0, 4320), "help": "the frames' short side in pixels, the "
+                            "first training camera's aspect kept (360: the least worth watching; 4320: 8K); 0: its size times scale"})
     scale: float = field(default=0.5, metadata={"bounds": (0.01, 4.0), "help": "with short_side 0: render size relative to the first training camera (0.5: half width and height)"})
     max_side: int = field(default=0, metadata={"bounds": (0, 16_384), "help": "with short_side 0: cap on the longest side of the render in pixels, after scale (0: none)"})
     path: str = field(

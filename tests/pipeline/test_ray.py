@@ -31,7 +31,7 @@ SMALL = {
     "train": {"steps": 150, "batch_rays": 512, "checkpoint_every": 50, "eval_stride": 25, "keep_checkpoints": 0},
     "export_mesh": {"resolution": 48, "density_threshold": 2},
     "export_points": {"acc_threshold": 0.5},
-    "render": {"frames": 3},
+    "render": {"frames": 3, "short_side": 0},
 }
 
 

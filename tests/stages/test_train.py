@@ -186,7 +186,7 @@ def test_nerfpipe_run_on_the_bundled_capture_trains_evaluates_and_exports(tmp_pa
     # exports sized for a tiny field: its densities stay low, so the mesh threshold and opacity cut are too
     args += ["--set=export_mesh.resolution=64", "--set=export_mesh.density_threshold=2",
              "--set=export_mesh.watertight=true",
-             "--set=export_points.acc_threshold=0.5", "--set=render.frames=4"]
+             "--set=export_points.acc_threshold=0.5", "--set=render.frames=4", "--set=render.short_side=0"]
     port = free_port()
     result = run_cli("run", TEMPLE, "--out", run_dir, *args, "--view", "--port", str(port), timeout=1200)
     assert result.returncode == 0, result.stderr[-3000:]
