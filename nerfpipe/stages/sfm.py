@@ -59,9 +59,9 @@ class SfmParams:
                           "camera ring, which the rig box holds); true also replaces a model's own points; false never"},
     )
     triangulate_max_size: int = field(
-        default=640, metadata={"bounds": (64, 16_384), "help": "imported poses: SIFT for the triangulated points at this longest "
-                               "side (at most max_image_size): the points only bound the scene, and at 640 px the "
-                               "cup's scene box is within 1 % of 1024 px's in 0.6x the time (docs/benchmarks.md)"}
+        default=1024, metadata={"bounds": (64, 16_384), "help": "imported poses: SIFT for the triangulated points at this "
+                                "longest side (at most max_image_size); 640 takes 0.6x the time, but the cup's "
+                                "held-out views lost 0.5 dB with its points (docs/benchmarks.md)"}
     )
     min_triangulated_points: int = field(
         default=100, metadata={"bounds": (0, 10_000_000), "help": "fewer triangulated points than this: keep none and say so (bounds then use "
@@ -85,7 +85,7 @@ class SfmStage(Stage):
     """Camera poses + sparse points: COLMAP SfM through pycolmap, or the capture's own pose files."""
 
     name = "sfm"
-    version = 6  # 6: points for known poses from SIFT at 640 px; 5: LLFF poses triangulated too; 4: known poses matched with their nearest cameras; 3: triangulated points
+    version = 6  # 6: sfm.triangulate_max_size; 5: LLFF poses triangulated too; 4: known poses matched with their nearest cameras; 3: triangulated points
     Params = SfmParams
     presets = {
         "draft": {"max_image_size": 800, "max_features": 4096},

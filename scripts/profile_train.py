@@ -1,0 +1,73 @@
+"""Where a training step's time goes: torch.profiler's table of operators over a window of steps.
+
+Run by hand from the repository root, with ../shared beside it:
+
+    python scripts/profile_train.py --capture ../shared/data/colmap_beer_yhuoyuh --size 1600
+    python scripts/profile_train.py --capture ../shared/data/middlebury_templeSparseRing --size 640 --steps 100
+
+It trains the train stage's model (as ``nerfpipe run`` builds it) for ``--warm-up`` steps, so the occupancy grid
+has learned where the scene is, then profiles ``--steps`` more: the operators by their own CPU time, and the
+steps, rays and samples a second of the profiled window (slowed a little by the profiler itself).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+BEER = REPO.parent / "shared" / "data" / "colmap_beer_yhuoyuh"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--capture", type=Path, default=BEER)
+    parser.add_argument("--size", type=int, default=1600, help="ingest.max_size")
+    parser.add_argument("--warm-up", type=int, default=300, help="training steps before the profile")
+    parser.add_argument("--steps", type=int, default=60, help="training steps profiled")
+    parser.add_argument("--rows", type=int, default=25, help="operators listed")
+    parser.add_argument("--set", dest="sets", action="append", default=[], help="stage.param=value, as for run")
+    parser.add_argument("--out", type=Path, default=None, help="run directory for the stages up to scene")
+    args = parser.parse_args()
+
+    from nerfpipe.nerf.cpu import flush_denormals, keep_freed_memory
+
+    keep_freed_memory()
+    with flush_denormals():
+        profile(args)
+
+
+def profile(args: argparse.Namespace) -> None:
+    from torch.profiler import ProfilerActivity
+    from torch.profiler import profile as torch_profile
+
+    from nerfpipe import Pipeline, default_stages
+    from nerfpipe.bench.worker import prepare
+    from nerfpipe.nerf.trainer import Trainer
+    from nerfpipe.pipeline.params import parse_assignments
+
+    overrides = parse_assignments(args.sets)
+    overrides.setdefault("ingest", {})["max_size"] = str(args.size)
+    run_dir = args.out or Path(tempfile.mkdtemp(prefix="nerfpipe-profile-"))
+    Pipeline(default_stages(), args.capture, run_dir, None, {k: v for k, v in overrides.items() if k != "train"}).run(
+        until="scene")
+    setup = prepare({"capture": str(args.capture), "run_dir": str(run_dir), "overrides": overrides, "eval_views": 0,
+                     "budget": 3600})
+    with tempfile.TemporaryDirectory() as scratch:
+        trainer = Trainer(setup.model, setup.loader.pixel_set(setup.views.train), setup.config, Path(scratch),
+                          setup.device)
+        trainer.run(after_step=lambda t: t.step >= args.warm_up)
+        step0, elapsed0, rays0, samples0 = trainer.step, trainer.elapsed, trainer.total_rays, trainer.total_samples
+        with torch_profile(activities=[ProfilerActivity.CPU]) as prof:
+            trainer.run(after_step=lambda t: t.step >= step0 + args.steps)
+    print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=args.rows))
+    seconds = max(trainer.elapsed - elapsed0, 1e-9)
+    rays, samples = trainer.total_rays - rays0, trainer.total_samples - samples0
+    print(f"{args.capture.name}: {(trainer.step - step0) / seconds:.1f} steps/s, {rays / seconds:.0f} rays/s, "
+          f"{samples / seconds:.0f} samples/s, {samples / max(rays, 1):.2f} samples a ray, "
+          f"{trainer.model.sampler.stats()}")
+
+
+if __name__ == "__main__":
+    main()
