@@ -43,18 +43,10 @@ def main() -> None:
 
 
 def compare(args: argparse.Namespace) -> None:
-    from nerfpipe import Pipeline, default_stages
-    from nerfpipe.bench.worker import prepare, train
+    from nerfpipe.bench.worker import prepare_capture, train
     from nerfpipe.nerf.evaluation import evaluate
-    from nerfpipe.pipeline.params import parse_assignments
 
-    overrides = parse_assignments(args.sets)
-    overrides.setdefault("ingest", {})["max_size"] = str(args.size)
-    run_dir = args.out / f"run_{args.capture.name}"
-    Pipeline(default_stages(), args.capture, run_dir, None, {k: v for k, v in overrides.items() if k != "train"}).run(
-        until="scene")
-    setup = prepare({"capture": str(args.capture), "run_dir": str(run_dir), "overrides": overrides, "eval_views": 0,
-                     "budget": args.seconds})
+    setup = prepare_capture(args.capture, args.out / f"run_{args.capture.name}", args.size, args.sets, args.seconds)
     setup.config = dataclasses.replace(setup.config, seconds=args.seconds)
     trainer, _, _ = train(setup, args.seconds, [])
     started = time.perf_counter()

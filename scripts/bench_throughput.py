@@ -47,21 +47,15 @@ def main() -> None:
 def measure(args: argparse.Namespace) -> None:
     import numpy as np
 
-    from nerfpipe import Pipeline, default_stages
-    from nerfpipe.bench.worker import prepare
+    from nerfpipe.bench.worker import prepare_capture
     from nerfpipe.export.paths import path_for_scene
     from nerfpipe.nerf.evaluation import evaluate
     from nerfpipe.nerf.trainer import Trainer
-    from nerfpipe.pipeline.params import parse_assignments
     from nerfpipe.pipeline.stage import StageContext
     from nerfpipe.stages.render import RenderParams, render_frames, render_size
 
-    overrides = parse_assignments(args.sets)
-    overrides.setdefault("ingest", {})["max_size"] = str(args.size)
     run_dir = args.out or Path(tempfile.mkdtemp(prefix="nerfpipe-throughput-"))
-    shared = {k: v for k, v in overrides.items() if k != "train"}
-    Pipeline(default_stages(), args.capture, run_dir, None, shared).run(until="scene")
-    setup = prepare({"capture": str(args.capture), "run_dir": str(run_dir), "overrides": overrides, "eval_views": 0, "budget": args.seconds + args.window + 60})
+    setup = prepare_capture(args.capture, run_dir, args.size, args.sets, args.seconds + args.window + 60)
     model = setup.model
     with tempfile.TemporaryDirectory() as scratch:
         trainer = Trainer(model, setup.loader.pixel_set(setup.views.train), setup.config, Path(scratch), setup.device)
@@ -86,7 +80,7 @@ def measure(args: argparse.Namespace) -> None:
     lo, hi = bounds.box()
     poses, _ = path_for_scene(layout, c2ws, bounds.near, bounds.far, (lo + hi) / 2.0, args.frames)
     camera = world.camera_of(world.frames[0])
-    width, height = render_size(camera, render.scale, render.max_side)
+    width, height = render_size(camera, render.scale, render.max_side, render.short_side)
     scaled = camera.scaled(width / camera.width, height / camera.height)
     ctx = StageContext(log=logging.getLogger("bench"))
     with tempfile.TemporaryDirectory() as frames:

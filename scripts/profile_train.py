@@ -42,18 +42,11 @@ def profile(args: argparse.Namespace) -> None:
     from torch.profiler import ProfilerActivity
     from torch.profiler import profile as torch_profile
 
-    from nerfpipe import Pipeline, default_stages
-    from nerfpipe.bench.worker import prepare
+    from nerfpipe.bench.worker import prepare_capture
     from nerfpipe.nerf.trainer import Trainer
-    from nerfpipe.pipeline.params import parse_assignments
 
-    overrides = parse_assignments(args.sets)
-    overrides.setdefault("ingest", {})["max_size"] = str(args.size)
     run_dir = args.out or Path(tempfile.mkdtemp(prefix="nerfpipe-profile-"))
-    Pipeline(default_stages(), args.capture, run_dir, None, {k: v for k, v in overrides.items() if k != "train"}).run(
-        until="scene")
-    setup = prepare({"capture": str(args.capture), "run_dir": str(run_dir), "overrides": overrides, "eval_views": 0,
-                     "budget": 3600})
+    setup = prepare_capture(args.capture, run_dir, args.size, args.sets, 3600)
     with tempfile.TemporaryDirectory() as scratch:
         trainer = Trainer(setup.model, setup.loader.pixel_set(setup.views.train), setup.config, Path(scratch),
                           setup.device)

@@ -80,6 +80,20 @@ def prepare(spec: dict[str, Any]) -> Setup:
     return Setup(device, loader, views, heldout, model, decisions, config, params.chunk)
 
 
+def prepare_capture(capture: Path, run_dir: Path, size: int, sets: list[str], budget: float) -> Setup:
+    """``prepare`` for the scripts: ``--set`` assignments and ``ingest.max_size`` as overrides, the stages up to
+    scene run (or reused) in ``run_dir`` first."""
+    from nerfpipe import Pipeline, default_stages
+    from nerfpipe.pipeline.params import parse_assignments
+
+    overrides = parse_assignments(sets)
+    overrides.setdefault("ingest", {})["max_size"] = str(size)
+    Pipeline(default_stages(), capture, run_dir, None, {k: v for k, v in overrides.items() if k != "train"}).run(
+        until="scene")
+    return prepare({"capture": str(capture), "run_dir": str(run_dir), "overrides": overrides, "eval_views": 0,
+                    "budget": budget})
+
+
 def train(setup: Setup, budget: float, marks: list[float]) -> tuple[Trainer, list[dict[str, Any]], int]:
     """Train for at most ``budget`` seconds, copying the model at each of ``marks`` (seconds of training) and
     where training ended. Returns the trainer, the copies and the peak memory in bytes."""
