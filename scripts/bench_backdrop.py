@@ -24,7 +24,7 @@ from nerfpipe.artifacts import Bounds, ViewSplit
 from nerfpipe.export.foreground import foreground_share, training_views
 from nerfpipe.export.mesh import read_mesh
 from nerfpipe.export.points import read_ply
-from nerfpipe.nerf.images import ImageLoader
+from nerfpipe.nerf.train.images import ImageLoader
 from nerfpipe.pipeline import Pipeline
 
 

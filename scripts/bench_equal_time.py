@@ -44,7 +44,7 @@ def main() -> None:
 
 def compare(args: argparse.Namespace) -> None:
     from nerfpipe.bench.worker import prepare_capture, train
-    from nerfpipe.nerf.evaluation import evaluate
+    from nerfpipe.nerf.train.evaluation import evaluate
 
     setup = prepare_capture(args.capture, args.out / f"run_{args.capture.name}", args.size, args.sets, args.seconds)
     setup.config = dataclasses.replace(setup.config, seconds=args.seconds)

@@ -9,7 +9,7 @@ Samples along random rays through the unit cube (``--rays`` x ``--samples``), th
 default field's levels (32^3, 64^3 and 128^3 cells, one stacked table of 2,457,251 rows of 4 features), and a
 random gradient of their features; then each way of summing the corners' contributions into the table's
 gradient, in milliseconds per call (best of ``--repeat`` after one untimed call). The field's own is
-``index_add_`` (``nerfpipe.nerf.grid_field._Trilinear.backward``).
+``index_add_`` (``nerfpipe.nerf.fields.grid._Trilinear.backward``).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ def main() -> None:
     import torch
 
     from nerfpipe.nerf.config import level_resolutions
-    from nerfpipe.nerf.grid_field import trilinear_corners
+    from nerfpipe.nerf.fields.grid import trilinear_corners
 
     torch.manual_seed(0)
     resolutions = level_resolutions(3, 32, 128)

@@ -49,8 +49,8 @@ def measure(args: argparse.Namespace) -> None:
 
     from nerfpipe.bench.worker import prepare_capture
     from nerfpipe.export.paths import path_for_scene
-    from nerfpipe.nerf.evaluation import evaluate
-    from nerfpipe.nerf.trainer import Trainer
+    from nerfpipe.nerf.train.evaluation import evaluate
+    from nerfpipe.nerf.train.trainer import Trainer
     from nerfpipe.pipeline.stage import StageContext
     from nerfpipe.stages.render import RenderParams, render_frames, render_size
 

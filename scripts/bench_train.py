@@ -30,7 +30,7 @@ import torch
 from nerfpipe import Pipeline, default_stages
 from nerfpipe.nerf.cpu import keep_freed_memory
 from nerfpipe.nerf.device import resolve_device
-from nerfpipe.nerf.field import FieldConfig, NerfField
+from nerfpipe.nerf.fields.mlp import FieldConfig, NerfField
 from nerfpipe.pipeline.params import parse_assignments
 
 REPO = Path(__file__).resolve().parents[1]

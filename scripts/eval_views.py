@@ -8,7 +8,7 @@ Run by hand from the repository root:
 A field that scores its training views far above its held-out ones generalizes badly between photos
 (floaters, pose errors); one that scores both alike underfits. It renders every ``len(train) / views``-th
 training view and the first ``views`` held-out views at ``scale`` of their size with the train stage's own
-evaluation (``nerfpipe.nerf.evaluation.evaluate``), and writes them beside their photos in ``--out``. With
+evaluation (``nerfpipe.nerf.train.evaluation.evaluate``), and writes them beside their photos in ``--out``. With
 ``--thirds``, it also prints the PSNR of each kind's top thirds and of the rest, the squared error pooled over
 the views (a phone capture's walls and sky are in the top third, its subject and floor below).
 """
@@ -24,8 +24,8 @@ import torch
 from nerfpipe.artifacts import Bounds, SceneDecisions, ViewSplit
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.imaging.png import read_png
-from nerfpipe.nerf.evaluation import evaluate
-from nerfpipe.nerf.images import ImageLoader
+from nerfpipe.nerf.train.evaluation import evaluate
+from nerfpipe.nerf.train.images import ImageLoader
 from nerfpipe.nerf.model import RadianceModel
 
 

@@ -43,7 +43,7 @@ def profile(args: argparse.Namespace) -> None:
     from torch.profiler import profile as torch_profile
 
     from nerfpipe.bench.worker import prepare_capture
-    from nerfpipe.nerf.trainer import Trainer
+    from nerfpipe.nerf.train.trainer import Trainer
 
     run_dir = args.out or Path(tempfile.mkdtemp(prefix="nerfpipe-profile-"))
     setup = prepare_capture(args.capture, run_dir, args.size, args.sets, 3600)

@@ -30,11 +30,11 @@ def main() -> None:
     import torch
 
     from nerfpipe import Pipeline, default_stages
-    from nerfpipe.nerf.images import ImageLoader, split_views
-    from nerfpipe.nerf.marching import march, visible
+    from nerfpipe.nerf.train.images import ImageLoader, split_views
+    from nerfpipe.nerf.samplers.march import march, visible
     from nerfpipe.nerf.model import RadianceModel
-    from nerfpipe.nerf.ray_space import ContractedSpace
-    from nerfpipe.nerf.rendering import optical_depth
+    from nerfpipe.nerf.spaces.ray_space import ContractedSpace
+    from nerfpipe.nerf.render.volume import optical_depth
 
     pipe = Pipeline.from_run_dir(default_stages(), args.run)
     params = pipe.plan()["train"].params

@@ -24,7 +24,7 @@ import json, os, resource, signal, sys
 import nerfpipe.cli.main, nerfpipe.stages, torch  # imported once, before any fork
 # what the stages import when they run, so that no child pays for it again
 import av, cv2, kornia, matplotlib.pyplot, open3d, pycolmap, scipy.interpolate, scipy.spatial, trimesh
-import nerfpipe.export.mesh, nerfpipe.export.texture, nerfpipe.nerf.assembly, nerfpipe.nerf.trainer, nerfpipe.report
+import nerfpipe.export.mesh, nerfpipe.export.texture, nerfpipe.nerf.policy, nerfpipe.nerf.train.trainer, nerfpipe.report
 # first uses that load more (torch's optimizers import its compiler; matplotlib's first 3D figure its toolkit and
 # fonts): done once here, computing nothing worth a thread
 import io, matplotlib

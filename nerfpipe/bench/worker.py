@@ -24,9 +24,9 @@ if TYPE_CHECKING:  # torch is imported once the CPU settings are made (``run``)
     import torch
 
     from nerfpipe.geometry.cameras import Frame
-    from nerfpipe.nerf.images import ImageLoader, Views
+    from nerfpipe.nerf.train.images import ImageLoader, Views
     from nerfpipe.nerf.model import RadianceModel
-    from nerfpipe.nerf.trainer import TrainConfig, Trainer
+    from nerfpipe.nerf.train.trainer import TrainConfig, Trainer
 
 
 def run(spec: dict[str, Any]) -> dict[str, Any]:
@@ -57,9 +57,9 @@ def prepare(spec: dict[str, Any]) -> Setup:
     import numpy as np
 
     from nerfpipe import Pipeline, default_stages
-    from nerfpipe.nerf.assembly import build_model, training_config
+    from nerfpipe.nerf.policy import build_model, training_config
     from nerfpipe.nerf.device import resolve_device
-    from nerfpipe.nerf.images import ImageLoader, split_views
+    from nerfpipe.nerf.train.images import ImageLoader, split_views
 
     pipe = Pipeline(default_stages(), Path(spec["capture"]), Path(spec["run_dir"]), None, spec["overrides"])
     params = pipe.plan()["train"].params
@@ -99,7 +99,7 @@ def train(setup: Setup, budget: float, marks: list[float]) -> tuple[Trainer, lis
     where training ended. Returns the trainer, the copies and the peak memory in bytes."""
     import torch
 
-    from nerfpipe.nerf.trainer import Trainer
+    from nerfpipe.nerf.train.trainer import Trainer
 
     marks = sorted(marks)
     snapshots: list[dict[str, Any]] = []
@@ -128,7 +128,7 @@ def train(setup: Setup, budget: float, marks: list[float]) -> tuple[Trainer, lis
 
 def evaluate_snapshots(setup: Setup, snapshots: list[dict[str, Any]], name: str) -> tuple[list[dict[str, Any]], float | None]:
     """Each copy's held-out PSNR and SSIM; and the seconds to render a held-out view (of the last copy)."""
-    from nerfpipe.nerf.evaluation import evaluate
+    from nerfpipe.nerf.train.evaluation import evaluate
 
     points = []
     render_seconds = None

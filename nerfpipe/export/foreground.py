@@ -14,7 +14,7 @@ import numpy as np
 
 from nerfpipe.export.views import ViewCamera
 from nerfpipe.imaging.masks import dilate
-from nerfpipe.nerf.images import ImageLoader
+from nerfpipe.nerf.train.images import ImageLoader
 
 
 @dataclass(frozen=True)

@@ -63,7 +63,7 @@ class ExposureGains(nn.Module):
 
 def fit_gains(render: Tensor, target: Tensor, linear: bool, iterations: int = 60) -> Tensor:
     """The gains (3,) under which ``render`` (N, 3) best matches ``target`` (N, 3) in squared error: a held-out
-    photo's exposure and white balance, fitted on part of it (``nerfpipe.nerf.evaluation``). L-BFGS on
+    photo's exposure and white balance, fitted on part of it (``nerfpipe.nerf.train.evaluation``). L-BFGS on
     log2 gains from 0; pixels saturated in either image carry no gradient, as they carry no exposure."""
     log2 = torch.zeros(3, dtype=torch.float32, requires_grad=True)
     render, target = render.detach().float(), target.detach().float()

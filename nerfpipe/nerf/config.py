@@ -1,8 +1,8 @@
 """The train stage's parameter groups, as ``--set train.GROUP.NAME=VALUE`` names them.
 
 Each group is the user-facing configuration of one part of the model, validated here once:
-``field`` (``nerfpipe.nerf.fields``), ``sampler`` (``nerfpipe.nerf.samplers``), ``space`` (the ray space
-and scene box, ``nerfpipe.nerf.assembly``), ``optim`` (``nerfpipe.nerf.trainer``) and ``per_image``
+``field`` (``nerfpipe.nerf.fields.base``), ``sampler`` (``nerfpipe.nerf.samplers.base``), ``space`` (the ray space
+and scene box, ``nerfpipe.nerf.policy``), ``optim`` (``nerfpipe.nerf.train.trainer``) and ``per_image``
 (``nerfpipe.nerf.appearance``, ``nerfpipe.nerf.refinement``). This module imports no torch, so listing
 the parameters (``nerfpipe stages``) stays quick and training can set torch's CPU state before torch runs.
 """

@@ -18,13 +18,13 @@ import torch
 from torch import Tensor
 
 from nerfpipe.nerf.appearance import ExposureGains
-from nerfpipe.nerf.fields import Field, field_spec
-from nerfpipe.nerf.ray_space import RaySpace
-from nerfpipe.nerf.rays import RayBatch, pixel_centers
+from nerfpipe.nerf.fields.base import Field, field_spec
+from nerfpipe.nerf.spaces.ray_space import RaySpace
+from nerfpipe.nerf.spaces.rays import RayBatch, pixel_centers
 from nerfpipe.nerf.refinement import PoseRefinement
 from nerfpipe.nerf.registry import FIELDS, SAMPLERS, resolve
-from nerfpipe.nerf.rendering import RaySamples, RenderOutput, volume_render
-from nerfpipe.nerf.samplers import Sampler
+from nerfpipe.nerf.render.volume import RaySamples, RenderOutput, volume_render
+from nerfpipe.nerf.samplers.base import Sampler
 from nerfpipe.nerf.spec import ModelSpec
 from nerfpipe.pipeline.errors import InputError
 
@@ -46,9 +46,9 @@ class RadianceModel:
     """Coarse (and fine) fields, the sampler that says where along each ray to evaluate them, the background
     they are composited onto, and the ray space the scene analysis chose.
 
-    ``sampler``: ``nerfpipe.nerf.samplers`` (Section 5.2's hierarchical sampling, or marching an occupancy
+    ``sampler``: ``nerfpipe.nerf.samplers.base`` (Section 5.2's hierarchical sampling, or marching an occupancy
     grid with the coarse field only). Learned per training image when the scene calls for them
-    (``nerfpipe.nerf.assembly``): ``appearance``, each photo's exposure and white balance (renders show the
+    (``nerfpipe.nerf.policy``): ``appearance``, each photo's exposure and white balance (renders show the
     training photos' mean appearance), and ``refinement``, each camera's pose correction.
     """
 

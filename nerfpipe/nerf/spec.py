@@ -1,5 +1,5 @@
 """A model's resolved decisions: which field, sampler, ray space and background, and what is learned per
-image. ``nerfpipe.nerf.assembly.resolve`` makes one from the scene's decisions and the train parameters,
+image. ``nerfpipe.nerf.policy.resolve`` makes one from the scene's decisions and the train parameters,
 ``nerfpipe.nerf.model.build`` makes the model from it, and ``model.json`` stores it, so that training,
 loading, ``nerfpipe bench`` and every export build a model the same way."""
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from nerfpipe.nerf.ray_space import RaySpace, space_from_json
+from nerfpipe.nerf.spaces.ray_space import RaySpace, space_from_json
 
 @dataclass(frozen=True)
 class ModelSpec:

@@ -10,7 +10,7 @@ import torch
 
 from nerfpipe.nerf.device import synchronize
 from nerfpipe.nerf.model import RadianceModel
-from nerfpipe.nerf.rays import RayBatch, pixel_centers
+from nerfpipe.nerf.spaces.rays import RayBatch, pixel_centers
 
 PROBE_RAYS = 4096  # rays timed to predict what rendering whole views costs
 WARM_UP_RAYS = 256

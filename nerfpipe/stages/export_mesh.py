@@ -294,7 +294,7 @@ def bake_and_score(inputs: StageInputs, mesh: Any, params: ExportMeshParams, ctx
     from nerfpipe.export.texture import Photo, bake, render
     from nerfpipe.geometry.cameras import CameraSet
     from nerfpipe.imaging.png import read_png
-    from nerfpipe.nerf.images import ImageLoader
+    from nerfpipe.nerf.train.images import ImageLoader
 
     began = time.perf_counter()
     cameras = CameraSet.load(inputs["cameras"])

@@ -225,10 +225,10 @@ class TrainStage(Stage):
 
     def _run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext, device) -> dict[str, Any]:
         started = time.monotonic()
-        from nerfpipe.nerf.assembly import build_model, training_config
-        from nerfpipe.nerf.evaluation import evaluate, evaluation_scale, scaled_size
-        from nerfpipe.nerf.images import ImageLoader, describe_masks, split_views, trained_cameras
-        from nerfpipe.nerf.trainer import Trainer
+        from nerfpipe.nerf.policy import build_model, training_config
+        from nerfpipe.nerf.train.evaluation import evaluate, evaluation_scale, scaled_size
+        from nerfpipe.nerf.train.images import ImageLoader, describe_masks, split_views, trained_cameras
+        from nerfpipe.nerf.train.trainer import Trainer
 
         loader = ImageLoader.from_inputs(inputs)
         layout = loader.scene.layout.value

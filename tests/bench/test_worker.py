@@ -10,7 +10,7 @@ import pytest
 
 from nerfpipe import Pipeline, default_stages
 from nerfpipe.bench import worker
-from nerfpipe.nerf.trainer import Trainer
+from nerfpipe.nerf.train.trainer import Trainer
 from tests.bench.test_run import small_lego
 
 # a few steps of a tiny MLP on 24 px images, with TF32 asked for

@@ -15,7 +15,7 @@ from nerfpipe.export.depth import DepthIndex
 from nerfpipe.export.foreground import ForegroundShare, MaskedView, foreground_share, project, training_views
 from nerfpipe.export.mesh import read_mesh
 from nerfpipe.export.points import read_ply
-from nerfpipe.nerf.images import ImageLoader
+from nerfpipe.nerf.train.images import ImageLoader
 from tests.helpers import TEMPLE
 
 # a 4x4 image, f = 10, principal point at its centre (2, 2); the camera at the origin looking along +z

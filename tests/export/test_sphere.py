@@ -24,11 +24,11 @@ from nerfpipe.export.mesh import (
 from nerfpipe.export.points import clean_cloud, views_to_points
 from nerfpipe.export.points import transformed as cloud_transformed
 from nerfpipe.imaging.png import srgb_decode
-from nerfpipe.nerf.analytic import SphereField
+from nerfpipe.nerf.fields.analytic import SphereField
 from nerfpipe.nerf.model import RadianceModel
-from nerfpipe.nerf.ray_space import BoxSpace
-from nerfpipe.nerf.rays import camera_rays, pixel_centers
-from nerfpipe.nerf.samplers import HierarchicalSampler, SamplingConfig
+from nerfpipe.nerf.spaces.ray_space import BoxSpace
+from nerfpipe.nerf.spaces.rays import camera_rays, pixel_centers
+from nerfpipe.nerf.samplers.base import HierarchicalSampler, SamplingConfig
 from tests.helpers import look_at
 
 CENTER = np.array([0.05, -0.03, 0.02])

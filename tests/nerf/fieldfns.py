@@ -8,9 +8,9 @@ import torch
 from torch import Tensor
 
 from nerfpipe.nerf.model import RadianceModel
-from nerfpipe.nerf.ray_space import BoxSpace
-from nerfpipe.nerf.rays import RayBatch
-from nerfpipe.nerf.rendering import RenderOutput
+from nerfpipe.nerf.spaces.ray_space import BoxSpace
+from nerfpipe.nerf.spaces.rays import RayBatch
+from nerfpipe.nerf.render.volume import RenderOutput
 
 FieldFn = Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]
 

@@ -9,7 +9,7 @@ import numpy as np
 from nerfpipe.artifacts import Bounds, Decision, FrameBounds, SceneDecisions
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, PoseHints
 from nerfpipe.imaging.png import write_png
-from nerfpipe.nerf.images import ImageLoader
+from nerfpipe.nerf.train.images import ImageLoader
 
 
 def scene_of(layout: str, background: str = "none", color=None, photometric: str = "srgb",

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 import torch
 
-from nerfpipe.nerf.assembly import build_model, training_config
+from nerfpipe.nerf.policy import build_model, training_config
 from nerfpipe.nerf.model import RadianceModel
-from nerfpipe.nerf.rays import pixel_centers
+from nerfpipe.nerf.spaces.rays import pixel_centers
 from nerfpipe.nerf.registry import FIELDS, resolve
-from nerfpipe.nerf.trainer import PixelSet, Trainer
+from nerfpipe.nerf.train.trainer import PixelSet, Trainer
 from nerfpipe.pipeline.params import override
 from nerfpipe.stages.train import TrainParams
 from tests.helpers import look_at

@@ -5,11 +5,11 @@ from __future__ import annotations
 import pytest
 import torch
 
-from nerfpipe.nerf.ray_space import NdcSpace
+from nerfpipe.nerf.spaces.ray_space import NdcSpace
 
 
 def test_per_image_exposure_and_camera_corrections_are_saved_and_loaded(tmp_path) -> None:
-    from nerfpipe.nerf.assembly import build_model
+    from nerfpipe.nerf.policy import build_model
     from nerfpipe.nerf.model import RadianceModel
     from nerfpipe.stages.train import TrainParams
     from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
@@ -29,7 +29,7 @@ def test_per_image_exposure_and_camera_corrections_are_saved_and_loaded(tmp_path
 def test_a_model_is_built_from_its_spec_and_the_spec_survives_json(tmp_path) -> None:
     import json
 
-    from nerfpipe.nerf.assembly import build_model, resolve_spec
+    from nerfpipe.nerf.policy import build_model, resolve_spec
     from nerfpipe.nerf.model import RadianceModel, build
     from nerfpipe.nerf.spec import ModelSpec
     from nerfpipe.stages.train import TrainParams
@@ -75,7 +75,7 @@ def test_a_model_pt_holding_python_objects_is_refused_with_one_line(tmp_path, ca
 
 
 def test_a_checkpoint_holding_python_objects_is_passed_over_for_the_one_before(tmp_path, caplog) -> None:
-    from nerfpipe.nerf.checkpoints import load_latest_checkpoint
+    from nerfpipe.nerf.train.checkpoints import load_latest_checkpoint
 
     torch.save({"step": 10, "x": torch.ones(2)}, tmp_path / "step_0000010.pt")
     torch.save({"step": 20, "x": _RunsCode()}, tmp_path / "step_0000020.pt")
@@ -93,8 +93,8 @@ def test_a_checkpoint_holding_python_objects_is_passed_over_for_the_one_before(t
 def test_a_checkpoint_write_that_fails_leaves_no_temporary_file(tmp_path, monkeypatch) -> None:
     import errno
 
-    from nerfpipe.nerf import checkpoints
-    from nerfpipe.nerf.assembly import build_model
+    from nerfpipe.nerf.train import checkpoints
+    from nerfpipe.nerf.policy import build_model
     from nerfpipe.stages.train import TrainParams
     from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
 

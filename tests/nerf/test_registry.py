@@ -12,16 +12,16 @@ import torch
 from torch import nn
 
 from nerfpipe.nerf import registry
-from nerfpipe.nerf.assembly import build_model
+from nerfpipe.nerf.policy import build_model
 from nerfpipe.nerf.model import RadianceModel
-from nerfpipe.nerf.rendering import RaySamples
-from nerfpipe.nerf.samplers import StatelessSampler
-from nerfpipe.nerf.trainer import TrainConfig, Trainer
+from nerfpipe.nerf.render.volume import RaySamples
+from nerfpipe.nerf.samplers.base import StatelessSampler
+from nerfpipe.nerf.train.trainer import TrainConfig, Trainer
 from nerfpipe.pipeline import ParamError
 from nerfpipe.pipeline.params import build_params
 from nerfpipe.stages.train import PRESETS, TrainParams
 from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
-from tests.nerf.test_trainer import pixels_of_one_view
+from tests.nerf.train.test_trainer import pixels_of_one_view
 
 CPU = torch.device("cpu")
 

@@ -17,12 +17,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from torch import nn
 
-from nerfpipe.nerf.encoding import positional_encoding
-from nerfpipe.nerf.field import FieldConfig, NerfField
-from nerfpipe.nerf.rays import RayBatch, ndc_rays
-from nerfpipe.nerf.rendering import RaySamples, optical_depth, volume_render
-from nerfpipe.nerf.samplers import HierarchicalSampler, SamplingConfig
-from nerfpipe.nerf.sampling import sample_intervals, sample_pdf, stratified_samples
+from nerfpipe.nerf.fields.encoding import positional_encoding
+from nerfpipe.nerf.fields.mlp import FieldConfig, NerfField
+from nerfpipe.nerf.spaces.rays import RayBatch, ndc_rays
+from nerfpipe.nerf.render.volume import RaySamples, optical_depth, volume_render
+from nerfpipe.nerf.samplers.base import HierarchicalSampler, SamplingConfig
+from nerfpipe.nerf.samplers.sampling import sample_intervals, sample_pdf, stratified_samples
 from tests.nerf.fieldfns import render_fields
 
 EXTREME_DENSITIES = [0.0, 1e-8, 1e6, 1e10]
@@ -506,7 +506,7 @@ class _Constant(nn.Module):
 
 
 def _box_rays(n: int = 16) -> RayBatch:
-    from nerfpipe.nerf.rays import intersect_box
+    from nerfpipe.nerf.spaces.rays import intersect_box
 
     g = torch.Generator().manual_seed(0)
     o = torch.tensor([0.0, 0.0, 3.0]).expand(n, 3).clone()
@@ -517,8 +517,8 @@ def _box_rays(n: int = 16) -> RayBatch:
 
 def _marching(field: nn.Module, grid, config, space=None):
     from nerfpipe.nerf.model import RadianceModel
-    from nerfpipe.nerf.ray_space import BoxSpace
-    from nerfpipe.nerf.samplers import MarchingSampler
+    from nerfpipe.nerf.spaces.ray_space import BoxSpace
+    from nerfpipe.nerf.samplers.base import MarchingSampler
 
     return RadianceModel(field, None, MarchingSampler(grid, config), space or BoxSpace(), None)
 
@@ -526,7 +526,7 @@ def _marching(field: nn.Module, grid, config, space=None):
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("density", EXTREME_DENSITIES)
 def test_marching_keeps_bounds_and_gradients_at_extreme_densities(mode: str, density: float) -> None:
-    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
+    from nerfpipe.nerf.samplers.occupancy import MarchingConfig, OccupancyGrid
 
     field = _Constant(density)
     grid = OccupancyGrid((-1.0,) * 3, (1.0,) * 3, 8)
@@ -558,7 +558,7 @@ def test_marching_keeps_bounds_and_gradients_at_extreme_densities(mode: str, den
 def test_marching_degenerate_rays_give_the_background() -> None:
     """Zero-length rays (near == far), rays outside the box and an all-empty grid: no samples, the
     background colour, zero opacity, depth at far, and no NaN anywhere, gradients included."""
-    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
+    from nerfpipe.nerf.samplers.occupancy import MarchingConfig, OccupancyGrid
 
     field = _Constant(10.0)
     grid = OccupancyGrid((-1.0,) * 3, (1.0,) * 3, 4)
@@ -589,8 +589,8 @@ def test_marching_degenerate_rays_give_the_background() -> None:
 def test_contracted_marching_keeps_bounds_and_gradients(mode: str, density: float) -> None:
     """World rays from outside the scene box to far bounds up to 1e6 through contracted space, at every
     extreme density: a bounded number of steps, sane composites, finite gradients, depth within [near, far]."""
-    from nerfpipe.nerf.occupancy import MarchingConfig, OccupancyGrid
-    from nerfpipe.nerf.ray_space import ContractedSpace
+    from nerfpipe.nerf.samplers.occupancy import MarchingConfig, OccupancyGrid
+    from nerfpipe.nerf.spaces.ray_space import ContractedSpace
 
     field = _Constant(density)
     grid = OccupancyGrid((-2.0,) * 3, (2.0,) * 3, 8)
@@ -616,7 +616,7 @@ def test_contracted_marching_keeps_bounds_and_gradients(mode: str, density: floa
 
 
 def test_contraction_of_extreme_coordinates_is_finite_with_finite_gradients() -> None:
-    from nerfpipe.nerf.contraction import Contraction, contract
+    from nerfpipe.nerf.spaces.contraction import Contraction, contract
 
     x = torch.tensor([[0.0, 0.0, 0.0], [1e-30, 0.0, 0.0], [1.0, 1.0, 1.0], [F32_MAX, -F32_MAX, 0.0], [3e38, 1.0, 1.0]],
                      requires_grad=True)
@@ -655,8 +655,8 @@ def test_camera_refinement_is_the_identity_at_first_with_finite_gradients_throug
     """Camera refinement (``nerfpipe.nerf.refinement``): no change at initialisation (So3.exp at a zero
     vector), and finite, non-zero gradients from a grid field's colours back to the corrections, there and
     after large corrections (a half turn)."""
-    from nerfpipe.nerf.grid_field import GridField, GridFieldConfig
-    from nerfpipe.nerf.rays import camera_rays
+    from nerfpipe.nerf.fields.grid import GridField, GridFieldConfig
+    from nerfpipe.nerf.spaces.rays import camera_rays
     from nerfpipe.nerf.refinement import PoseRefinement
 
     torch.manual_seed(0)

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from nerfpipe.nerf import throughput
-from nerfpipe.nerf.assembly import build_model
+from nerfpipe.nerf.policy import build_model
 from nerfpipe.stages.train import TrainParams
 from tests.helpers import look_at
 from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera

@@ -20,11 +20,11 @@ import torch
 from nerfpipe.artifacts import Bounds, Decision, FrameBounds, SceneDecisions
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, mean_camera
 from nerfpipe.imaging.png import read_png, srgb_encode
-from nerfpipe.nerf.assembly import NDC_NEAR_FACTOR
-from nerfpipe.nerf.field import FieldConfig, NerfField
+from nerfpipe.nerf.policy import NDC_NEAR_FACTOR
+from nerfpipe.nerf.fields.mlp import FieldConfig, NerfField
 from nerfpipe.nerf.model import RadianceModel
-from nerfpipe.nerf.ray_space import BoxSpace, NdcSpace
-from nerfpipe.nerf.samplers import HierarchicalSampler, SamplingConfig
+from nerfpipe.nerf.spaces.ray_space import BoxSpace, NdcSpace
+from nerfpipe.nerf.samplers.base import HierarchicalSampler, SamplingConfig
 from nerfpipe.pipeline.budget import Allotment
 from nerfpipe.pipeline.errors import ParamError, StageError
 from nerfpipe.pipeline.params import build_params

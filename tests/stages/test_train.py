@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from nerfpipe.artifacts import ViewSplit
-from nerfpipe.nerf.assembly import build_model
+from nerfpipe.nerf.policy import build_model
 from nerfpipe.pipeline import Pipeline, param_specs
 from nerfpipe.pipeline.errors import ParamError
 from nerfpipe.pipeline.params import build_params

@@ -22,8 +22,8 @@ import pytest
 import torch
 
 from nerfpipe.geometry.cameras import CameraSet
-from nerfpipe.nerf.evaluation import evaluate
-from nerfpipe.nerf.images import ImageLoader, split_views
+from nerfpipe.nerf.train.evaluation import evaluate
+from nerfpipe.nerf.train.images import ImageLoader, split_views
 from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.refinement import rotation_error_deg
 from nerfpipe.pipeline import Pipeline

@@ -1,0 +1,1 @@
+"""Volume rendering: packed samples composited by Eq. 3 (``volume``)."""

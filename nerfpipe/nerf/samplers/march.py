@@ -1,0 +1,123 @@
+"""Marching an occupancy grid (Instant-NGP, nerfacc): where a ``MarchingSampler`` puts its samples.
+
+- ``march``: steps of constant length in field coordinates along each ray inside [near, far] (the ray
+  space's ``steps``), kept where the cell of the occupancy grid (``nerfpipe.nerf.samplers.occupancy``) is occupied,
+  packed ray after ray (``RaySamples``) with the stretch of ray each stands for.
+- ``visible``: the samples each ray reaches before its transmittance falls below ``early_stop``, from the
+  field's density alone, without gradients, a window of samples at a time so that a ray that has stopped
+  costs nothing more (nerfacc's visibility pass).
+- ``within_budget``: the leading rays whose samples fit a budget, so one training step costs about the
+  same however the grid changed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Callable
+
+import torch
+from torch import Tensor
+
+from nerfpipe.nerf.samplers.occupancy import OccupancyGrid
+from nerfpipe.nerf.spaces.rays import RayBatch
+from nerfpipe.nerf.render.volume import RaySamples, optical_depth
+
+# field coordinates (M, 3) -> densities (M,)
+DensityFn = Callable[[Tensor], Tensor]
+# field coordinates (M, 3) -> densities (M,) and the features the field's colour reads (M, F)
+FeaturesFn = Callable[[Tensor], tuple[Tensor, Tensor]]
+
+
+def march(rays: RayBatch, space, grid: OccupancyGrid, steps: int, randomized: bool,
+          generator: torch.Generator | None = None) -> RaySamples:
+    """Steps of ``grid.diagonal / steps`` in field coordinates along each ray inside [near, far], kept where
+    the grid is occupied (``space``: the ``RaySpace`` the rays are in).
+
+    Step k of a ray stands for its k-th stretch of the space's ``steps``, tiling [near, far]; its sample lies
+    a fraction u into it, one u per ray, uniform in [0, 1) when ``randomized`` (training), 0.5 otherwise.
+    A ray takes at most ``4 steps + 1`` steps (rays clipped to the field box need at most ``steps + 1``).
+    ``spans`` measure each sample's stretch in whole-march units (step k: [k, k + 1] / steps).
+
+    Returns:
+        RaySamples of the occupied steps.
+    """
+    n_rays = len(rays)
+    starts, ends = space.steps(rays.origins, rays.directions, rays.near, rays.far, grid.diagonal / steps,
+                               4 * steps + 1)
+    if randomized:
+        u = torch.rand((n_rays, 1), generator=generator, device=starts.device, dtype=starts.dtype)
+    else:
+        u = torch.full((n_rays, 1), 0.5, device=starts.device, dtype=starts.dtype)
+    ray, k = (starts < rays.far.unsqueeze(-1)).nonzero(as_tuple=True)  # row-major: ray after ray, k increasing
+    s, e = starts[ray, k], ends[ray, k]
+    t = torch.addcmul(s, u[ray, 0], (e - s).clamp_min(0.0))
+    keep = grid.is_occupied(space.field_points(rays.points(ray, t)))
+    ray, k, t, s, e = ray[keep], k[keep], t[keep], s[keep], e[keep]
+    step = k.to(t.dtype)
+    return RaySamples(ray, t, s, e, n_rays, (step / steps, (step + 1.0) / steps))
+
+
+def visible(rays: RayBatch, space, samples: RaySamples, evaluate: FeaturesFn, early_stop: float,
+            window: int = 0) -> RaySamples:
+    """The samples a ray reaches with transmittance above ``early_stop``, from the field's density, evaluated
+    without gradients (``evaluate``: ``Field.density_features`` of field coordinates).
+
+    Samples are taken ``window`` places along each ray at first (0: all at once), on the rays still above
+    ``early_stop`` only: a ray that has stopped drops the rest of its samples unevaluated. Each round after
+    looks twice as far along the rays still going, as long as that is no more than the first round's
+    ``window`` places of every ray: the rays that go on (through thin density) do so in few rounds, and no
+    round is larger than the first. The kept samples of
+    each ray are a prefix of its own, since transmittance never grows. Called where gradients are off
+    (rendering, not training), the kept samples carry what was evaluated (``RaySamples.known``), so the
+    field's density is not evaluated twice.
+    """
+    remember = not torch.is_grad_enabled()
+    with torch.no_grad():
+        return _visible(rays, space, samples, evaluate, early_stop, window, remember)
+
+
+def _visible(rays: RayBatch, space, samples: RaySamples, evaluate: FeaturesFn, early_stop: float, window: int,
+             remember: bool) -> RaySamples:
+    if early_stop <= 0 or not len(samples):
+        return samples
+    counts = samples.counts()
+    first = torch.cumsum(counts, dim=0) - counts
+    depth = torch.zeros(samples.n_rays, dtype=torch.float64, device=counts.device)  # optical depth so far, per ray
+    keep = torch.zeros(len(samples), dtype=torch.bool, device=counts.device)
+    sigmas = torch.zeros(len(samples), device=counts.device) if remember else None
+    features = None
+    limit = -math.log(early_stop)  # T > early_stop <=> optical depth < limit
+    longest = int(counts.max())
+    start, width = 0, window if window > 0 else longest
+    active = torch.arange(samples.n_rays, device=counts.device)
+    while start < longest:
+        active = active[(counts[active] > start) & (depth[active] < limit)]
+        if not len(active):
+            break
+        offset = torch.arange(start, start + width, device=counts.device)
+        within = offset < counts[active].unsqueeze(-1)  # (A, W): the window's places each ray has
+        index = (first[active].unsqueeze(-1) + offset)[within]  # ray after ray, in order along each
+        part = samples.select(index)
+        sigma, feature = evaluate(space.field_points(rays.points(part.ray, part.t)))
+        sigma = sigma.float().reshape(-1)
+        if remember:
+            if features is None:
+                features = feature.new_zeros((len(samples), feature.shape[-1]))
+            sigmas[index], features[index] = sigma, feature
+        tau = optical_depth(sigma, (part.ends - part.starts).clamp_min(0.0)).double()
+        keep[index] = depth[part.ray] + part.exclusive_sums(tau) < limit
+        depth.index_add_(0, part.ray, tau)
+        start = start + width
+        width = max(window, min(2 * width, window * samples.n_rays // max(len(active), 1))) if window > 0 else longest
+    if remember and features is not None:
+        samples = dataclasses.replace(samples, known=(sigmas, features))
+    return samples.select(keep)
+
+
+def within_budget(samples: RaySamples, budget: int) -> int:
+    """How many leading rays have at most ``budget`` samples together; at least one (0: all rays)."""
+    if budget <= 0:
+        return samples.n_rays
+    total = torch.cumsum(samples.counts(), dim=0)
+    return min(max(int((total <= budget).sum()), 1), samples.n_rays)

@@ -1,0 +1,93 @@
+"""The fast field: trilinear interpolation on stacked multiresolution grids, its hand-written backward
+pass, and the field's contract (density 0 outside its box, the same density from both entry points)."""
+
+from __future__ import annotations
+
+import torch
+
+from nerfpipe.nerf.fields.grid import GridField, GridFieldConfig, _Trilinear, trilinear_corners
+
+
+def test_trilinear_interpolation_reproduces_linear_functions_exactly() -> None:
+    """Trilinear interpolation of vertex values of f(x) = a.x + b gives f itself, at every level."""
+    resolutions, config = torch.tensor([2, 5]), GridFieldConfig(levels=2, min_resolution=2, max_resolution=5, features=1)
+    assert config.resolutions() == [2, 5]
+    sizes = [(r + 1) ** 3 for r in (2, 5)]
+    offsets = torch.tensor([0, sizes[0]])
+    a, b = torch.tensor([0.3, -1.2, 2.0], dtype=torch.float64), 0.7
+    table = []
+    for r in (2, 5):
+        i, j, k = torch.meshgrid(*(torch.arange(r + 1, dtype=torch.float64),) * 3, indexing="ij")
+        vertices = torch.stack([i, j, k], dim=-1).reshape(-1, 3) / r
+        table.append(vertices @ a + b)
+    table = torch.cat(table).unsqueeze(-1)
+    u = torch.rand(500, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    u[:3] = torch.tensor([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [1.0, 0.0, 0.5]], dtype=torch.float64)  # faces and corners
+    index, weights = trilinear_corners(u, resolutions, offsets)
+    assert index.shape == (2, 8, 500) and torch.allclose(weights.sum(dim=1), torch.ones(2, 500, dtype=torch.float64))
+    assert bool((weights >= 0).all()) and int(index.max()) < sum(sizes)
+    out = _Trilinear.apply(table, index, weights)  # (M, L, 1)
+    expected = (u @ a + b).unsqueeze(-1).expand(500, 2)
+    torch.testing.assert_close(out.squeeze(-1), expected, rtol=0, atol=1e-12)
+
+
+def test_the_scatter_backward_matches_numerical_gradients() -> None:
+    table = torch.randn(3**3 + 5**3, 2, dtype=torch.float64, requires_grad=True)
+    u = torch.rand(40, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    index, weights = trilinear_corners(u, torch.tensor([2, 4]), torch.tensor([0, 27]))
+    assert torch.autograd.gradcheck(lambda t: _Trilinear.apply(t, index, weights), (table,))
+
+
+def test_the_weights_backward_matches_numerical_gradients() -> None:
+    """The points train too (camera refinement): d out / d w_c is the corner's row, for both inputs at once."""
+    table = torch.randn(3**3 + 5**3, 3, dtype=torch.float64, requires_grad=True)
+    u = torch.rand(30, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
+    index, weights = trilinear_corners(u, torch.tensor([2, 4]), torch.tensor([0, 27]))
+    weights.requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda t, w: _Trilinear.apply(t, index, w), (table, weights))
+
+
+def test_density_is_zero_outside_the_box_and_the_same_from_both_entry_points() -> None:
+    torch.manual_seed(0)
+    field = GridField((-1.0, -2.0, 0.0), (1.0, 2.0, 3.0), GridFieldConfig(levels=2, min_resolution=4, max_resolution=8))
+    x = torch.tensor([[0.0, 0.0, 1.5], [0.99, -1.99, 0.01], [1.01, 0.0, 1.0], [0.0, 0.0, -0.01], [0.0, 2.5, 1.0]])
+    d = torch.nn.functional.normalize(torch.randn(5, 3), dim=-1)
+    rgb, sigma = field(x, d)
+    assert rgb.shape == (5, 3) and bool(((rgb > 0) & (rgb < 1)).all())
+    assert bool((sigma[:2] > 0).all()) and sigma[2:].tolist() == [0.0, 0.0, 0.0]
+    torch.testing.assert_close(field.query_density(x), sigma)
+    # only the 8 vertices per level around each point get gradients (outside points clamp to the faces)
+    (rgb.sum() + sigma.sum()).backward()
+    touched = field.table.grad.abs().sum(-1) > 0
+    assert 0 < int(touched.sum()) <= 5 * 2 * 8 < field.table.shape[0] // 2
+
+
+def test_huge_raw_density_stays_finite() -> None:
+    field = GridField((0.0,) * 3, (1.0,) * 3, GridFieldConfig(levels=1, max_resolution=4))
+    with torch.no_grad():
+        field.density_net[-1].bias[0] = 1e4  # exp would overflow to inf
+    sigma = field.query_density(torch.full((3, 3), 0.5))
+    assert bool(torch.isfinite(sigma).all()) and float(sigma.detach().max()) == torch.exp(torch.tensor(15.0)).item()
+
+
+def test_gradients_reach_the_points_and_match_finite_differences() -> None:
+    """Camera refinement moves the points a grid field is queried at: d(rgb, sigma)/dx of the trilinear
+    interpolation agrees with central differences."""
+    torch.manual_seed(0)
+    field = GridField((-1.0,) * 3, (1.0,) * 3, GridFieldConfig(levels=2, min_resolution=4, max_resolution=8, init_scale=0.5))
+    x = (torch.rand(6, 3) * 1.6 - 0.8).requires_grad_()
+    d = torch.nn.functional.normalize(torch.randn(6, 3), dim=-1)
+
+    def f(p: torch.Tensor) -> torch.Tensor:
+        rgb, sigma = field(p, d)
+        return rgb.sum() + sigma.sum()
+
+    f(x).backward()
+    eps, numeric = 1e-3, torch.zeros_like(x)
+    with torch.no_grad():
+        for i in range(6):
+            for j in range(3):
+                step = torch.zeros_like(x)
+                step[i, j] = eps
+                numeric[i, j] = (f(x + step) - f(x - step)) / (2 * eps)
+    torch.testing.assert_close(x.grad, numeric, atol=2e-3, rtol=2e-2)
