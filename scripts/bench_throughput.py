@@ -58,7 +58,8 @@ def measure(args: argparse.Namespace) -> None:
     setup = prepare_capture(args.capture, run_dir, args.size, args.sets, args.seconds + args.window + 60)
     model = setup.model
     with tempfile.TemporaryDirectory() as scratch:
-        trainer = Trainer(model, setup.loader.pixel_set(setup.views.train), setup.config, Path(scratch), setup.device)
+        trainer = Trainer(model, setup.loader.pixel_set(setup.views.train), setup.config, Path(scratch), setup.device,
+                          density_noise=setup.density_noise)
         trainer.run(after_step=lambda t: t.elapsed >= args.seconds)
         step0, elapsed0, rays0, samples0 = trainer.step, trainer.elapsed, trainer.total_rays, trainer.total_samples
         trainer.run(after_step=lambda t: t.elapsed >= elapsed0 + args.window)

@@ -30,7 +30,8 @@ import torch
 from nerfpipe import Pipeline, default_stages
 from nerfpipe.nerf.cpu import keep_freed_memory
 from nerfpipe.nerf.device import resolve_device
-from nerfpipe.nerf.fields.mlp import FieldConfig, NerfField
+from nerfpipe.nerf.fields.configs import MlpConfig
+from nerfpipe.nerf.fields.mlp import NerfField
 from nerfpipe.pipeline.params import parse_assignments
 
 REPO = Path(__file__).resolve().parents[1]
@@ -58,7 +59,8 @@ def matmul_rate(device: torch.device, n: int = 4096, repeats: int = 10) -> float
 def paper_mlp_rate(device: torch.device, samples: int, repeats: int = 6) -> tuple[float, int]:
     """Training samples per second of the paper MLP (forward, backward, Adam step), and its FLOPs per sample."""
     torch.manual_seed(0)
-    field = NerfField(FieldConfig()).to(device)
+    field = NerfField(MlpConfig(depth=8, width=256, skip_after=5, view_width=128, dir_freqs=4, include_input=False,
+                                density_activation="relu")).to(device)
     optimizer = torch.optim.Adam(field.parameters(), lr=5e-4, eps=1e-7)
     x = torch.rand(samples, 3, device=device) * 2 - 1
     d = torch.nn.functional.normalize(torch.randn(samples, 3, device=device), dim=-1)

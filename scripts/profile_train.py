@@ -49,7 +49,7 @@ def profile(args: argparse.Namespace) -> None:
     setup = prepare_capture(args.capture, run_dir, args.size, args.sets, 3600)
     with tempfile.TemporaryDirectory() as scratch:
         trainer = Trainer(setup.model, setup.loader.pixel_set(setup.views.train), setup.config, Path(scratch),
-                          setup.device)
+                          setup.device, density_noise=setup.density_noise)
         trainer.run(after_step=lambda t: t.step >= args.warm_up)
         step0, elapsed0, rays0, samples0 = trainer.step, trainer.elapsed, trainer.total_rays, trainer.total_samples
         with torch_profile(activities=[ProfilerActivity.CPU]) as prof:

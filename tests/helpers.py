@@ -17,6 +17,7 @@ import pytest
 from nerfpipe.geometry import cameras
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.pipeline import Stage
+from nerfpipe.pipeline.params import param
 from nerfpipe.stages import IngestStage
 
 REPO = Path(__file__).resolve().parents[1]
@@ -71,6 +72,7 @@ def contents(outputs: dict) -> dict[str, tuple[int, str]]:
 @dataclass(frozen=True)
 class CountParams:
     label: str = "count"
+    chunk: int = param(64, "images read at a time: cannot change the count", bounds=(1, 1000), keyed=False)
 
 
 class CountStage(Stage):

@@ -26,7 +26,8 @@ if TYPE_CHECKING:  # torch is imported once the CPU settings are made (``run``)
     from nerfpipe.geometry.cameras import Frame
     from nerfpipe.nerf.train.images import ImageLoader, Views
     from nerfpipe.nerf.model import RadianceModel
-    from nerfpipe.nerf.train.trainer import TrainConfig, Trainer
+    from nerfpipe.nerf.config import TrainSettings
+    from nerfpipe.nerf.train.trainer import Trainer
 
 
 def run(spec: dict[str, Any]) -> dict[str, Any]:
@@ -47,8 +48,9 @@ class Setup:
     heldout: list[Frame]  # the held-out views evaluated: ``eval_views`` of them, evenly spaced (0: all)
     model: RadianceModel
     decisions: list[str]
-    config: TrainConfig
+    config: TrainSettings  # the train stage's parameters, checkpoints off and a budget's seconds in
     chunk: int
+    density_noise: float = 0.0
 
 
 def prepare(spec: dict[str, Any]) -> Setup:
@@ -57,7 +59,7 @@ def prepare(spec: dict[str, Any]) -> Setup:
     import numpy as np
 
     from nerfpipe import Pipeline, default_stages
-    from nerfpipe.nerf.policy import build_model, training_config
+    from nerfpipe.nerf.policy import build_model, density_noise
     from nerfpipe.nerf.device import resolve_device
     from nerfpipe.nerf.train.images import ImageLoader, split_views
 
@@ -72,12 +74,12 @@ def prepare(spec: dict[str, Any]) -> Setup:
         heldout = [heldout[i] for i in pick]
     model, decisions = build_model(params, loader.scene, loader.world, loader.bounds, device, [f.name for f in views.train],
                                    loader.silhouettes(views.train))
-    config = dataclasses.replace(training_config(params, loader.scene.layout.value), checkpoint_every=10**9,
-                                 keep_checkpoints=1)
+    config = dataclasses.replace(params, checkpoint_every=10**9, keep_checkpoints=1)
     if config.steps == 0 and "seconds" not in spec["overrides"].get("train", {}):
         # a time-budgeted preset trains for the benchmark's budget: its learning rate decays over that time
         config = dataclasses.replace(config, seconds=float(spec["budget"]))
-    return Setup(device, loader, views, heldout, model, decisions, config, params.chunk)
+    return Setup(device, loader, views, heldout, model, decisions, config, params.chunk,
+                 density_noise(params, loader.scene.layout.value))
 
 
 def prepare_capture(capture: Path, run_dir: Path, size: int, sets: list[str], budget: float) -> Setup:
@@ -105,7 +107,8 @@ def train(setup: Setup, budget: float, marks: list[float]) -> tuple[Trainer, lis
     snapshots: list[dict[str, Any]] = []
     device = setup.device
     with tempfile.TemporaryDirectory() as scratch:
-        trainer = Trainer(setup.model, setup.loader.pixel_set(setup.views.train), setup.config, Path(scratch), device)
+        trainer = Trainer(setup.model, setup.loader.pixel_set(setup.views.train), setup.config, Path(scratch), device,
+                          density_noise=setup.density_noise)
         if device.type == "cuda":
             torch.cuda.reset_peak_memory_stats(device)
 

@@ -69,7 +69,7 @@ def run(
     set_: List[str] = SetOption,
     until: Optional[str] = typer.Option(None, "--until", help="Run the stages up to and including this one."),
     only: Optional[str] = typer.Option(None, "--only", help="Run only this stage; its upstream must be fresh."),
-    force: List[str] = typer.Option([], "--force", help="Rerun this stage and its downstream even if cached."),
+    force: List[str] = typer.Option([], "--force", help="Rerun this stage even if cached; its downstream reruns only if its outputs change."),
     skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip unreadable or duplicate photos with a warning."),
     view: bool = typer.Option(False, "--view", help="Serve the web viewer while the field trains, to watch it learn "
                               "(stops when training ends)."),

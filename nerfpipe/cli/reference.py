@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from nerfpipe.pipeline import Dag, Stage, param_specs
+from nerfpipe.pipeline import Dag, ParamSpec, Stage, param_specs
 
 HEADER = """# Parameters
 
@@ -47,13 +47,20 @@ def parameters_markdown(stages: list[Stage]) -> str:
         parts.append(f"\n## {name}\n\n{stage.summary()}\n\n| parameter | type | default | bounds | meaning |\n|---|---|---|---|---|\n")
         for spec in param_specs(stage.Params):
             parts.append(f"| `{name}.{spec.name}` | {_cell(spec.type_name)} | `{_shown(spec.default)}` | "
-                         f"{_bounds(spec.bounds)} | {_cell(spec.help)} |\n")
+                         f"{_bounds(spec.bounds)} | {_cell(meaning(spec))} |\n")
         if stage.presets:
             parts.append("\nPresets:\n\n")
             for preset, values in stage.presets.items():
                 shown = ", ".join(f"`{k}={_shown(v)}`" for k, v in values.items()) or "the defaults"
                 parts.append(f"- `{preset}`: {shown}\n")
     return "".join(parts)
+
+
+def meaning(spec: ParamSpec) -> str:
+    """A parameter's help, with the kinds whose setting it is (a tagged union's) and whether it stays out of the
+    cache key."""
+    kinds = f"({', '.join(spec.kinds)}) " if spec.kinds else ""
+    return kinds + spec.help + ("; changing it reruns nothing" if not spec.keyed else "")
 
 
 def _bounds(bounds: Any) -> str:
@@ -73,7 +80,8 @@ def stage_reference(dag: Dag, names: list[str]) -> dict[str, Any]:
         reference[name] = {
             "version": stage.version, "summary": stage.summary(), "requires": list(stage.requires),
             "upstream": list(dag.upstream[name]), "provides": dict(stage.provides),
-            "parameters": [{"name": s.name, "type": s.type_name, "default": s.default, "help": s.help,
+            "parameters": [{"name": s.name, "type": s.type_name, "default": s.default, "help": meaning(s),
+                            **({"kinds": list(s.kinds)} if s.kinds else {}), **({} if s.keyed else {"keyed": False}),
                             **({"choices": list(s.choices)} if s.choices else {}),
                             **({"bounds": list(s.bounds)} if s.bounds else {})} for s in param_specs(stage.Params)],
             "presets": {k: dict(v) for k, v in stage.presets.items()},

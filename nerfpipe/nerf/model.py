@@ -1,7 +1,7 @@
 """A trained radiance field with everything needed to render it: fields, a sampler, background and the
 ray space the scene analysis chose (world rays clipped to the scene box, NDC rays, or contracted space).
 Saved as ``model.pt`` (tensors only, loadable with ``torch.load(..., weights_only=True)``) and
-``model.json`` (its ``ModelSpec``: each part's kind and spec); ``build`` makes a model from a spec."""
+``model.json`` (its ``ModelSpec``: each part's config); ``build`` makes a model from a spec."""
 
 from __future__ import annotations
 
@@ -18,11 +18,11 @@ import torch
 from torch import Tensor
 
 from nerfpipe.nerf.appearance import ExposureGains
-from nerfpipe.nerf.fields.base import Field, field_spec
+from nerfpipe.nerf.fields.base import Field
 from nerfpipe.nerf.spaces.ray_space import RaySpace
 from nerfpipe.nerf.spaces.rays import RayBatch, pixel_centers
 from nerfpipe.nerf.refinement import PoseRefinement
-from nerfpipe.nerf.registry import FIELDS, SAMPLERS, resolve
+from nerfpipe.nerf.registry import part_class
 from nerfpipe.nerf.render.volume import RaySamples, RenderOutput, volume_render
 from nerfpipe.nerf.samplers.base import Sampler
 from nerfpipe.nerf.spec import ModelSpec
@@ -64,7 +64,7 @@ class RadianceModel:
     @property
     def field_kind(self) -> str:
         """The field's name in the registry (``grid``: dense grids and a small MLP; ``mlp``: Fig. 7)."""
-        return self.coarse.kind
+        return self.coarse.config.kind
 
     def fields(self) -> list[Field]:
         return [self.coarse] + ([self.fine] if self.fine is not None else [])
@@ -171,8 +171,8 @@ class RadianceModel:
         """What this model is made of; ``build(model.spec)`` makes its twin, untrained."""
         appearance = None if self.appearance is None else {
             "images": len(self.appearance.log2_gains), "linear": self.appearance.linear, "stops": self.appearance.start_stops}
-        return ModelSpec(field=field_spec(self.coarse), sampler={"kind": self.sampler.kind, **self.sampler.spec()},
-                         ray_space=self.ray_space, fine_network=self.fine is not None, background=self.background,
+        return ModelSpec(field=self.coarse.config, sampler=self.sampler.config, ray_space=self.ray_space,
+                         box=self.coarse.box(), fine_network=self.fine is not None, background=self.background,
                          appearance=appearance,
                          refinement=None if self.refinement is None else {"images": len(self.refinement.tangent)},
                          info=self.info)
@@ -204,10 +204,10 @@ def load_tensors(path: Path, device: torch.device | str, what: str) -> dict:
 def build(spec: ModelSpec, device: torch.device | str = "cpu") -> RadianceModel:
     """The model ``spec`` describes, its parts made through the registry (``nerfpipe.nerf.registry``) in a
     fixed order (coarse field, fine field, sampler, per-image parts), so a seeded build is repeatable."""
-    cls = resolve(FIELDS, spec.field["kind"])
-    coarse = cls.from_spec(spec.field).to(device)
-    fine = cls.from_spec(spec.field).to(device) if spec.fine_network else None
-    sampler = resolve(SAMPLERS, spec.sampler["kind"]).from_spec(spec.sampler).to(device)
+    cls = part_class(spec.field)
+    coarse = cls.from_config(spec.field, spec.box).to(device)
+    fine = cls.from_config(spec.field, spec.box).to(device) if spec.fine_network else None
+    sampler = part_class(spec.sampler).from_config(spec.sampler, spec.box).to(device)
     a, r = spec.appearance, spec.refinement
     appearance = None if a is None else ExposureGains(a["images"], a["linear"], a.get("stops")).to(device)
     refinement = None if r is None else PoseRefinement(r["images"]).to(device)

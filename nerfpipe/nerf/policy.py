@@ -2,17 +2,16 @@
 
 Each builder takes the scene decisions (``nerfpipe.artifacts.SceneDecisions``) and the train parameters it
 reads, and returns what it built with the sentence that explains the choice (None when there is nothing to
-say); ``build_model`` puts them together. ``training_config`` turns the same parameters into the
-``TrainConfig`` of the trainer, for the train stage and for ``nerfpipe bench`` alike.
+say); ``build_model`` puts them together. The one place that chooses parts: nothing else compares a
+field's, sampler's or ray space's kind.
 
 ``params`` is any object with the attributes of ``TrainParams`` (``nerfpipe.stages.train``); the ones read
-here are listed in ``TrainSettings``.
+here are listed in ``nerfpipe.nerf.config.TrainSettings``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -21,13 +20,12 @@ from nerfpipe.artifacts import Bounds, SceneDecisions
 from nerfpipe.geometry.cameras import CameraSet, mean_camera
 from nerfpipe.geometry.hull import Silhouettes, hull_box
 from nerfpipe.geometry.normalize import robust_box
-from nerfpipe.nerf.config import FieldParams, OptimParams, PerImageParams, SamplerParams, SpaceParams
-from nerfpipe.nerf.fields.base import field_class
+from nerfpipe.nerf.config import TrainSettings
+from nerfpipe.nerf.fields.configs import FieldConfig, MlpConfig
 from nerfpipe.nerf.model import RadianceModel, build
 from nerfpipe.nerf.spaces.ray_space import BoxSpace, ContractedSpace, NdcSpace, RaySpace
-from nerfpipe.nerf.registry import SAMPLERS, resolve
+from nerfpipe.nerf.samplers.configs import HierarchicalConfig, SamplerConfig
 from nerfpipe.nerf.spec import ModelSpec
-from nerfpipe.nerf.train.trainer import TrainConfig
 
 CAMERA_MARGIN = 0.05  # the box around the scene and its cameras grows by this share of its size a side
 HULL_RESOLUTION = 64  # cells a side of the visual hull that bounds the scene box
@@ -35,24 +33,6 @@ POSE_ERROR_PX = 2.0  # mean reprojection error of the sparse points above which 
 NDC_NEAR_FACTOR = 0.75  # the NDC near plane at 0.75 x the nearest bound, as LLFF's bd_factor places it
 
 Box = tuple[tuple[float, ...], tuple[float, ...]]
-
-
-class TrainSettings(Protocol):
-    """The train parameters read here (``nerfpipe.stages.train.TrainParams``): its groups
-    (``nerfpipe.nerf.config``) and the schedule around them."""
-
-    field: FieldParams
-    sampler: SamplerParams
-    space: SpaceParams
-    optim: OptimParams
-    per_image: PerImageParams
-    steps: int
-    seconds: float
-    seed: int
-    checkpoint_every: int
-    keep_checkpoints: int
-    autocast: str
-    tf32: bool
 
 
 def contracts(params: TrainSettings, scene: SceneDecisions) -> bool:
@@ -70,27 +50,13 @@ def density_noise(params: TrainSettings, layout: str) -> float:
     ones. The MLP's raw density only: the grid field has no such regularizer."""
     if params.optim.density_noise != "auto":
         return float(params.optim.density_noise)
-    return 1.0 if layout == "forward" and params.field.kind == "mlp" else 0.0
+    return 1.0 if layout == "forward" and isinstance(params.field, MlpConfig) else 0.0
 
 
-def lindisp(params: TrainSettings, layout: str) -> bool:
+def lindisp(sampler: SamplerConfig, layout: str) -> bool:
     """Sample linearly in disparity: by default for unbounded scenes, whose far bound is far away."""
-    return layout == "unbounded360" if params.sampler.lindisp == "auto" else params.sampler.lindisp == "on"
-
-
-def training_config(params: TrainSettings, layout: str) -> TrainConfig:
-    """The optimization the train parameters ask for (Section 5.3), with the scene's density noise and the
-    precision settings (``tf32``, ``autocast``)."""
-    o, p = params.optim, params.per_image
-    return TrainConfig(
-        steps=params.steps, seconds=params.seconds, batch_rays=o.batch_rays, lr=o.lr, lr_final=min(o.lr_final, o.lr),
-        mlp_lr_share=o.mlp_lr_share,
-        adam_eps=o.adam_eps, adam_beta2=o.adam_beta2, batch_samples=o.batch_samples,
-        density_noise=density_noise(params, layout), seed=params.seed, checkpoint_every=params.checkpoint_every,
-        keep_checkpoints=params.keep_checkpoints, autocast=params.autocast, tf32=params.tf32,
-        appearance_lr=p.appearance_lr, pose_lr=p.pose_lr, pose_penalty=p.pose_penalty,
-        distortion=o.distortion,
-    )
+    choice = getattr(sampler, "lindisp", "auto")  # a sampler without the setting: the scene's default
+    return layout == "unbounded360" if choice == "auto" else choice == "on"
 
 
 def build_ray_space(params: TrainSettings, scene: SceneDecisions, world: CameraSet, bounds: Bounds) -> tuple[RaySpace, str]:
@@ -118,7 +84,7 @@ def build_ray_space(params: TrainSettings, scene: SceneDecisions, world: CameraS
     if layout == "inward360" and params.space.clip_to_box:
         return BoxSpace(scene_box(bounds)), "inward 360: world rays, each clipped to the scene box and its image's near/far"
     what = "unbounded 360: world rays over each image's near/far" if layout == "unbounded360" else "world rays over each image's near/far"
-    return BoxSpace(), what + (", samples linear in disparity" if lindisp(params, layout) else "")
+    return BoxSpace(), what + (", samples linear in disparity" if lindisp(params.sampler, layout) else "")
 
 
 def scene_box(bounds: Bounds) -> Box:
@@ -144,32 +110,26 @@ def field_box(ray_space: RaySpace, layout: str, bounds: Bounds) -> Box | None:
     return box
 
 
-def field_spec_for(params: TrainSettings, box: Box | None) -> tuple[dict[str, Any], str | None]:
-    """The spec of the registered field ``field.kind`` (``nerfpipe.nerf.registry.FIELDS``) over ``box``, and
-    its sentence. A field that spans a box falls back to the MLP of Fig. 7 where the scene has none
-    (unbounded and not contracted)."""
-    kind, said = params.field.kind, None
-    if box is None and field_class(kind).needs_box:
-        kind, said = "mlp", f"unbounded 360: the {kind} field needs a bounded box, so the MLP (Fig. 7) is trained"
-    cls = field_class(kind)
-    spec = {"kind": kind, **cls.spec_of(params.field, box)}
-    return spec, said or cls.describe(spec)
+def field_for(params: TrainSettings, box: Box | None) -> tuple[FieldConfig, str | None]:
+    """The field ``train.field`` configures over ``box``, and its sentence. A field that spans a box falls back
+    to the MLP of Fig. 7 where the scene has none (unbounded and not contracted)."""
+    field = params.field
+    if box is None and field.needs_box:
+        return MlpConfig(), f"unbounded 360: the {field.kind} field needs a bounded box, so the MLP (Fig. 7) is trained"
+    return field, field.describe()
 
 
-def sampler_spec_for(params: TrainSettings, field_kind: str, box: Box | None,
-                     layout: str) -> tuple[dict[str, Any], str | None]:
-    """Where rays are sampled: the registered sampler ``sampler.kind`` (``nerfpipe.nerf.registry.SAMPLERS``);
-    auto marches an occupancy grid (empty-space skipping, Instant-NGP) with a field that spans a box, and
-    samples as Section 5.2 does otherwise. Marching needs a box to grid: without one, Section 5.2's sampling."""
-    kind = params.sampler.kind
-    if kind == "auto":
-        kind = "marching" if field_class(field_kind).needs_box else "hierarchical"
-    said = None
-    if kind == "marching" and box is None:
-        kind, said = "hierarchical", "no occupancy grid: an unbounded scene has no box to grid; Section 5.2's sampling instead"
-    cls = resolve(SAMPLERS, kind)
-    spec = {"kind": kind, **cls.spec_of(params.sampler, box, lindisp(params, layout))}
-    return spec, said or cls.describe(spec)
+def sampler_for(params: TrainSettings, box: Box | None, layout: str) -> tuple[SamplerConfig, str | None]:
+    """Where rays are sampled: the sampler ``train.sampler`` configures (``auto`` was resolved with the field's
+    own choice, ``nerfpipe.nerf.config.sampler_for``), its ``lindisp`` decided for the scene. A sampler that
+    grids the field box needs one: without it, Section 5.2's sampling."""
+    sampler, said = params.sampler, None
+    if sampler.needs_box and box is None:
+        sampler, said = HierarchicalConfig(), ("no occupancy grid: an unbounded scene has no box to grid; Section "
+                                               "5.2's sampling instead")
+    if isinstance(sampler, HierarchicalConfig):
+        sampler = dataclasses.replace(sampler, lindisp="on" if lindisp(sampler, layout) else "off")
+    return sampler, said or sampler.describe()
 
 
 def build_background(scene: SceneDecisions) -> tuple[tuple[float, ...] | None, str]:
@@ -283,9 +243,9 @@ def resolve_spec(params: TrainSettings, scene: SceneDecisions, world: CameraSet,
                      "silhouettes (alpha or a backdrop) and a scene box that is not contracted")
     ray_space, ray_said = build_ray_space(params, scene, world, bounds)
     box = field_box(ray_space, layout, bounds)
-    field, field_said = field_spec_for(params, box)
-    sampler, sampler_said = sampler_spec_for(params, field["kind"], box, layout)
-    two = params.field.fine_network and params.sampler.hierarchical and params.sampler.n_fine > 0
+    field, field_said = field_for(params, box)
+    sampler, sampler_said = sampler_for(params, box, layout)
+    two = field.two_fields and sampler.fields() == 2
     background, background_said = build_background(scene)
     noise = density_noise(params, layout)
     decisions = [
@@ -304,7 +264,7 @@ def resolve_spec(params: TrainSettings, scene: SceneDecisions, world: CameraSet,
             appearance = {"images": len(train_names), "linear": scene.photometric.value == "linear_raw", "stops": stops}
         refinement = {"images": len(train_names)} if with_refinement else None
     info = {"layout": layout, "photometric": scene.photometric.value, "to_sfm": bounds.to_sfm}
-    spec = ModelSpec(field=field, sampler=sampler, ray_space=ray_space, fine_network=two, background=background,
+    spec = ModelSpec(field=field, sampler=sampler, ray_space=ray_space, box=box, fine_network=two, background=background,
                      appearance=appearance, refinement=refinement, info=info)
     return spec, [d for d in decisions if d is not None]
 

@@ -6,7 +6,10 @@ values out of range. Overrides arrive as text from the command line or as Python
 and are checked and converted here, so a stage only ever sees valid, typed values.
 
 A field whose type is itself a parameter dataclass is a group, named with dots: ``train.field.levels``
-is the ``levels`` of the ``field`` group of ``train``'s parameters. Presets and overrides name every
+is the ``levels`` of the ``field`` group of ``train``'s parameters. A group declared with ``union=`` is a
+tagged union: its ``kind`` picks one of several parameter dataclasses (a field kind's own settings), and
+a setting of another kind is refused by name. A parameter declared ``keyed=False`` cannot change a
+result (a device, a chunk size): it stays out of the cache key (``cache_view``). Presets and overrides name every
 parameter by its dotted path. Every switch is an ``Auto`` (``auto``, ``on`` or ``off``). A params class
 may map retired names to their new paths in ``ALIASES`` (``{"grid_levels": "field.levels"}``); they and
 the retired switch spellings (``true``, ``false``, ``yes``, ``no``) still work, with a deprecation
@@ -22,7 +25,7 @@ import math
 import types
 import typing
 from dataclasses import dataclass
-from typing import Any, Literal, Mapping
+from typing import Any, Callable, Literal, Mapping
 
 from nerfpipe.pipeline.errors import ParamError
 
@@ -35,12 +38,24 @@ _FALSE = {"0", "false", "no", "off"}
 _NONE = {"none", "null"}
 
 
-def param(default: Any, help: str, bounds: tuple[float, float] | None = None) -> Any:
+def param(default: Any, help: str, bounds: tuple[float, float] | None = None, *,
+          union: Callable[[], Mapping[str, type]] | None = None,
+          auto: Callable[[Mapping[str, Any]], str] | None = None, keyed: bool = True) -> Any:
     """A parameter field with its default, the help text ``nerfpipe stages`` and docs/parameters.md show, and for
-    a number its ``bounds`` (lowest, highest; both allowed), checked before anything runs."""
+    a number its ``bounds`` (lowest, highest; both allowed), checked before anything runs.
+
+    union: for a group, the parameter dataclasses its ``kind`` chooses from, by kind (called when needed, so
+        that a registry may name them lazily); each has a ``kind`` field whose default is its own kind.
+    auto: for a union, ``kind=auto`` is allowed and resolved by this function of the groups built before it
+        (by name), as is a union group given no kind of its own.
+    keyed: False for a setting that cannot change what a stage makes (a device, a chunk size, a thread
+        count): a run that changes only such settings reruns nothing (``cache_view``).
+    """
+    metadata: dict[str, Any] = {"help": help, "keyed": keyed}
+    if union is not None:
+        metadata.update(union=union, auto=auto)
     if dataclasses.is_dataclass(default):
-        return dataclasses.field(default_factory=lambda: default, metadata={"help": help})
-    metadata: dict[str, Any] = {"help": help}
+        return dataclasses.field(default_factory=lambda: default, metadata=metadata)
     if bounds is not None:
         metadata["bounds"] = bounds
     return dataclasses.field(default=default, metadata=metadata)
@@ -55,6 +70,8 @@ class ParamSpec:
     default: Any
     help: str
     bounds: tuple[float, float] | None = None  # a number's lowest and highest value, both allowed
+    kinds: tuple[str, ...] = ()  # in a tagged union: the kinds whose setting it is (empty: every kind)
+    keyed: bool = True  # False: it cannot change a result, and stays out of the cache key
 
     @property
     def is_number(self) -> bool:
@@ -91,18 +108,72 @@ def is_group(tp: Any) -> bool:
     return isinstance(tp, type) and dataclasses.is_dataclass(tp)
 
 
+def union_members(f: dataclasses.Field) -> dict[str, type] | None:
+    """The parameter dataclasses a tagged-union group chooses from, by kind; None for any other field."""
+    union = f.metadata.get("union")
+    return None if union is None else dict(union())
+
+
+def kind_of(cls: type) -> str:
+    """The kind a union member stands for: the default of its ``kind`` field."""
+    return next(f.default for f in dataclasses.fields(cls) if f.name == "kind")
+
+
+def _default(f: dataclasses.Field) -> Any:
+    return f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+
+
+def _union_specs(f: dataclasses.Field, prefix: str) -> list[ParamSpec]:
+    """A union group's parameters: its ``kind``, then each kind's settings, a setting two kinds share listed
+    once with both (its default is the default kind's)."""
+    members, default = union_members(f), _default(f)
+    kinds = (*(["auto"] if f.metadata.get("auto") else []), *members)
+    shown_kind = "auto" if f.metadata.get("auto") else default.kind
+    specs = {"kind": ParamSpec(f"{prefix}kind", Literal[kinds], shown_kind,  # type: ignore[valid-type]
+                               f.metadata.get("help", ""))}
+    ordered = [type(default), *(cls for cls in members.values() if cls is not type(default))]
+    for cls in ordered:
+        hints = typing.get_type_hints(cls)
+        for g in dataclasses.fields(cls):
+            if g.name == "kind":
+                continue
+            if g.name in specs:
+                old = specs[g.name]
+                specs[g.name] = dataclasses.replace(old, kinds=(*old.kinds, kind_of(cls)))
+                continue
+            value = getattr(default, g.name) if isinstance(default, cls) else _default(g)
+            specs[g.name] = ParamSpec(prefix + g.name, hints[g.name], value, g.metadata.get("help", ""),
+                                      g.metadata.get("bounds"), (kind_of(cls),), g.metadata.get("keyed", True))
+    return list(specs.values())
+
+
 def param_specs(params_cls: type, prefix: str = "") -> list[ParamSpec]:
     """Every parameter of ``params_cls``, groups flattened into dotted names, in declaration order."""
     hints = typing.get_type_hints(params_cls)
     specs = []
     for f in dataclasses.fields(params_cls):
-        if is_group(hints[f.name]):
+        if union_members(f) is not None:
+            specs.extend(_union_specs(f, f"{prefix}{f.name}."))
+        elif is_group(hints[f.name]):
             specs.extend(param_specs(hints[f.name], f"{prefix}{f.name}."))
-            continue
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
-        specs.append(ParamSpec(prefix + f.name, hints[f.name], default, f.metadata.get("help", ""),
-                               f.metadata.get("bounds")))
+        else:
+            specs.append(ParamSpec(prefix + f.name, hints[f.name], _default(f), f.metadata.get("help", ""),
+                                   f.metadata.get("bounds"), keyed=f.metadata.get("keyed", True)))
     return specs
+
+
+def cache_view(params: Any) -> dict[str, Any]:
+    """``params_to_dict(params)`` without the parameters declared ``keyed=False``: what a stage's cache key
+    hashes, so that a setting that cannot change a result reruns nothing."""
+    values = params_to_dict(params)
+    for spec in param_specs(type(params)):
+        if not spec.keyed:
+            *groups, name = spec.name.split(".")
+            inner = values
+            for group in groups:
+                inner = inner.get(group, {})
+            inner.pop(name, None)
+    return values
 
 
 def params_to_dict(params: Any) -> dict[str, Any]:
@@ -127,12 +198,42 @@ def _deprecated(message: str, _said: set[str] = set()) -> None:
         log.warning("%s", message)
 
 
+def _union_member(f: dataclasses.Field, inner: dict[str, Any], built: Mapping[str, Any]) -> Any:
+    """The union group ``f`` from its typed values ``inner``: the class its ``kind`` names (``auto``, or none
+    given with an ``auto`` rule: the rule's, from the groups ``built`` before it), refusing another kind's
+    settings by name."""
+    members, default, rule = union_members(f), _default(f), f.metadata.get("auto")
+    kind = inner.pop("kind", "auto" if rule else default.kind)
+    if kind == "auto":
+        if rule is None:
+            raise ValueError(f"kind must be one of {', '.join(members)}, got 'auto'")
+        kind = rule(built)
+    cls = members[kind]
+    own = {g.name for g in dataclasses.fields(cls)}
+    for name in inner:
+        if name not in own:
+            owners = [k for k, c in members.items() if name in {g.name for g in dataclasses.fields(c)}]
+            raise ValueError(f"{name} is a setting of the {' and '.join(owners)} {f.name} kind, and {f.name}.kind "
+                             f"is {kind}: set {f.name}.kind too")
+    if not inner and isinstance(default, cls):
+        return default
+    return cls(**inner)
+
+
 def _instantiate(params_cls: type, values: Mapping[str, Any]) -> Any:
     """``params_cls`` from typed dotted values, its groups built from theirs (a group's __post_init__ runs first)."""
     hints = typing.get_type_hints(params_cls)
     kwargs: dict[str, Any] = {}
     for f in dataclasses.fields(params_cls):
-        if is_group(hints[f.name]):
+        if union_members(f) is not None:
+            head = f.name + "."
+            inner = {name[len(head):]: v for name, v in values.items() if name.startswith(head)}
+            if inner or f.metadata.get("auto"):
+                try:
+                    kwargs[f.name] = _union_member(f, inner, kwargs)
+                except ValueError as err:
+                    raise ValueError(f"{f.name}.{err}") from None
+        elif is_group(hints[f.name]):
             head = f.name + "."
             inner = {name[len(head):]: v for name, v in values.items() if name.startswith(head)}
             if inner:
@@ -254,7 +355,13 @@ def override(params: Any, values: Mapping[str, Any]) -> Any:
         else:
             own[name] = value
     for head, inner in groups.items():
-        own[head] = override(getattr(params, head), inner)
+        member = next(f for f in dataclasses.fields(params) if f.name == head)
+        members = union_members(member)
+        if members is not None and "kind" in inner and inner["kind"] != getattr(params, head).kind:
+            rest = {k: v for k, v in inner.items() if k != "kind"}
+            own[head] = members[inner["kind"]](**rest)  # another kind: its own defaults, then these
+        else:
+            own[head] = override(getattr(params, head), inner)
     return dataclasses.replace(params, **own)
 
 

@@ -15,7 +15,7 @@ from nerfpipe.pipeline.dag import Dag
 from nerfpipe.pipeline.errors import ParamError
 from nerfpipe.pipeline.fingerprint import Fingerprint, FingerprintCache, diff_inputs
 from nerfpipe.pipeline.hashing import cache_key
-from nerfpipe.pipeline.params import build_params, describe_changes, params_to_dict
+from nerfpipe.pipeline.params import build_params, cache_view, describe_changes
 from nerfpipe.pipeline.stage import Stage, capture_root
 from nerfpipe.pipeline.store import MANAGED, ArtifactStore, Committed, Damage, is_run_dir
 
@@ -72,8 +72,9 @@ def plan_stages(dag: Dag, source: Path, run_dir: Path, preset: str | None,
                 overrides: Mapping[str, Mapping[str, Any]], budget: float | str | None,
                 rehash: bool = False, fingerprints: FingerprintCache | None = None) -> dict[str, PlannedStage]:
     """Every stage's parameters, fingerprinted capture files and cache key, in the DAG's order. The key hashes
-    the stage's name, version and parameters, its upstream keys, its files' fingerprints and, for a stage that
-    takes part in the job's time ``budget``, the budget as given. ``rehash``: hash every capture file, trusting
+    the stage's name, version and parameters (but those declared ``keyed=False``: a device, a chunk size), its
+    upstream keys, its files' fingerprints and, for a stage that takes part in the job's time ``budget``, the
+    budget as given. ``rehash``: hash every capture file, trusting
     no cached fingerprint."""
     fingerprints = fingerprints or FingerprintCache(run_dir / ".cache" / "fingerprints.json", rehash)
     root = capture_root(source)
@@ -85,7 +86,7 @@ def plan_stages(dag: Dag, source: Path, run_dir: Path, preset: str | None,
         material = {
             "stage": name,
             "version": stage.version,
-            "params": params_to_dict(params),
+            "params": cache_view(params),  # less what cannot change a result (``param(keyed=False)``)
             "upstream": {up: planned[up].key for up in dag.upstream[name]},
             "inputs": {fp.relpath: fp.sha256 for fp in files},
         }
@@ -128,14 +129,26 @@ def upstream_problem(
     result: Committed, upstream: Mapping[str, Committed | None], states: Mapping[str, str] | None = None
 ) -> str | None:
     """Why ``result`` may not be reused although its key matches: an upstream result it was built on
-    is missing or damaged, or was computed again since (its commit id differs from the one recorded)."""
+    is missing or damaged, or was computed again since with other outputs (its commit id differs from the
+    one recorded, and its outputs' content too). An upstream computed again to the same bytes is no
+    problem: the early cutoff of ``same_outputs``."""
     built_on = result.manifest.get("upstream_commits")
     for up, current in upstream.items():
         if current is None:
             return f"upstream {up} is {(states or {}).get(up, 'missing')}"
-        if built_on is not None and built_on.get(up) != current.commit_id:
+        if built_on is not None and built_on.get(up) != current.commit_id and up not in same_outputs(result, upstream):
             return f"upstream {up} was computed again after this result"
     return None
+
+
+def same_outputs(result: Committed, upstream: Mapping[str, Committed | None]) -> list[str]:
+    """The upstream stages computed again since ``result`` was built on them whose outputs came out
+    byte-identical (their ``content_id`` is the one recorded): ``result`` stays valid, as DVC stops a rerun
+    whose stage outputs hash the same."""
+    commits, contents = result.manifest.get("upstream_commits") or {}, result.manifest.get("upstream_contents") or {}
+    return [up for up, current in upstream.items()
+            if current is not None and commits.get(up) not in (None, current.commit_id)
+            and contents.get(up) == current.content_id]
 
 
 def stale_reasons(planned: PlannedStage, previous: Mapping[str, Any], inputs_label: str) -> list[str]:
@@ -194,6 +207,8 @@ def stage_statuses(plan: Mapping[str, PlannedStage], store: ArtifactStore, dag: 
                 statuses[name] = StageStatus(name, "stale", (problem,), planned.key, found)
             else:
                 reasons = () if store.latest_key(name) == planned.key else ("cached by an earlier run",)
+                reasons += tuple(f"upstream {up} was computed again to the same outputs: kept"
+                                 for up in same_outputs(found, upstream))
                 statuses[name] = StageStatus(name, "fresh", reasons, planned.key, found)
         elif isinstance(found, Damage):
             statuses[name] = StageStatus(name, "broken", (f"damaged result: {found}",), planned.key, None, found)

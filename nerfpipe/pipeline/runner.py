@@ -204,14 +204,15 @@ class Pipeline:
 
     # -- running -------------------------------------------------------------------------------
     def run(self, until: str | None = None, only: str | None = None, force: Sequence[str] = ()) -> list[StageOutcome]:
-        """Run what is not fresh among the selected stages. ``force`` reruns a stage and its downstream."""
+        """Run what is not fresh among the selected stages. ``force`` reruns those stages; their downstream runs
+        again only where a forced stage's outputs came out different (early cutoff, ``same_outputs``)."""
         selected = self.dag.select(until=until, only=only)
         forced: set[str] = set()
         for name in force:
             if self.dag.check_name(name) not in selected:
                 chosen = f"--until {until}" if until else f"--only {only}"
                 raise ParamError(f"--force {name}: not among the stages {chosen} runs; drop --force or choose stages that include it")
-            forced |= {name} | self.dag.descendants(name)
+            forced.add(name)
         check_run_dir(self.source, self.run_dir)
         self.plan()  # a capture that cannot be read is refused before the run directory is made
         ceiling = getattr(self.budget_rule, "ceiling", None)  # the most --budget auto can give
@@ -355,6 +356,7 @@ class Pipeline:
             **planned.material,
             "key": key,
             "upstream_commits": {up: result.commit_id for up, result in upstream.items()},
+            "upstream_contents": {up: result.content_id for up, result in upstream.items()},
             "inputs": {fp.relpath: {"size": fp.size, "sha256": fp.sha256} for fp in planned.files},
             "timings": {"started": started, "finished": finished, "seconds": round(finished - started, 4),
                         **({"allotted": round(ctx.allotment.seconds, 2), "budget": ctx.allotment.budget} if ctx.allotment else {})},

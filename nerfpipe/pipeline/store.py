@@ -26,6 +26,7 @@ returned as a result, and the runner moves it aside before computing it again.
 from __future__ import annotations
 
 import errno
+import hashlib
 import json
 import os
 import re
@@ -135,8 +136,8 @@ def _well_formed(manifest: Any) -> bool:
     time and sha256."""
     if not isinstance(manifest, dict) or not isinstance(manifest.get("key"), str):
         return False
-    if any(not isinstance(manifest.get(k, {}), dict) for k in ("params", "upstream", "upstream_commits", "inputs",
-                                                                 "summary", "timings")):
+    if any(not isinstance(manifest.get(k, {}), dict) for k in ("params", "upstream", "upstream_commits",
+                                                                 "upstream_contents", "inputs", "summary", "timings")):
         return False
     outputs = manifest.get("outputs")
     return isinstance(outputs, dict) and all(
@@ -159,6 +160,13 @@ class Committed:
     def commit_id(self) -> str:
         """Unique to this commit: a result computed again under the same key gets a new one."""
         return self.manifest.get("commit") or f"{self.key}@{self.manifest.get('timings', {}).get('finished')}"
+
+    @property
+    def content_id(self) -> str:
+        """The same for two commits whose outputs are byte-identical: a hash of each output's path and sha256."""
+        outputs = self.manifest.get("outputs", {})
+        listing = "\n".join(f"{rel}\t{outputs[rel]['sha256']}" for rel in sorted(outputs))
+        return hashlib.sha256(listing.encode("utf-8")).hexdigest()
 
 
 class ArtifactStore:

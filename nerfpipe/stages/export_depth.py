@@ -27,8 +27,8 @@ class ExportDepthParams:
     scale: float = field(default=0.25, metadata={"bounds": (0.01, 1.0), "help": "render at this fraction of each camera's resolution (1: full)"})
     views: Literal["all", "train", "heldout"] = field(default="all", metadata={"help": "which views: the training views, the held-out ones, or both"})
     acc_threshold: float = field(default=0.5, metadata={"bounds": (0.0, 1.0), "help": "accumulated opacity below which a pixel has no depth in the 16-bit PNG and preview"})
-    chunk: int = field(default=4096, metadata={"bounds": (1, 1_048_576), "help": "rays per chunk (4096: measured fastest on a 2-core CPU)"})
-    device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
+    chunk: int = field(default=4096, metadata={"keyed": False, "bounds": (1, 1_048_576), "help": "rays per chunk (4096: measured fastest on a 2-core CPU)"})
+    device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"keyed": False, "help": "auto: CUDA when present, else CPU"})
 
     def __post_init__(self) -> None:
         if not 0 < self.scale <= 1:

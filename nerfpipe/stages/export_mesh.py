@@ -62,7 +62,7 @@ class ExportMeshParams:
     texture: int = field(default=1024, metadata={"bounds": (0, 8192), "help": "texture size in texels a side, baked from the training photos into mesh.glb (and the vertex colours); 0: vertex colours from the field"})
     texture_faces: int = field(default=50_000, metadata={"bounds": (1, 10_000_000), "help": "triangles of the textured mesh (the photos' detail is in the texture)"})
     texture_photos: int = field(default=24, metadata={"bounds": (0, 10_000), "help": "bake from at most this many training photos, spread evenly over them (0: all); each costs about 0.8 s at 1024 texels"})
-    device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"help": "auto: CUDA when present, else CPU"})
+    device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"keyed": False, "help": "auto: CUDA when present, else CPU"})
 
     def __post_init__(self) -> None:
         for name in ("resolution", "block", "poisson_depth"):

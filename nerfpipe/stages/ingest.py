@@ -53,7 +53,7 @@ class IngestParams:
         default=150, metadata={"bounds": (2, 10_000), "help": "a video capture: frames to keep, each the sharpest of its stretch of the video"}
     )
     skip_bad: bool = field(default=False, metadata={"help": "skip unreadable or duplicate photos with a warning"})
-    workers: int = field(default=0, metadata={"bounds": (0, 256), "help": "decoding threads; 0 = one per CPU core"})
+    workers: int = field(default=0, metadata={"keyed": False, "bounds": (0, 256), "help": "decoding threads; 0 = one per CPU core"})
 
     def __post_init__(self) -> None:
         if self.max_size < 0:

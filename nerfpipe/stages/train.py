@@ -25,13 +25,16 @@ from typing import Any, ClassVar, Literal
 
 from nerfpipe.artifacts import ViewSplit
 from nerfpipe.nerf.config import (
-    FieldParams,
     OptimParams,
     PerImageParams,
-    SamplerParams,
     SpaceParams,
+    field_configs,
+    sampler_configs,
+    auto_sampler,
     step_bytes,
 )
+from nerfpipe.nerf.fields.configs import FieldConfig, GridConfig
+from nerfpipe.nerf.samplers.configs import MarchingConfig, SamplerConfig
 from nerfpipe.pipeline.params import param
 from nerfpipe.pipeline.resources import check_memory
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
@@ -45,13 +48,22 @@ _SAMPLER = {"true": "marching", "on": "marching", "false": "hierarchical", "off"
 @dataclass(frozen=True)
 class TrainParams:
     """The defaults are the ``fast`` preset: the grid field with empty-space skipping. The model's parts are
-    configured in groups (``nerfpipe.nerf.config``): ``field``, ``sampler``, ``space``, ``optim``, ``per_image``."""
+    configured in groups: ``field`` and ``sampler`` (each kind's own config, ``nerfpipe.nerf.fields.configs`` and
+    ``nerfpipe.nerf.samplers.configs``), ``space``, ``optim`` and ``per_image`` (``nerfpipe.nerf.config``)."""
 
     steps: int = param(0, "optimization steps (the paper: 100-300k, Section 5.3); 0: as many as fit in train.seconds", bounds=(0, 10_000_000))
     seconds: float = param(120.0, "with steps=0: seconds of training, the learning rate decaying over them "
                                   "(Instant-NGP trains by time too)", bounds=(1.0, 604800.0))
-    field: FieldParams = param(FieldParams(), "the radiance field")
-    sampler: SamplerParams = param(SamplerParams(), "where along each ray the field is evaluated")
+    field: FieldConfig = param(GridConfig(), "the radiance field: grid (dense feature grids and a small MLP, fast), "
+                                             "hash (its fine levels hashed, Instant-NGP), planes (three factorized "
+                                             "planes a level, K-Planes), mlp (the paper's MLP, Fig. 7), or any field "
+                                             "in nerfpipe.nerf.registry.FIELDS", union=field_configs)
+    sampler: SamplerConfig = param(MarchingConfig(), "where along each ray the field is evaluated: marching "
+                                                     "(empty-space skipping through an occupancy grid, Instant-NGP), "
+                                                     "hierarchical (Section 5.2's N_c + N_f samples), auto (the one the "
+                                                     "field asks for: marching a grid field, hierarchical along the "
+                                                     "MLP), or any sampler in nerfpipe.nerf.registry.SAMPLERS",
+                                   union=sampler_configs, auto=auto_sampler)
     space: SpaceParams = param(SpaceParams(), "the ray space and the scene box")
     optim: OptimParams = param(OptimParams(), "batches, optimizer and schedule")
     per_image: PerImageParams = param(PerImageParams(), "what is learned for each training photo")
@@ -63,12 +75,12 @@ class TrainParams:
     eval_budget: float = param(0.1, "under a job budget, the time kept for the held-out evaluation, as a share of the "
                                     "training time (an evaluation that takes longer makes the job longer)", bounds=(0.001, 10.0))
     checkpoint_every: int = param(500, "write a checkpoint every n steps (a killed run resumes from the last)", bounds=(1, 10_000_000))
-    keep_checkpoints: int = param(2, "checkpoints kept (0: all)", bounds=(0, 1000))
+    keep_checkpoints: int = param(2, "checkpoints kept (0: all)", bounds=(0, 1000), keyed=False)
     seed: int = param(0, "seed of initialization, batches and samples", bounds=(0, 2_147_483_647))
-    device: Literal["auto", "cpu", "cuda"] = param("auto", "auto: CUDA when present, else CPU")
+    device: Literal["auto", "cpu", "cuda"] = param("auto", "auto: CUDA when present, else CPU", keyed=False)
     tf32: bool = param(False, "CUDA: TF32 matmuls")
     autocast: Literal["none", "bf16", "fp16"] = param("none", "mixed precision for the MLP (compositing stays float32)")
-    chunk: int = param(4096, "rays per chunk when rendering whole views", bounds=(1, 1_048_576))
+    chunk: int = param(4096, "rays per chunk when rendering whole views", bounds=(1, 1_048_576), keyed=False)
 
     # the flat names before the parameters were grouped: still accepted, with a deprecation message
     ALIASES: ClassVar[dict[str, Any]] = {
@@ -155,7 +167,7 @@ class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
     name = "train"
-    version = 11  # 11: directions into the colour MLP as they are (L = 0; 4 before); 10: poses refined beyond 2 px
+    version = 12  # 12: model.json holds the parts' configs; 11: directions into the colour MLP as they are (L = 0; 4 before); 10: poses refined beyond 2 px
     Params = TrainParams
     presets = PRESETS
     requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")
@@ -225,7 +237,7 @@ class TrainStage(Stage):
 
     def _run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext, device) -> dict[str, Any]:
         started = time.monotonic()
-        from nerfpipe.nerf.policy import build_model, training_config
+        from nerfpipe.nerf.policy import build_model, density_noise
         from nerfpipe.nerf.train.evaluation import evaluate, evaluation_scale, scaled_size
         from nerfpipe.nerf.train.images import ImageLoader, describe_masks, split_views, trained_cameras
         from nerfpipe.nerf.train.trainer import Trainer
@@ -249,11 +261,10 @@ class TrainStage(Stage):
             if left < params.seconds:
                 ctx.log.warning("train: the budget leaves %.0f s for training; training %g s anyway (give a larger "
                                 "--budget, or --budget off and train.seconds)", max(left, 0.0), params.seconds)
-        config = training_config(params, layout)
-        if config.distortion > 0:
-            decisions.append(f"mip-NeRF 360's distortion loss (Eq. 15) at weight {config.distortion:g} against floaters")
+        if params.optim.distortion > 0:
+            decisions.append(f"mip-NeRF 360's distortion loss (Eq. 15) at weight {params.optim.distortion:g} against floaters")
             ctx.log.info("train: %s", decisions[-1])
-        trainer = Trainer(model, pixels, config, out, device)
+        trainer = Trainer(model, pixels, params, out, device, density_noise=density_noise(params, layout))
         masks = describe_masks(trainer.pixels)
         if masks is not None:
             decisions.append(masks)

@@ -28,7 +28,8 @@ from nerfpipe.nerf.fields.analytic import SphereField
 from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.spaces.ray_space import BoxSpace
 from nerfpipe.nerf.spaces.rays import camera_rays, pixel_centers
-from nerfpipe.nerf.samplers.base import HierarchicalSampler, SamplingConfig
+from nerfpipe.nerf.samplers.configs import HierarchicalConfig
+from nerfpipe.nerf.samplers.hierarchical import HierarchicalSampler
 from tests.helpers import look_at
 
 CENTER = np.array([0.05, -0.03, 0.02])
@@ -42,7 +43,7 @@ SIZE, FOCAL = 48, 50.0
 
 def sphere_model(n_fine: int = 0) -> RadianceModel:
     field = SphereField(tuple(CENTER), RADIUS, DENSITY)
-    return RadianceModel(field, None, HierarchicalSampler(SamplingConfig(N_COARSE, n_fine)), BoxSpace(BOX), (1.0, 1.0, 1.0))
+    return RadianceModel(field, None, HierarchicalSampler(HierarchicalConfig(n_coarse=N_COARSE, n_fine=n_fine)), BoxSpace(BOX), (1.0, 1.0, 1.0))
 
 
 def ring_cameras(count: int = 8) -> list[np.ndarray]:

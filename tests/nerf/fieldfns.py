@@ -7,12 +7,26 @@ from typing import Callable
 import torch
 from torch import Tensor
 
+from nerfpipe.nerf.fields.configs import MlpConfig
 from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.spaces.ray_space import BoxSpace
 from nerfpipe.nerf.spaces.rays import RayBatch
 from nerfpipe.nerf.render.volume import RenderOutput
 
 FieldFn = Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]
+
+# Fig. 7's MLP as Section 5.1 gives it: 8 layers of 256, gamma(x) again after the fifth, a 128-unit view branch,
+# L = 10 and 4, no raw coordinates beside their encoding, ReLU density
+PAPER_MLP = dict(depth=8, width=256, skip_after=5, view_width=128, pos_freqs=10, dir_freqs=4, include_input=False,
+                 density_activation="relu")
+
+
+def paper_mlp(**changes) -> MlpConfig:
+    """The paper's MLP config with ``changes``; a trunk too shallow for the fifth layer's skip has none."""
+    values = {**PAPER_MLP, **changes}
+    if "skip_after" not in changes and values["depth"] <= values["skip_after"]:
+        values["skip_after"] = 0
+    return MlpConfig(**values)
 
 
 class FnField(torch.nn.Module):

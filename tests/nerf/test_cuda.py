@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 import torch
 
-from nerfpipe.nerf.policy import build_model, training_config
+from nerfpipe.nerf.policy import build_model
+
 from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.spaces.rays import pixel_centers
-from nerfpipe.nerf.registry import FIELDS, resolve
+from nerfpipe.nerf.registry import FIELDS, part_class
 from nerfpipe.nerf.train.trainer import PixelSet, Trainer
-from nerfpipe.pipeline.params import override
-from nerfpipe.stages.train import TrainParams
+from nerfpipe.pipeline.params import build_params
+from nerfpipe.stages.train import PRESETS, TrainParams
 from tests.helpers import look_at
 from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
 
@@ -32,7 +33,7 @@ EYE = np.array([0.3, -3.0, 0.8])
 
 
 def params_of(values: dict) -> TrainParams:
-    return override(TrainParams(), values)
+    return build_params("train", TrainParams, PRESETS, None, values)
 
 
 def view_rays(model: RadianceModel):
@@ -85,7 +86,7 @@ def test_training_on_the_gpu_lowers_the_loss_with_exposure_and_pose_refinement(k
                         "checkpoint_every": 30, "optim.lr": 1e-2 if kind != "mlp" else 3e-3, "optim.lr_final": 1e-3})
     model, _ = build_model(params, scene_of("inward360"), world_of_one_camera(), bounds_of(), CUDA, ["a.png"])
     assert model.appearance is not None and model.refinement is not None
-    trainer = Trainer(model, one_view_pixels(CUDA), training_config(params, "inward360"), tmp_path, CUDA)
+    trainer = Trainer(model, one_view_pixels(CUDA), params, tmp_path, CUDA)
     losses = []
     for step in range(60):
         loss, _ = trainer.train_step(step)
@@ -100,7 +101,7 @@ def test_training_on_the_gpu_lowers_the_loss_with_exposure_and_pose_refinement(k
 def test_a_model_trained_on_the_gpu_loads_on_the_cpu_and_renders_the_same(tmp_path: Path) -> None:
     params = params_of({"steps": 40, "optim.batch_rays": 256, "checkpoint_every": 20, "field.max_resolution": 128})
     model, _ = build_model(params, scene_of("inward360"), world_of_one_camera(), bounds_of(), CUDA, ["a.png"])
-    trainer = Trainer(model, one_view_pixels(CUDA), training_config(params, "inward360"), tmp_path, CUDA)
+    trainer = Trainer(model, one_view_pixels(CUDA), params, tmp_path, CUDA)
     trainer.run()
     assert trainer.step == 40 and (tmp_path / "checkpoints").exists()
     model.save(tmp_path)
@@ -109,7 +110,7 @@ def test_a_model_trained_on_the_gpu_loads_on_the_cpu_and_renders_the_same(tmp_pa
     a, b = model.render_rays(view_rays(model), 256), back.render_rays(view_rays(back), 256)
     torch.testing.assert_close(a["rgb"].cpu(), b["rgb"], atol=2e-3, rtol=2e-3)
     again = Trainer(build_model(params, scene_of("inward360"), world_of_one_camera(), bounds_of(), CUDA, ["a.png"])[0],
-                    one_view_pixels(CUDA), training_config(params, "inward360"), tmp_path, CUDA)
+                    one_view_pixels(CUDA), params, tmp_path, CUDA)
     assert again.resume() == 40  # a GPU checkpoint resumes on the GPU
 
 
@@ -117,10 +118,9 @@ def test_a_model_trained_on_the_gpu_loads_on_the_cpu_and_renders_the_same(tmp_pa
 @pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
 def test_grid_fields_have_finite_gradients_at_extreme_inputs_on_the_gpu(kind, dtype) -> None:
     torch.manual_seed(0)
-    cls = resolve(FIELDS, kind)
-    spec = build_model(params_of({"field.kind": kind, "field.max_resolution": 2048 if kind != "grid" else 128}),
-                       scene_of("inward360"), world_of_one_camera(), bounds_of(), CPU)[0].coarse.spec()
-    field = cls.from_spec(spec).to(CUDA)
+    built = build_model(params_of({"field.kind": kind, "field.max_resolution": 2048 if kind != "grid" else 128}),
+                        scene_of("inward360"), world_of_one_camera(), bounds_of(), CPU)[0].coarse
+    field = part_class(built.config).from_config(built.config, built.box()).to(CUDA)
     edges = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [1.0 - 1e-7, 0.0, -1.0], [1e30, -1e30, 0.0],
                           [float("inf"), 0.0, 0.0], [0.3, -0.2, 0.999999]])
     x = torch.cat([edges, torch.rand(1024, 3) * 2 - 1]).to(CUDA).requires_grad_(True)

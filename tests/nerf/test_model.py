@@ -40,7 +40,7 @@ def test_a_model_is_built_from_its_spec_and_the_spec_survives_json(tmp_path) -> 
     spec, said = resolve_spec(*args, ["a.png", "b.png"])
     model, said_again = build_model(*args, torch.device("cpu"), ["a.png", "b.png"])
     assert said == said_again and model.spec == spec  # resolving, then building, is what build_model does
-    assert spec.field["kind"] == "grid" and spec.sampler["kind"] == "marching" and isinstance(spec.ray_space, NdcSpace)
+    assert spec.field.kind == "grid" and spec.sampler.kind == "marching" and isinstance(spec.ray_space, NdcSpace)
     assert ModelSpec.from_json(json.loads(json.dumps(spec.to_json()))) == spec
     # the same seed builds the same weights; a saved model loads back through the same build
     torch.manual_seed(0)

@@ -16,15 +16,17 @@ from nerfpipe.nerf.policy import (
     build_model,
     carve_scene_box,
     density_noise,
-    sampler_spec_for,
-    training_config,
+    sampler_for,
 )
 from nerfpipe.nerf.fields.mlp import NerfField
 from nerfpipe.nerf.fields.grid import GridField
 from nerfpipe.nerf.spaces.ray_space import BoxSpace, ContractedSpace, NdcSpace
-from nerfpipe.nerf.samplers.base import MarchingSampler
-from nerfpipe.pipeline.params import override
-from nerfpipe.stages.train import TrainParams
+from nerfpipe.nerf.samplers.marching import MarchingSampler
+from nerfpipe.nerf.samplers.configs import HierarchicalConfig
+from nerfpipe.nerf.train.trainer import final_lr, learning_rate
+from nerfpipe.pipeline.errors import ParamError
+from nerfpipe.pipeline.params import build_params
+from nerfpipe.stages.train import PRESETS, TrainParams
 from tests.geometry.sphere_photos import CENTER, RADIUS, sphere_views
 from tests.helpers import look_at
 from tests.nerf.scenes import bounds_of, scene_of, world_of_one_camera
@@ -33,8 +35,8 @@ CPU = torch.device("cpu")
 
 
 def train_params(values: dict) -> TrainParams:
-    """The default train parameters with ``values`` (by dotted name) replaced."""
-    return override(TrainParams(), values)
+    """The default train parameters with ``values`` (by dotted name) set, as ``--set`` sets them."""
+    return build_params("train", TrainParams, PRESETS, None, values)
 
 
 @pytest.mark.parametrize(
@@ -54,7 +56,7 @@ def test_ablation_switches_build_the_tables_models(overrides, first_in, view_in,
     model, _ = build_model(params, scene_of("inward360"), world_of_one_camera(), bounds_of(), CPU)
     assert model.coarse.trunk[0].in_features == first_in
     assert model.coarse.view.in_features == view_in
-    assert model.sampler.config.n_fine == n_fine
+    assert model.sampler.config.fine == n_fine
     assert (model.fine is not None) == fine
 
 
@@ -143,12 +145,11 @@ def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:
 
 
 def test_sampler_and_background_builders_say_why_not() -> None:
-    spec, said = sampler_spec_for(train_params({"field.kind": "mlp", "sampler.kind": "marching"}), "mlp", None,
-                                  "unbounded360")
-    assert spec["kind"] == "hierarchical"
+    config, said = sampler_for(train_params({"field.kind": "mlp", "sampler.kind": "marching"}), None, "unbounded360")
+    assert config == HierarchicalConfig(lindisp="on")  # unbounded: linear in disparity
     assert said == "no occupancy grid: an unbounded scene has no box to grid; Section 5.2's sampling instead"
-    spec, said = sampler_spec_for(train_params({"field.kind": "mlp"}), "mlp", ((-1.0,) * 3, (1.0,) * 3), "inward360")
-    assert spec == {"kind": "hierarchical", "sampling": {"n_coarse": 32, "n_fine": 64, "lindisp": False}}
+    config, said = sampler_for(train_params({"field.kind": "mlp"}), ((-1.0,) * 3, (1.0,) * 3), "inward360")
+    assert config == HierarchicalConfig(n_coarse=32, n_fine=64, lindisp="off")
     assert said is None  # auto: the paper's sampling for the MLP, which needs no sentence
     assert build_background(scene_of("inward360", "color", [0, 0.5, 1])) == (
         (0.0, 0.5, 1.0), "background color: renders composited onto (0.00, 0.50, 1.00)")
@@ -158,27 +159,22 @@ def test_sampler_and_background_builders_say_why_not() -> None:
         "grown by GrabCut over what looks like them) trains empty space against a random colour per ray; renders composited onto (0.00, 0.00, 0.00)"))
 
 
-def test_training_config_carries_the_schedule_noise_and_precision() -> None:
-    params = train_params({"steps": 700, "optim.batch_rays": 512, "optim.lr": 3e-3, "optim.lr_final": 1e-4,
-                           "optim.adam_eps": 1e-8, "optim.adam_beta2": 0.995, "optim.batch_samples": 0, "seed": 4,
-                           "checkpoint_every": 50, "keep_checkpoints": 3, "autocast": "bf16", "tf32": True,
-                           "field.kind": "mlp"})
-    config = training_config(params, "forward")
-    assert (config.steps, config.batch_rays, config.lr, config.lr_final, config.adam_eps, config.adam_beta2) == (
-        700, 512, 3e-3, 1e-4, 1e-8, 0.995)
-    assert (config.batch_samples, config.seed, config.checkpoint_every, config.keep_checkpoints) == (0, 4, 50, 3)
-    assert config.autocast == "bf16" and config.tf32 and config.density_noise == 1.0
-    default = training_config(TrainParams(), "forward")
+def test_the_trainer_reads_the_train_parameters_and_the_scene_decides_the_noise() -> None:
+    params = train_params({"field.kind": "mlp", "optim.lr": 3e-3, "optim.lr_final": 1e-4})
+    assert params.sampler.kind == "hierarchical"  # sampler.kind=auto: the one the MLP asks for
+    assert density_noise(params, "forward") == 1.0 and density_noise(params, "inward360") == 0.0
+    default = TrainParams()
     assert not default.tf32 and (default.steps, default.seconds) == (0, 120.0)  # trained by time
+    assert (default.optim.lr, final_lr(default.optim), default.optim.mlp_lr_share) == (3e-2, 9e-3, 0.33)
+    # exponential decay from lr to lr_final over the training, by the share done
+    assert learning_rate(default, 0.0) == 3e-2 and learning_rate(default, 1.0) == pytest.approx(9e-3)
+    assert learning_rate(default, 0.5) == pytest.approx((3e-2 * 9e-3) ** 0.5)
     # a learning rate set below the default final one trains at that rate throughout, not upwards
-    assert training_config(train_params({"optim.lr": 1e-3}), "forward").lr_final == 1e-3
-    assert (default.lr, default.lr_final, default.mlp_lr_share) == (3e-2, 9e-3, 0.33)
+    assert final_lr(train_params({"optim.lr": 1e-3}).optim) == 1e-3
     assert density_noise(TrainParams(), "forward") == 0.0  # the grid field has no raw-density regularizer
     assert density_noise(train_params({"field.kind": "mlp", "optim.density_noise": "0.5"}), "inward360") == 0.5
-    # the distortion loss: off unless asked for (measured on beer, it cost more than it gave)
-    assert default.distortion == 0.0
-    assert training_config(train_params({"optim.distortion": 0.002}), "forward").distortion == 0.002
-    with pytest.raises(ValueError, match="distortion must be >= 0"):
+    assert default.optim.distortion == 0.0  # off unless asked for (measured on beer, it cost more than it gave)
+    with pytest.raises(ParamError, match="distortion must be >= 0|outside its bounds"):
         train_params({"optim.distortion": -1.0})
 
 
@@ -208,7 +204,6 @@ def test_per_image_exposure_and_camera_refinement_follow_the_data_unless_set() -
         assert (model.refinement is not None) == refined and f"{error:.2f} px" in " ".join(said)
     without_names, _ = build_model(TrainParams(), varying, world, bounds, cpu)  # nothing per image to learn
     assert without_names.appearance is None and without_names.refinement is None
-    assert training_config(train_params({"per_image.pose_lr": 0.002}), "inward360").pose_lr == 0.002
 
 
 def test_silhouettes_shrink_the_scene_box_and_the_grids_over_it_to_their_visual_hull() -> None:

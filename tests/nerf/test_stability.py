@@ -18,10 +18,13 @@ from hypothesis import strategies as st
 from torch import nn
 
 from nerfpipe.nerf.fields.encoding import positional_encoding
-from nerfpipe.nerf.fields.mlp import FieldConfig, NerfField
+
+from tests.nerf.fieldfns import paper_mlp
+from nerfpipe.nerf.fields.mlp import NerfField
 from nerfpipe.nerf.spaces.rays import RayBatch, ndc_rays
 from nerfpipe.nerf.render.volume import RaySamples, optical_depth, volume_render
-from nerfpipe.nerf.samplers.base import HierarchicalSampler, SamplingConfig
+from nerfpipe.nerf.samplers.configs import HierarchicalConfig
+from nerfpipe.nerf.samplers.hierarchical import HierarchicalSampler
 from nerfpipe.nerf.samplers.sampling import sample_intervals, sample_pdf, stratified_samples
 from tests.nerf.fieldfns import render_fields
 
@@ -328,7 +331,7 @@ def test_sample_pdf_degenerate_weights(kind, deterministic, mode):
 
 def scaled_field(scale: float) -> tuple[NerfField, callable]:
     torch.manual_seed(0)
-    net = NerfField(FieldConfig(depth=2, width=16, view_width=8, skips=(), density_activation="softplus"))
+    net = NerfField(paper_mlp(depth=2, width=16, view_width=8, density_activation="softplus"))
 
     def field(points, viewdirs):
         rgb, sigma = net(points, viewdirs)
@@ -356,7 +359,7 @@ def test_network_gradients_finite(mode, scale, bounds, n_coarse):
     rays = ray_batch(4, *bounds)
     target = torch.full((4, 3), 0.5)
     with precision(mode):
-        out = render_fields(field, None, rays, HierarchicalSampler(SamplingConfig(n_coarse=n_coarse, n_fine=4)),
+        out = render_fields(field, None, rays, HierarchicalSampler(HierarchicalConfig(n_coarse=n_coarse, n_fine=4)),
                             torch.ones(3), train=True, generator=torch.Generator().manual_seed(0))
         loss = sum(((level.rgb - target) ** 2).mean() + level.depth.mean() + level.disparity.mean() + level.acc.mean()
                    for level in out.passes())
@@ -518,7 +521,7 @@ def _box_rays(n: int = 16) -> RayBatch:
 def _marching(field: nn.Module, grid, config, space=None):
     from nerfpipe.nerf.model import RadianceModel
     from nerfpipe.nerf.spaces.ray_space import BoxSpace
-    from nerfpipe.nerf.samplers.base import MarchingSampler
+    from nerfpipe.nerf.samplers.marching import MarchingSampler
 
     return RadianceModel(field, None, MarchingSampler(grid, config), space or BoxSpace(), None)
 
@@ -526,7 +529,8 @@ def _marching(field: nn.Module, grid, config, space=None):
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("density", EXTREME_DENSITIES)
 def test_marching_keeps_bounds_and_gradients_at_extreme_densities(mode: str, density: float) -> None:
-    from nerfpipe.nerf.samplers.occupancy import MarchingConfig, OccupancyGrid
+    from nerfpipe.nerf.samplers.configs import MarchingConfig
+    from nerfpipe.nerf.samplers.occupancy import OccupancyGrid
 
     field = _Constant(density)
     grid = OccupancyGrid((-1.0,) * 3, (1.0,) * 3, 8)
@@ -558,7 +562,8 @@ def test_marching_keeps_bounds_and_gradients_at_extreme_densities(mode: str, den
 def test_marching_degenerate_rays_give_the_background() -> None:
     """Zero-length rays (near == far), rays outside the box and an all-empty grid: no samples, the
     background colour, zero opacity, depth at far, and no NaN anywhere, gradients included."""
-    from nerfpipe.nerf.samplers.occupancy import MarchingConfig, OccupancyGrid
+    from nerfpipe.nerf.samplers.configs import MarchingConfig
+    from nerfpipe.nerf.samplers.occupancy import OccupancyGrid
 
     field = _Constant(10.0)
     grid = OccupancyGrid((-1.0,) * 3, (1.0,) * 3, 4)
@@ -589,7 +594,8 @@ def test_marching_degenerate_rays_give_the_background() -> None:
 def test_contracted_marching_keeps_bounds_and_gradients(mode: str, density: float) -> None:
     """World rays from outside the scene box to far bounds up to 1e6 through contracted space, at every
     extreme density: a bounded number of steps, sane composites, finite gradients, depth within [near, far]."""
-    from nerfpipe.nerf.samplers.occupancy import MarchingConfig, OccupancyGrid
+    from nerfpipe.nerf.samplers.configs import MarchingConfig
+    from nerfpipe.nerf.samplers.occupancy import OccupancyGrid
     from nerfpipe.nerf.spaces.ray_space import ContractedSpace
 
     field = _Constant(density)
@@ -655,12 +661,14 @@ def test_camera_refinement_is_the_identity_at_first_with_finite_gradients_throug
     """Camera refinement (``nerfpipe.nerf.refinement``): no change at initialisation (So3.exp at a zero
     vector), and finite, non-zero gradients from a grid field's colours back to the corrections, there and
     after large corrections (a half turn)."""
-    from nerfpipe.nerf.fields.grid import GridField, GridFieldConfig
+    from nerfpipe.nerf.fields.configs import GridConfig
+    from nerfpipe.nerf.fields.grid import GridField
     from nerfpipe.nerf.spaces.rays import camera_rays
     from nerfpipe.nerf.refinement import PoseRefinement
 
     torch.manual_seed(0)
-    field = GridField((-1.0,) * 3, (1.0,) * 3, GridFieldConfig(levels=2, min_resolution=8, max_resolution=16, init_scale=0.3))
+    field = GridField((-1.0,) * 3, (1.0,) * 3, GridConfig(levels=2, min_resolution=8, max_resolution=16))
+    torch.nn.init.uniform_(field.table, -0.3, 0.3)
     c2w = torch.eye(4).repeat(3, 1, 1)
     c2w[:, 2, 3] = -3.0  # looking down +z at the box from z = -3
     refinement = PoseRefinement(3)

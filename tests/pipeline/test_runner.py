@@ -134,13 +134,46 @@ def test_until_only_and_force(capture, tmp_path):
         pipe(capture, run_dir, overrides={"ingest": {"max_size": "300"}}).run(only="count")
 
     forced = pipe(capture, run_dir).run(force=["ingest"])
-    assert [(o.action, o.reasons) for o in forced] == [("ran", ("forced",)), ("ran", ("forced",))]
+    # ingest reran to the same bytes: count, built on them, is kept (early cutoff), and status says why
+    assert [(o.name, o.action) for o in forced] == [("ingest", "ran"), ("count", "cached")]
+    assert forced[0].reasons == ("forced",)
     assert ArtifactStore(run_dir).keys("ingest") == [forced[0].key]  # replaced in place, one result
+    count = pipe(capture, run_dir).status()[1]
+    assert count.state == "fresh" and count.reasons == ("upstream ingest was computed again to the same outputs: kept",)
+    both = pipe(capture, run_dir).run(force=["ingest", "count"])
+    assert [(o.name, o.action) for o in both] == [("ingest", "ran"), ("count", "ran")]
 
     with pytest.raises(ParamError, match="unknown stage 'ingst'; did you mean ingest"):
         pipe(capture, run_dir).run(until="ingst")
     with pytest.raises(ParamError, match="do not combine"):
         pipe(capture, run_dir).run(until="ingest", only="count")
+
+
+def test_an_upstream_computed_again_to_other_outputs_reruns_its_downstream(capture, tmp_path, monkeypatch):
+    run_dir = tmp_path / "run"
+    pipe(capture, run_dir).run()
+    from nerfpipe.stages.ingest import IngestStage
+
+    real = IngestStage.run
+
+    def other_bytes(self, inputs, out, params, ctx):  # the same settings, other outputs (a nondeterministic stage)
+        summary = real(self, inputs, out, params, ctx)
+        (out / "note.txt").write_text("computed again")
+        return summary
+
+    monkeypatch.setattr(IngestStage, "run", other_bytes)
+    forced = pipe(capture, run_dir).run(force=["ingest"])
+    assert [(o.name, o.action) for o in forced] == [("ingest", "ran"), ("count", "ran")]
+    assert forced[1].reasons == ("upstream ingest was computed again after this result",)
+
+
+def test_a_setting_that_cannot_change_a_result_reruns_nothing(capture, tmp_path):
+    run_dir = tmp_path / "run"
+    first = pipe(capture, run_dir).run()
+    again = pipe(capture, run_dir, overrides={"count": {"chunk": "7"}}).run()
+    assert [o.action for o in again] == ["cached", "cached"] and again[1].key == first[1].key
+    assert pipe(capture, run_dir, overrides={"count": {"chunk": "7"}}).plan()["count"].params.chunk == 7
+    assert [o.action for o in pipe(capture, run_dir, overrides={"count": {"label": "n"}}).run()] == ["cached", "ran"]
 
 
 def test_unknown_preset_and_stage_in_overrides(capture, tmp_path):

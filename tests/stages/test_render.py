@@ -21,10 +21,12 @@ from nerfpipe.artifacts import Bounds, Decision, FrameBounds, SceneDecisions
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, mean_camera
 from nerfpipe.imaging.png import read_png, srgb_encode
 from nerfpipe.nerf.policy import NDC_NEAR_FACTOR
-from nerfpipe.nerf.fields.mlp import FieldConfig, NerfField
+from tests.nerf.fieldfns import paper_mlp
+from nerfpipe.nerf.fields.mlp import NerfField
 from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.spaces.ray_space import BoxSpace, NdcSpace
-from nerfpipe.nerf.samplers.base import HierarchicalSampler, SamplingConfig
+from nerfpipe.nerf.samplers.configs import HierarchicalConfig
+from nerfpipe.nerf.samplers.hierarchical import HierarchicalSampler
 from nerfpipe.pipeline.budget import Allotment
 from nerfpipe.pipeline.errors import ParamError, StageError
 from nerfpipe.pipeline.params import build_params
@@ -45,8 +47,8 @@ def cube_field(half: tuple[float, float, float], density: float = 100.0, sharpne
     0 from density / sharpness = 0.1 outside. The colour branch has zero weights and sigmoid^-1(COLOUR) as
     the output bias.
     """
-    config = FieldConfig(depth=1, width=6, skips=(), view_width=4, pos_freqs=0, dir_freqs=0, include_input=True,
-                         view_dependent=False, density_activation="relu")
+    config = paper_mlp(depth=1, width=6, view_width=4, pos_freqs=0, dir_freqs=0, include_input=True,
+                         view_dependence=False, density_activation="relu")
     field = NerfField(config)
     with torch.no_grad():
         for p in field.parameters():
@@ -101,7 +103,7 @@ def write_scene(folder: Path, layout: str, photometric: str = "srgb") -> StageIn
         field = cube_field((0.3, 0.3, 0.3))
         ray_space = BoxSpace((tuple(box[0]), tuple(box[1])))
     info = {"layout": layout, "photometric": photometric, "to_sfm": TO_SFM.tolist()}
-    model = RadianceModel(field, None, HierarchicalSampler(SamplingConfig(n_coarse=32, n_fine=16)), ray_space, None, info)
+    model = RadianceModel(field, None, HierarchicalSampler(HierarchicalConfig(n_coarse=32, n_fine=16)), ray_space, None, info)
     (folder / "train").mkdir()
     model.save(folder / "train")
     artifacts = {"model": folder / "train" / "model.pt", "model_json": folder / "train" / "model.json",

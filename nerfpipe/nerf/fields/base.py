@@ -2,18 +2,17 @@
 
 Every field answers the same few questions, so that the model, the samplers and the exports never ask
 which kind it is. The registered ones (``nerfpipe.nerf.registry.FIELDS``): the grid field
-(``nerfpipe.nerf.fields.grid``) with its hashed (``hash_field``) and factorized-plane (``plane_field``) kinds,
+(``nerfpipe.nerf.fields.grid``) with its hashed (``hash``) and factorized-plane (``planes``) kinds,
 and the paper's MLP (``nerfpipe.nerf.fields.mlp``). A new field is a class
 with these members and a line in the registry.
 """
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, Protocol
+from typing import Any, Protocol
 
 from torch import Tensor
 
-from nerfpipe.nerf.registry import FIELDS, resolve
 
 Box = tuple[tuple[float, ...], tuple[float, ...]]
 
@@ -21,8 +20,6 @@ Box = tuple[tuple[float, ...], tuple[float, ...]]
 class Field(Protocol):
     """A radiance field as the model uses it (an ``nn.Module``)."""
 
-    kind: ClassVar[str]  # its name in the registry
-    needs_box: ClassVar[bool]  # whether it spans a bounded box (an unbounded scene must then be contracted)
     training: bool
 
     def __call__(self, x: Tensor, d: Tensor | None = None, density_noise: float = 0.0) -> tuple[Tensor, Tensor]:
@@ -40,20 +37,14 @@ class Field(Protocol):
         """rgb (M, 3) in [0, 1] from ``density_features``' features and unit view directions d (M, 3):
         ``field(x, d)`` is ``(colour(density_features(x)[1], d), density_features(x)[0])``."""
 
-    @staticmethod
-    def spec_of(params: Any, box: Box | None) -> dict[str, Any]:
-        """The spec ``nerfpipe.nerf.config.FieldParams`` asks for over ``box`` (field coordinates; None: unbounded)."""
+    config: Any  # its ``nerfpipe.nerf.fields.configs.FieldConfig``: the user's settings, and its spec
 
     @classmethod
-    def from_spec(cls, spec: dict[str, Any]) -> "Field":
-        """Rebuilt from ``spec()`` (model.json), before its weights are loaded."""
+    def from_config(cls, config: Any, box: Box | None) -> "Field":
+        """Built from its config over ``box`` (field coordinates; None: unbounded), before any weights load."""
 
-    def spec(self) -> dict[str, Any]:
-        """What ``from_spec`` rebuilds it from; ``spec_of`` gives the same for parameters."""
-
-    @staticmethod
-    def describe(spec: dict[str, Any]) -> str | None:
-        """A sentence for the train log about the field ``spec`` describes, or None for the paper's own."""
+    def box(self) -> Box | None:
+        """The box it spans, as ``from_config`` took it."""
 
     def parameters(self) -> Any: ...
 
@@ -68,9 +59,3 @@ class Field(Protocol):
     def to(self, device: Any) -> Any: ...
 
 
-def field_class(kind: str) -> type:
-    return resolve(FIELDS, kind)
-
-
-def field_spec(field: Field) -> dict[str, Any]:
-    return {"kind": field.kind, **field.spec()}

@@ -18,36 +18,16 @@ channels-first volumes measured 4-5x slower here, forward and backward.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from nerfpipe.nerf.config import level_resolutions
+from nerfpipe.nerf.fields.configs import GridConfig
 from nerfpipe.nerf.fields.encoding import encoded_size, positional_encoding
 
 Box = tuple[tuple[float, ...], tuple[float, ...]]
 MAX_LOG_DENSITY = 15.0  # exp(15) = 3.3e6: opaque within 1e-6 of any step, and no overflow
-
-
-@dataclass(frozen=True)
-class GridFieldConfig:
-    """Levels of resolution ``min_resolution`` .. ``max_resolution`` (geometric), ``features`` per vertex."""
-
-    levels: int = 4
-    min_resolution: int = 16
-    max_resolution: int = 128
-    features: int = 4
-    hidden: int = 64
-    geo_features: int = 15
-    dir_freqs: int = 0
-    view_dependent: bool = True
-    init_scale: float = 1e-4
-
-    def resolutions(self) -> list[int]:
-        return level_resolutions(self.levels, self.min_resolution, self.max_resolution)
 
 
 class _Trilinear(torch.autograd.Function):
@@ -129,48 +109,22 @@ class GridField(nn.Module):
     Points outside the box have density 0 (the box is the scene: the scene box, or NDC's frustum).
     """
 
-    kind = "grid"
-    needs_box = True  # its grids span a bounded box
-
-    Config = GridFieldConfig  # what its spec's "field" holds
-
     @classmethod
-    def config_of(cls, params: Any) -> GridFieldConfig:
-        """The configuration ``nerfpipe.nerf.config.FieldParams`` asks for (of the field's own ``Config``)."""
-        return cls.Config(
-            levels=params.levels, min_resolution=params.min_resolution, max_resolution=params.max_resolution,
-            features=params.features, hidden=params.hidden,
-            dir_freqs=params.dir_freqs if params.positional_encoding else 0, view_dependent=params.view_dependence,
-        )
+    def from_config(cls, config: GridConfig, box: Box | None) -> "GridField":
+        if box is None:
+            raise ValueError(f"the {config.kind} field spans a bounded box, and was given none")
+        return cls(tuple(box[0]), tuple(box[1]), config)
 
-    @classmethod
-    def spec_of(cls, params: Any, box: Box | None) -> dict[str, Any]:
-        """The spec of the field ``nerfpipe.nerf.config.FieldParams`` asks for over ``box``."""
-        return {"field": asdict(cls.config_of(params)), "field_box": [list(box[0]), list(box[1])]}
+    def box(self) -> Box:
+        return tuple(self.lo.tolist()), tuple(self.hi.tolist())
 
-    @classmethod
-    def from_spec(cls, spec: dict[str, Any]) -> "GridField":
-        lo, hi = spec["field_box"]
-        return cls(tuple(lo), tuple(hi), cls.Config(**spec["field"]))
-
-    def spec(self) -> dict[str, Any]:
-        return {"field": asdict(self.config), "field_box": [self.lo.tolist(), self.hi.tolist()]}
-
-    @staticmethod
-    def describe(spec: dict[str, Any]) -> str:
-        c = GridFieldConfig(**spec["field"])
-        return f"grid field: {c.levels} levels of {c.resolutions()} cells a side, {c.features} features each, " \
-               f"and a {c.hidden}-wide MLP"
-
-    def __init__(self, lo: tuple[float, ...], hi: tuple[float, ...], config: GridFieldConfig = GridFieldConfig(),
-                 sizes: list[int] | None = None) -> None:
-        """``sizes``: rows of each level's table (default: its dense vertex count, (r + 1)^3)."""
+    def __init__(self, lo: tuple[float, ...], hi: tuple[float, ...], config: GridConfig = GridConfig()) -> None:
         super().__init__()
         self.config = config
         self.register_buffer("lo", torch.tensor(lo, dtype=torch.float32))
         self.register_buffer("hi", torch.tensor(hi, dtype=torch.float32))
         resolutions = config.resolutions()
-        sizes = sizes or [(r + 1) ** 3 for r in resolutions]
+        sizes = config.level_sizes()
         # every level in one (vertices, features) table: one gather and one scatter for all levels
         self.table = nn.Parameter(torch.empty(sum(sizes), config.features).uniform_(-config.init_scale, config.init_scale))
         self.register_buffer("resolutions", torch.tensor(resolutions), persistent=False)
@@ -178,7 +132,7 @@ class GridField(nn.Module):
         self.register_buffer("sizes", torch.tensor(sizes), persistent=False)
         width = config.levels * config.features
         self.density_net = nn.Sequential(nn.Linear(width, config.hidden), nn.ReLU(), nn.Linear(config.hidden, 1 + config.geo_features))
-        dir_dim = encoded_size(config.dir_freqs, True) if config.view_dependent else 0
+        dir_dim = encoded_size(config.dir_freqs, True) if config.view_dependence else 0
         self.color_net = nn.Sequential(
             nn.Linear(config.geo_features + dir_dim, config.hidden), nn.ReLU(),
             nn.Linear(config.hidden, config.hidden), nn.ReLU(), nn.Linear(config.hidden, 3),
@@ -224,7 +178,7 @@ class GridField(nn.Module):
 
     def colour(self, features: Tensor, d: Tensor | None) -> Tensor:
         """rgb (M, 3) in (0, 1) from ``density_features``' features and unit viewing directions d (M, 3)."""
-        if self.config.view_dependent:
+        if self.config.view_dependence:
             if d is None:
                 raise ValueError("a view-dependent field needs viewing directions d")
             features = torch.cat([features, positional_encoding(d, self.config.dir_freqs, True).to(features.dtype)], dim=-1)

@@ -12,25 +12,12 @@ Everything else -- the one stacked (rows, features) table, the trilinear gather 
 
 from __future__ import annotations
 
-import dataclasses
-from dataclasses import dataclass
-from typing import Any
-
 import torch
 from torch import Tensor
 
-from nerfpipe.nerf.fields.grid import CORNERS, GridField, GridFieldConfig, corner_weights, grid_cells
+from nerfpipe.nerf.fields.grid import CORNERS, GridField, corner_weights, grid_cells
 
 PRIMES = (1, 2654435761, 805459861)  # Instant-NGP's hash, one prime per axis (the first is 1 for coherence)
-
-
-@dataclass(frozen=True)
-class HashFieldConfig(GridFieldConfig):
-    log2_table: int = 19  # rows of each hashed level's table: 2**log2_table
-
-    def level_sizes(self) -> list[int]:
-        """Rows of each level: its dense vertex count, or the table size where that is smaller."""
-        return [min((r + 1) ** 3, 2**self.log2_table) for r in self.resolutions()]
 
 
 def hashed_corners(u: Tensor, resolutions: Tensor, offsets: Tensor, sizes: Tensor) -> tuple[Tensor, Tensor]:
@@ -55,27 +42,6 @@ def hashed_corners(u: Tensor, resolutions: Tensor, offsets: Tensor, sizes: Tenso
 
 class HashGridField(GridField):
     """The grid field whose fine levels are hashed (Instant-NGP), so they can be as fine as the photos."""
-
-    kind = "hash"
-    needs_box = True
-
-    Config = HashFieldConfig
-
-    @classmethod
-    def config_of(cls, params: Any) -> HashFieldConfig:
-        """The grid field's configuration with the table size ``FieldParams.log2_table``."""
-        return dataclasses.replace(super().config_of(params), log2_table=params.log2_table)
-
-    @staticmethod
-    def describe(spec: dict[str, Any]) -> str:
-        c = HashFieldConfig(**spec["field"])
-        hashed = sum(size < (r + 1) ** 3 for size, r in zip(c.level_sizes(), c.resolutions()))
-        return (f"hash-grid field: {c.levels} levels of {c.resolutions()[0]} to {c.resolutions()[-1]} cells a side, "
-                f"the finest {hashed} hashed into tables of 2^{c.log2_table} rows, {c.features} features each, "
-                f"and a {c.hidden}-wide MLP")
-
-    def __init__(self, lo: tuple[float, ...], hi: tuple[float, ...], config: HashFieldConfig = HashFieldConfig()) -> None:
-        super().__init__(lo, hi, config, sizes=config.level_sizes())
 
     def corners(self, u: Tensor) -> tuple[Tensor, Tensor]:
         return hashed_corners(u, self.resolutions, self.offsets, self.sizes)

@@ -2,29 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
 from torch import Tensor, nn
 
+from nerfpipe.nerf.fields.configs import MlpConfig
 from nerfpipe.nerf.fields.encoding import encoded_size, positional_encoding
-
-
-@dataclass(frozen=True)
-class FieldConfig:
-    """The MLP's shape. The paper's: 8 layers of 256, input again at the fifth, a 128-unit view branch,
-    L = 10 for positions and 4 for directions (Section 5.1)."""
-
-    depth: int = 8
-    width: int = 256
-    skips: tuple[int, ...] = (4,)
-    view_width: int = 128
-    pos_freqs: int = 10
-    dir_freqs: int = 4
-    include_input: bool = False
-    view_dependent: bool = True
-    density_activation: str = "relu"  # "relu" (the paper) or "softplus" (no dead units at initialization)
 
 
 class NerfField(nn.Module):
@@ -36,47 +20,33 @@ class NerfField(nn.Module):
     positional encoding (``pos_freqs = dir_freqs = 0``) the raw coordinates go in.
     """
 
-    kind = "mlp"
-    needs_box = False  # it takes any point
-
-    def __init__(self, config: FieldConfig = FieldConfig()) -> None:
+    def __init__(self, config: MlpConfig = MlpConfig()) -> None:
         super().__init__()
         self.config = config
-        include = config.include_input or config.pos_freqs == 0
+        self.pos_freqs = config.pos_freqs if config.positional_encoding else 0
+        self.dir_freqs = config.dir_freqs if config.positional_encoding else 0
+        self.skips = config.skips()
+        include = config.include_input or self.pos_freqs == 0
         self.pos_include = include
-        self.dir_include = config.include_input or config.dir_freqs == 0
-        pos_dim = encoded_size(config.pos_freqs, include)
-        dir_dim = encoded_size(config.dir_freqs, self.dir_include) if config.view_dependent else 0
+        self.dir_include = config.include_input or self.dir_freqs == 0
+        pos_dim = encoded_size(self.pos_freqs, include)
+        dir_dim = encoded_size(self.dir_freqs, self.dir_include) if config.view_dependence else 0
         layers, in_dim = [], pos_dim
         for i in range(config.depth):
             layers.append(nn.Linear(in_dim, config.width))
-            in_dim = config.width + (pos_dim if i in config.skips else 0)
+            in_dim = config.width + (pos_dim if i in self.skips else 0)
         self.trunk = nn.ModuleList(layers)
         self.density = nn.Linear(config.width, 1)
         self.feature = nn.Linear(config.width, config.width)
         self.view = nn.Linear(config.width + dir_dim, config.view_width)
         self.rgb = nn.Linear(config.view_width, 3)
 
-    @staticmethod
-    def spec_of(params: Any, box: Any = None) -> dict[str, Any]:
-        """The spec of the MLP ``nerfpipe.nerf.config.FieldParams`` asks for; it needs no box."""
-        return {"field": asdict(FieldConfig(
-            depth=params.depth, width=params.width, skips=(params.skip_after - 1,) if params.skip_after else (),
-            view_width=params.view_width, pos_freqs=params.pos_freqs if params.positional_encoding else 0,
-            dir_freqs=params.dir_freqs if params.positional_encoding else 0, include_input=params.include_input,
-            view_dependent=params.view_dependence, density_activation=params.density_activation,
-        ))}
-
     @classmethod
-    def from_spec(cls, spec: dict[str, Any]) -> "NerfField":
-        return cls(FieldConfig(**{**spec["field"], "skips": tuple(spec["field"]["skips"])}))
+    def from_config(cls, config: MlpConfig, box: Any = None) -> "NerfField":
+        """The MLP takes any point: ``box`` is not read."""
+        return cls(config)
 
-    def spec(self) -> dict[str, Any]:
-        return {"field": asdict(self.config)}
-
-    @staticmethod
-    def describe(spec: dict[str, Any]) -> None:
-        """The paper's field needs no sentence in the train log."""
+    def box(self) -> None:
         return None
 
     def density_activation(self, raw: Tensor) -> Tensor:
@@ -86,11 +56,11 @@ class NerfField(nn.Module):
 
     def trunk_features(self, x: Tensor) -> tuple[Tensor, Tensor]:
         """x: (M, 3) positions -> (raw density (M,), feature (M, width))."""
-        encoded = positional_encoding(x, self.config.pos_freqs, self.pos_include)
+        encoded = positional_encoding(x, self.pos_freqs, self.pos_include)
         h = encoded
         for i, layer in enumerate(self.trunk):
             h = torch.relu(layer(h))
-            if i in self.config.skips:
+            if i in self.skips:
                 h = torch.cat([h, encoded], dim=-1)
         return self.density(h).squeeze(-1), self.feature(h)
 
@@ -116,10 +86,10 @@ class NerfField(nn.Module):
 
     def colour(self, feature: Tensor, d: Tensor | None) -> Tensor:
         """rgb (M, 3) in (0, 1) from the trunk's feature and unit viewing directions d (M, 3)."""
-        if self.config.view_dependent:
+        if self.config.view_dependence:
             if d is None:
                 raise ValueError("a view-dependent field needs viewing directions d")
-            feature = torch.cat([feature, positional_encoding(d, self.config.dir_freqs, self.dir_include).to(feature.dtype)], dim=-1)
+            feature = torch.cat([feature, positional_encoding(d, self.dir_freqs, self.dir_include).to(feature.dtype)], dim=-1)
         return torch.sigmoid(self.rgb(torch.relu(self.view(feature))).float())
 
     def query_density(self, x: Tensor) -> Tensor:

@@ -11,25 +11,13 @@ Everything else -- the one stacked (rows, features) table, its row gather and sc
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
-
 import torch
 from torch import Tensor
 
-from nerfpipe.nerf.fields.grid import GridField, GridFieldConfig, grid_cells
+from nerfpipe.nerf.fields.configs import PlanesConfig
+from nerfpipe.nerf.fields.grid import GridField, grid_cells
 
 PLANES = ((0, 1), (0, 2), (1, 2))  # the axes each plane spans
-
-
-@dataclass(frozen=True)
-class PlaneFieldConfig(GridFieldConfig):
-    init_low: float = 0.1  # K-Planes' initialization, uniform in [0.1, 0.5]: the products start small, not 0
-    init_high: float = 0.5
-
-    def level_sizes(self) -> list[int]:
-        """Rows of each level: its three planes of (r + 1)^2 vertices."""
-        return [3 * (r + 1) ** 2 for r in self.resolutions()]
 
 
 def bilinear_corners(u: Tensor, resolutions: Tensor, offsets: Tensor) -> tuple[Tensor, Tensor]:
@@ -55,21 +43,8 @@ def bilinear_corners(u: Tensor, resolutions: Tensor, offsets: Tensor) -> tuple[T
 class PlaneField(GridField):
     """The grid field whose levels are three factorized planes each (K-Planes), fine enough for the photos."""
 
-    kind = "planes"
-    needs_box = True
-
-    Config = PlaneFieldConfig
-
-    @staticmethod
-    def describe(spec: dict[str, Any]) -> str:
-        c = PlaneFieldConfig(**spec["field"])
-        values = sum(c.level_sizes()) * c.features
-        return (f"tri-plane field: {c.levels} levels of three planes of {c.resolutions()[0]} to "
-                f"{c.resolutions()[-1]} cells a side ({values / 1e6:.1f} M values), {c.features} features each, "
-                f"multiplied across the planes, and a {c.hidden}-wide MLP")
-
-    def __init__(self, lo: tuple[float, ...], hi: tuple[float, ...], config: PlaneFieldConfig = PlaneFieldConfig()) -> None:
-        super().__init__(lo, hi, config, sizes=config.level_sizes())
+    def __init__(self, lo: tuple[float, ...], hi: tuple[float, ...], config: PlanesConfig = PlanesConfig()) -> None:
+        super().__init__(lo, hi, config)
         with torch.no_grad():
             self.table.uniform_(config.init_low, config.init_high)
 

@@ -10,47 +10,21 @@ nerfacc (Li et al. 2023) does the same in PyTorch. This module is that scheme fo
 - ``OccupancyGrid``: a running maximum of density per cell over the field's box (decay 0.95 per update,
   Instant-NGP's), and which cells are occupied: those whose density makes one marching step more than
   ``threshold`` optically thick.
-- ``MarchingConfig``: how rays march it; ``cells_seen``: the cells the training cameras see.
+- ``cells_seen``: the cells the training cameras see.
+
+How rays march it is ``nerfpipe.nerf.samplers.configs.MarchingConfig``.
 
 The marching and the packed volume rendering over it are in ``nerfpipe.nerf.samplers.march``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Callable
 
 import torch
 from torch import Tensor, nn
 
 DensityFn = Callable[[Tensor], Tensor]
-
-
-@dataclass(frozen=True)
-class MarchingConfig:
-    """How rays march through the occupancy grid.
-
-    steps: marching steps along the diagonal of the field box (the step is diagonal / steps in field
-        space); Instant-NGP marches 1024 steps at 800 px, a step about the size of a grid cell.
-    threshold: a cell is occupied when one step through its density is more than this optically thick
-        (nerfacc's 0.01), or above the grid's mean, when that is lower (early in training).
-    early_stop: a ray stops once its transmittance falls below this (Instant-NGP: 1e-4); 0 never stops.
-    update_every: steps of training between grid updates (Instant-NGP: 16).
-    warmup: updates in the first ``warmup`` steps evaluate every cell; later ones a quarter of the cells
-        at random plus a quarter of the occupied ones (Instant-NGP).
-    """
-
-    steps: int = 256
-    threshold: float = 0.01
-    early_stop: float = 1e-4
-    update_every: int = 16
-    warmup: int = 256
-
-    def __post_init__(self) -> None:
-        if self.steps < 1 or self.update_every < 1 or self.warmup < 0:
-            raise ValueError("marching needs steps >= 1, update_every >= 1 and warmup >= 0")
-        if not (0.0 <= self.early_stop < 1.0) or self.threshold < 0:
-            raise ValueError("marching needs 0 <= early_stop < 1 and threshold >= 0")
 
 
 class OccupancyGrid(nn.Module):

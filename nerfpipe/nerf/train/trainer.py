@@ -17,6 +17,7 @@ from torch import Tensor
 
 from nerfpipe.nerf.train.checkpoints import load_latest_checkpoint, save_checkpoint
 from nerfpipe.nerf.device import synchronize
+from nerfpipe.nerf.config import OptimParams, TrainSettings
 from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.train.stall import StallGuard, mean_colour_psnr, mse_to_psnr
 from nerfpipe.pipeline.errors import StageError
@@ -24,30 +25,9 @@ from nerfpipe.pipeline.errors import StageError
 log = logging.getLogger("nerfpipe.nerf.train.trainer")
 
 
-@dataclass(frozen=True)
-class TrainConfig:
-    steps: int = 3000  # 0: train for ``seconds`` instead
-    seconds: float = 0.0  # with steps = 0: train for this long, the learning rate decaying over the time
-    batch_rays: int = 1024
-    lr: float = 5e-4
-    lr_final: float = 5e-5
-    mlp_lr_share: float = 1.0  # a grid field's MLPs learn at this share of lr (its feature tables at lr)
-    adam_eps: float = 1e-7
-    adam_beta2: float = 0.999
-    batch_samples: int = 0  # with an occupancy grid: rays per batch adapt to about this many samples (0: fixed)
-    density_noise: float = 0.0
-    seed: int = 0
-    checkpoint_every: int = 500
-    keep_checkpoints: int = 2  # 0: keep all
-    log_every: int = 25
-    autocast: str = "none"  # "none", "bf16", "fp16"
-    tf32: bool = False  # CUDA: TF32 matmuls (see ``set_precision``)
-    appearance_lr: float = 1e-2  # the per-image exposure gains' learning rate (decays as ``lr`` does)
-    pose_lr: float = 3e-3  # the camera corrections' learning rate, decaying exponentially to ...
-    pose_lr_final: float = 3e-5  # ... this: pose_lr / 100, whatever lr_final is (see ``parameter_groups``)
-    pose_penalty: float = 1e-3  # weight of the corrections' mean squared size in the loss
-    distortion: float = 0.0  # weight of mip-NeRF 360's distortion loss, where the sampler measures it
-    pose_warmup: float = 0.1  # the cameras stay put for this share of the steps, then their rate ramps up over as many
+LOG_EVERY = 25  # steps between the lines of metrics.jsonl
+POSE_DECAY = 0.01  # the camera corrections' rate decays to this share of pose_lr, whatever lr_final is
+POSE_WARMUP = 0.1  # the cameras stay put for this share of the steps, then their rate ramps up over as many
 
 
 @dataclass
@@ -74,13 +54,18 @@ class PixelSet:
         return PixelSet(*(None if getattr(self, k) is None else getattr(self, k).to(device) for k in self.FIELDS))
 
 
-def learning_rate(config: TrainConfig, progress: float) -> float:
+def final_lr(optim: OptimParams) -> float:
+    """The learning rate at the last step: ``lr_final``, at most ``lr``."""
+    return min(optim.lr_final, optim.lr)
+
+
+def learning_rate(config: TrainSettings, progress: float) -> float:
     """lr * (lr_final / lr)^progress: exponential decay from lr to lr_final (Section 5.3), ``progress`` the share
     of training done (step / steps, or elapsed / seconds for a time budget)."""
-    return config.lr * (config.lr_final / config.lr) ** min(max(progress, 0.0), 1.0)
+    return config.optim.lr * (final_lr(config.optim) / config.optim.lr) ** min(max(progress, 0.0), 1.0)
 
 
-def parameter_groups(model: RadianceModel, config: TrainConfig) -> list[dict]:
+def parameter_groups(model: RadianceModel, config: TrainSettings) -> list[dict]:
     """Adam's parameter groups: the fields at ``lr`` (a grid field's MLPs at ``mlp_lr_share`` of it); the per-image
     exposure gains at ``appearance_lr`` and camera corrections at ``pose_lr``, when the model has them. Each group's
     ``base_lr`` decays exponentially to ``final`` times itself (the fields' and the gains' to lr_final / lr); a group
@@ -90,24 +75,23 @@ def parameter_groups(model: RadianceModel, config: TrainConfig) -> list[dict]:
         tables = list(getattr(f, "feature_tables", list)())  # optional: a field without tables (an MLP) has none
         rest = [p for p in f.parameters() if all(p is not t for t in tables)]
         if tables:  # a table's rows each see a few samples a step, its MLPs' weights every one: they take smaller steps
-            groups.append({"params": tables, "base_lr": config.lr, "warmup": 0})
-        groups.append({"params": rest, "base_lr": config.lr * (config.mlp_lr_share if tables else 1.0), "warmup": 0})
+            groups.append({"params": tables, "base_lr": config.optim.lr, "warmup": 0})
+        groups.append({"params": rest, "base_lr": config.optim.lr * (config.optim.mlp_lr_share if tables else 1.0), "warmup": 0})
     if model.appearance is not None:
-        groups.append({"params": list(model.appearance.parameters()), "base_lr": config.appearance_lr, "warmup": 0})
+        groups.append({"params": list(model.appearance.parameters()), "base_lr": config.per_image.appearance_lr, "warmup": 0})
     if model.refinement is not None:  # a field that shows nothing yet would move the cameras anywhere
         # and decays far (to pose_lr / 100, what the draft field's 10-fold decay squared gave): cameras that settle
         # early let the field fit them for the rest of the steps (lego, cameras off by 1 degree and 1 %, 500 steps:
         # 0.6 dB from the clean poses' held-out PSNR, against 1.3 dB when they decayed as the field did)
-        groups.append({"params": list(model.refinement.parameters()), "base_lr": config.pose_lr,
-                       "warmup": config.pose_warmup,
-                       "final": config.pose_lr_final / config.pose_lr if config.pose_lr > 0 else 1.0})  # 0: frozen
+        groups.append({"params": list(model.refinement.parameters()), "base_lr": config.per_image.pose_lr,
+                       "warmup": POSE_WARMUP, "final": POSE_DECAY if config.per_image.pose_lr > 0 else 1.0})  # 0: frozen
     for group in groups:
         group["lr"] = group["base_lr"]
-        group.setdefault("final", config.lr_final / config.lr)
+        group.setdefault("final", final_lr(config.optim) / config.optim.lr)
     return groups
 
 
-def set_precision(config: TrainConfig, device: torch.device) -> None:
+def set_precision(config: TrainSettings, device: torch.device) -> None:
     """TF32 matmuls and convolutions on CUDA when ``config.tf32``; nothing otherwise. torch's flags are
     process-wide and stay set, so evaluation after training computes as training did."""
     if device.type == "cuda" and config.tf32:
@@ -125,24 +109,27 @@ class Trainer:
     """Optimizes a ``RadianceModel`` on a ``PixelSet``; writes checkpoints and ``metrics.jsonl`` in ``out``.
     Applies the config's precision settings (``set_precision``)."""
 
-    def __init__(self, model: RadianceModel, pixels: PixelSet, config: TrainConfig, out: Path, device: torch.device,
-                 clock: Callable[[], float] = time.perf_counter) -> None:
-        """``clock``: seconds from any start, what a time budget is measured by (a test's makes steps take
-        a known time)."""
+    def __init__(self, model: RadianceModel, pixels: PixelSet, config: TrainSettings, out: Path, device: torch.device,
+                 density_noise: float = 0.0, clock: Callable[[], float] = time.perf_counter) -> None:
+        """``config``: the train stage's parameters (``steps`` or ``seconds``, ``seed``, checkpoints, precision
+        and the ``optim`` and ``per_image`` groups); ``density_noise``: std of the noise on raw density the scene
+        calls for (``nerfpipe.nerf.policy.density_noise``); ``clock``: seconds from any start, what a time budget
+        is measured by (a test's makes steps take a known time)."""
         set_precision(config, device)
         self.clock = clock
         self.model, self.pixels, self.config, self.out, self.device = model, pixels.to(device), config, out, device
+        self.density_noise = density_noise
         groups = parameter_groups(model, config)
         # fused Adam: one pass over each tensor, which matters for grids of millions of values on a CPU
         fused = device.type in ("cpu", "cuda") and all(p.dtype == torch.float32 for g in groups for p in g["params"])
-        self.optimizer = torch.optim.Adam(groups, lr=config.lr, betas=(0.9, config.adam_beta2), eps=config.adam_eps,
+        self.optimizer = torch.optim.Adam(groups, lr=config.optim.lr, betas=(0.9, config.optim.adam_beta2), eps=config.optim.adam_eps,
                                           fused=fused)
         self.scaler = torch.amp.GradScaler(device.type, enabled=config.autocast == "fp16")
         self.step = 0
         self.elapsed = 0.0
         self.resumed_from: int | None = None
         self.background = model.background_tensor()
-        self.rays_per_batch = float(config.batch_rays)  # adapted to ``batch_samples`` while marching
+        self.rays_per_batch = float(config.optim.batch_rays)  # adapted to ``batch_samples`` while marching
         self.samples = 0  # field evaluations of the last step
         self.rays = 0  # rays of the last step
         self.total_samples = 0
@@ -165,7 +152,7 @@ class Trainer:
         self.model.load_state(state)
         self.optimizer.load_state_dict(state["optimizer"])
         self.step, self.elapsed = int(state["step"]), float(state["elapsed"])
-        self.rays_per_batch = float(state.get("rays_per_batch", self.config.batch_rays))
+        self.rays_per_batch = float(state.get("rays_per_batch", self.config.optim.batch_rays))
         self.total_samples, self.total_rays = int(state.get("total_samples", 0)), int(state.get("total_rays", 0))
         self.lr_scale = float(state.get("lr_scale", 1.0))
         if int(state.get("restarted_at", -1)) >= 0:
@@ -206,36 +193,36 @@ class Trainer:
         c2w = px.c2w if model.refinement is None else model.refinement(px.c2w)  # (I, 4, 4)
         rays = model.ray_space.rays(px.uv[index], px.intrinsics[image], c2w[image], px.near[image], px.far[image])
         target, backdrop = self.backdrop_targets(index, px.rgb[index], generator)
-        if self.config.density_noise > 0:  # the noise, too, is a function of (seed, step): resuming does not change it
+        if self.density_noise > 0:  # the noise, too, is a function of (seed, step): resuming does not change it
             torch.manual_seed(self.config.seed * 1_000_003 + step)
         progress = self.progress(step)
         for group in self.optimizer.param_groups:
             warmup = group.get("warmup", 0)
             ramp = 1.0 if not warmup else min(max((progress - warmup) / warmup, 0.0), 1.0)
-            decay = group.get("final", self.config.lr_final / self.config.lr) ** min(max(progress, 0.0), 1.0)
+            decay = group.get("final", final_lr(self.config.optim) / self.config.optim.lr) ** min(max(progress, 0.0), 1.0)
             group["lr"] = group["base_lr"] * decay * self.lr_scale * ramp
         with _autocast(self.device, self.config.autocast):
             self.before_step(step, generator)
             # a grid update can make every ray longer at once: at most twice the samples wanted, whatever the
             # number of rays drawn (a sampler whose cost per ray is fixed ignores the bound)
-            out = model.render(rays, train=True, generator=generator, max_samples=2 * self.config.batch_samples,
-                               background="model" if backdrop is None else backdrop, images=image, density_noise=self.config.density_noise)
+            out = model.render(rays, train=True, generator=generator, max_samples=2 * self.config.optim.batch_samples,
+                               background="model" if backdrop is None else backdrop, images=image, density_noise=self.density_noise)
             self.rays, self.samples = len(out), out.evaluated
             target = target[:self.rays]
-            if self.config.batch_samples > 0 and model.sampler.adaptive:  # Instant-NGP: samples per batch about constant
+            if self.config.optim.batch_samples > 0 and model.sampler.adaptive:  # Instant-NGP: samples per batch about constant
                 per_ray = max(self.samples / self.rays, 1.0)
-                wanted = min(max(self.config.batch_samples / per_ray, 256.0), 16.0 * self.config.batch_rays)
+                wanted = min(max(self.config.optim.batch_samples / per_ray, 256.0), 16.0 * self.config.optim.batch_rays)
                 # grow smoothly; shrink at once, since a batch too large costs time and memory
                 self.rays_per_batch = min(0.8 * self.rays_per_batch + 0.2 * wanted, wanted)
         # Eq. 6: squared error of every rendering the sampler made (coarse and fine) (a mean rather than a sum
         # over the batch)
         losses = [torch.mean((o.rgb - target) ** 2) for o in out.passes()]
         loss = sum(losses)
-        if self.config.distortion > 0:
+        if self.config.optim.distortion > 0:
             measured = [d.mean() for d in (o.distortion() for o in out.passes()) if d is not None]
-            loss = loss + self.config.distortion * sum(measured)
+            loss = loss + self.config.optim.distortion * sum(measured)
         if model.refinement is not None:
-            loss = loss + self.config.pose_penalty * model.refinement.penalty()
+            loss = loss + self.config.per_image.pose_penalty * model.refinement.penalty()
         self.optimizer.zero_grad(set_to_none=True)
         self.scaler.scale(loss).backward()
         self.scaler.step(self.optimizer)
@@ -265,7 +252,7 @@ class Trainer:
         self.model.sampler.reset()
         self.optimizer.state.clear()
         self.lr_scale *= 0.5
-        self.rays_per_batch = float(self.config.batch_rays)
+        self.rays_per_batch = float(self.config.optim.batch_rays)
 
     def watch(self, psnr: float) -> None:
         """Let the stall guard see this step's batch PSNR, and act on what it says."""
@@ -319,7 +306,7 @@ class Trainer:
                 rays = self.rays
                 if not math.isfinite(loss):
                     raise StageError(f"train: the training loss became {loss} at step {self.step}, so the field diverged; "
-                                     f"lower train.optim.lr (now {self.config.lr:g}) or the per-image learning rates")
+                                     f"lower train.optim.lr (now {self.config.optim.lr:g}) or the per-image learning rates")
                 synchronize(self.device)
                 self.step += 1
                 now = self.clock()
@@ -332,7 +319,7 @@ class Trainer:
                 window_rays += rays
                 self.total_samples += self.samples
                 self.total_rays += rays
-                if self.step % config.log_every == 0 or last:
+                if self.step % LOG_EVERY == 0 or last:
                     span = max(self.elapsed - window_start, 1e-9)
                     rate = window_steps / span
                     record = {"step": self.step, "wall": round(self.elapsed, 3), "loss": loss, "psnr": round(psnr, 4),

@@ -6,9 +6,11 @@ import numpy as np
 import torch
 
 from nerfpipe.nerf.fields.analytic import SphereField
+
 from nerfpipe.nerf.spaces.rays import camera_rays, pixel_centers
 from nerfpipe.nerf.spaces.rays import RayBatch
-from nerfpipe.nerf.samplers.base import HierarchicalSampler, SamplingConfig
+from nerfpipe.nerf.samplers.configs import HierarchicalConfig
+from nerfpipe.nerf.samplers.hierarchical import HierarchicalSampler
 from tests.nerf.fieldfns import model_of
 from tests.helpers import look_at
 
@@ -37,7 +39,7 @@ def test_rendered_depth_is_the_sphere_surface_within_half_a_sample_spacing() -> 
     n = len(uv)
     rays = RayBatch(origins, directions, torch.nn.functional.normalize(directions, dim=-1),
                     torch.full((n,), near), torch.full((n,), far))
-    sampling = SamplingConfig(n_coarse=128, n_fine=0)
+    sampling = HierarchicalConfig(n_coarse=128, n_fine=0)
     out = model_of(sphere, None, HierarchicalSampler(sampling)).render_rays(rays, background=torch.ones(3))
     spacing = (far - near) / sampling.n_coarse
     t_entry = sphere.intersect(origins, directions)
@@ -57,7 +59,7 @@ def test_rendered_depth_is_the_sphere_surface_within_half_a_sample_spacing() -> 
     assert torch.allclose(out["disparity"][missed], torch.tensor(1 / far))
 
     # hierarchical sampling packs samples near the surface, and the depth follows them
-    fine = model_of(sphere, None, HierarchicalSampler(SamplingConfig(n_coarse=128, n_fine=64))).render_rays(
+    fine = model_of(sphere, None, HierarchicalSampler(HierarchicalConfig(n_coarse=128, n_fine=64))).render_rays(
         rays, background=torch.ones(3))
     fine_error = (fine["depth"][solid] - expected).abs()
     assert fine_error.max() <= spacing / 2 + 1e-5 and fine_error.mean() < error.abs().mean() / 4

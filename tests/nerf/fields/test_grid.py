@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import torch
 
-from nerfpipe.nerf.fields.grid import GridField, GridFieldConfig, _Trilinear, trilinear_corners
+from nerfpipe.nerf.fields.configs import GridConfig
+
+from nerfpipe.nerf.fields.grid import GridField, _Trilinear, trilinear_corners
 
 
 def test_trilinear_interpolation_reproduces_linear_functions_exactly() -> None:
     """Trilinear interpolation of vertex values of f(x) = a.x + b gives f itself, at every level."""
-    resolutions, config = torch.tensor([2, 5]), GridFieldConfig(levels=2, min_resolution=2, max_resolution=5, features=1)
+    resolutions, config = torch.tensor([2, 5]), GridConfig(levels=2, min_resolution=2, max_resolution=5, features=1)
     assert config.resolutions() == [2, 5]
     sizes = [(r + 1) ** 3 for r in (2, 5)]
     offsets = torch.tensor([0, sizes[0]])
@@ -49,7 +51,7 @@ def test_the_weights_backward_matches_numerical_gradients() -> None:
 
 def test_density_is_zero_outside_the_box_and_the_same_from_both_entry_points() -> None:
     torch.manual_seed(0)
-    field = GridField((-1.0, -2.0, 0.0), (1.0, 2.0, 3.0), GridFieldConfig(levels=2, min_resolution=4, max_resolution=8))
+    field = GridField((-1.0, -2.0, 0.0), (1.0, 2.0, 3.0), GridConfig(levels=2, min_resolution=4, max_resolution=8))
     x = torch.tensor([[0.0, 0.0, 1.5], [0.99, -1.99, 0.01], [1.01, 0.0, 1.0], [0.0, 0.0, -0.01], [0.0, 2.5, 1.0]])
     d = torch.nn.functional.normalize(torch.randn(5, 3), dim=-1)
     rgb, sigma = field(x, d)
@@ -63,7 +65,7 @@ def test_density_is_zero_outside_the_box_and_the_same_from_both_entry_points() -
 
 
 def test_huge_raw_density_stays_finite() -> None:
-    field = GridField((0.0,) * 3, (1.0,) * 3, GridFieldConfig(levels=1, max_resolution=4))
+    field = GridField((0.0,) * 3, (1.0,) * 3, GridConfig(levels=1, min_resolution=4, max_resolution=4))
     with torch.no_grad():
         field.density_net[-1].bias[0] = 1e4  # exp would overflow to inf
     sigma = field.query_density(torch.full((3, 3), 0.5))
@@ -72,9 +74,11 @@ def test_huge_raw_density_stays_finite() -> None:
 
 def test_gradients_reach_the_points_and_match_finite_differences() -> None:
     """Camera refinement moves the points a grid field is queried at: d(rgb, sigma)/dx of the trilinear
-    interpolation agrees with central differences."""
+    interpolation agrees with central differences wherever the field is smooth across the step (its one-sided
+    differences agree: no cell face of the trilinear interpolation, no ReLU of the MLPs, in between)."""
     torch.manual_seed(0)
-    field = GridField((-1.0,) * 3, (1.0,) * 3, GridFieldConfig(levels=2, min_resolution=4, max_resolution=8, init_scale=0.5))
+    field = GridField((-1.0,) * 3, (1.0,) * 3, GridConfig(levels=2, min_resolution=4, max_resolution=8))
+    torch.nn.init.uniform_(field.table, -0.5, 0.5)
     x = (torch.rand(6, 3) * 1.6 - 0.8).requires_grad_()
     d = torch.nn.functional.normalize(torch.randn(6, 3), dim=-1)
 
@@ -83,11 +87,14 @@ def test_gradients_reach_the_points_and_match_finite_differences() -> None:
         return rgb.sum() + sigma.sum()
 
     f(x).backward()
-    eps, numeric = 1e-3, torch.zeros_like(x)
+    eps, ahead, behind = 1e-3, torch.zeros_like(x), torch.zeros_like(x)
     with torch.no_grad():
+        at = f(x)
         for i in range(6):
             for j in range(3):
                 step = torch.zeros_like(x)
                 step[i, j] = eps
-                numeric[i, j] = (f(x + step) - f(x - step)) / (2 * eps)
-    torch.testing.assert_close(x.grad, numeric, atol=2e-3, rtol=2e-2)
+                ahead[i, j], behind[i, j] = (f(x + step) - at) / eps, (at - f(x - step)) / eps
+    smooth = (ahead - behind).abs() < 2e-3
+    assert int(smooth.sum()) >= 15  # a kink within 1e-3 of a few of the 18 coordinates at most
+    torch.testing.assert_close(x.grad[smooth], ((ahead + behind) / 2)[smooth], atol=2e-3, rtol=2e-2)

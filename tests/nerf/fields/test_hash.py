@@ -6,9 +6,11 @@ from __future__ import annotations
 import pytest
 import torch
 
-from nerfpipe.nerf.fields.base import field_class
+from nerfpipe.nerf.registry import FIELDS, config_class, part_class
+
 from nerfpipe.nerf.fields.grid import trilinear_corners
-from nerfpipe.nerf.fields.hash import HashFieldConfig, HashGridField, hashed_corners
+from nerfpipe.nerf.fields.configs import HashConfig
+from nerfpipe.nerf.fields.hash import HashGridField, hashed_corners
 
 
 def test_a_hashed_level_puts_each_corner_where_instant_ngps_hash_says() -> None:
@@ -25,7 +27,7 @@ def test_a_hashed_level_puts_each_corner_where_instant_ngps_hash_says() -> None:
 
 
 def test_dense_levels_index_as_the_grid_field_does_and_every_row_is_in_its_level() -> None:
-    config = HashFieldConfig(levels=6, min_resolution=4, max_resolution=200, features=2, log2_table=12)
+    config = HashConfig(levels=6, min_resolution=4, max_resolution=200, features=2, log2_table=12)
     field = HashGridField((-1.0,) * 3, (1.0,) * 3, config)
     assert config.resolutions() == [4, 9, 19, 42, 91, 200]
     assert config.level_sizes() == [125, 1000, 4096, 4096, 4096, 4096]  # 5^3 and 10^3 vertices, then 2^12 rows
@@ -40,21 +42,22 @@ def test_dense_levels_index_as_the_grid_field_does_and_every_row_is_in_its_level
 
 
 def test_the_registry_builds_it_and_its_spec_rebuilds_it() -> None:
-    cls = field_class("hash")
-    field = cls((-1.0, -2.0, 0.0), (1.0, 2.0, 3.0), HashFieldConfig(levels=4, max_resolution=512, log2_table=14))
-    again = cls.from_spec(field.spec())
+    config = config_class(FIELDS, "hash")(**{k: v for k, v in vars(HashConfig(levels=4, min_resolution=16, max_resolution=512, log2_table=14)).items()})
+    cls = part_class(config)
+    field = cls.from_config(config, ((-1.0, -2.0, 0.0), (1.0, 2.0, 3.0)))
+    again = cls.from_config(field.config, field.box())
     again.load_state_dict(field.state_dict())
     x, d = torch.rand(64, 3) * 2 - 0.5, torch.nn.functional.normalize(torch.randn(64, 3), dim=-1)
     for a, b in zip(field(x, d), again(x, d)):
         torch.testing.assert_close(a, b)
-    assert "the finest 3 hashed into tables of 2^14 rows" in cls.describe(field.spec())  # of 16, 51, 161, 512
+    assert "the finest 3 hashed into tables of 2^14 rows" in field.config.describe()  # of 16, 51, 161, 512
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
 def test_gradients_are_finite_at_the_edges_of_the_box_and_far_beyond(dtype) -> None:
     torch.manual_seed(0)
-    field = HashGridField((-1.0,) * 3, (1.0,) * 3, HashFieldConfig(levels=8, max_resolution=2048, log2_table=15,
-                                                                    init_scale=0.5))
+    field = HashGridField((-1.0,) * 3, (1.0,) * 3, HashConfig(levels=8, max_resolution=2048, log2_table=15))
+    torch.nn.init.uniform_(field.table, -0.5, 0.5)
     edges = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [1.0 - 1e-7, 0.0, -1.0], [1e30, -1e30, 0.0],
                           [float("inf"), 0.0, 0.0], [0.3, -0.2, 0.999999]])
     x = torch.cat([edges, torch.rand(256, 3) * 2 - 1]).requires_grad_(True)

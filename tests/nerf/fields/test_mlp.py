@@ -6,15 +6,16 @@ import pytest
 import torch
 from torch import nn
 
-from nerfpipe.nerf.fields.mlp import FieldConfig, NerfField
+from tests.nerf.fieldfns import paper_mlp
+from nerfpipe.nerf.fields.mlp import NerfField
 
-TINY = FieldConfig(depth=2, width=16, view_width=8, skips=(), pos_freqs=2, dir_freqs=1)
+TINY = paper_mlp(depth=2, width=16, view_width=8, pos_freqs=2, dir_freqs=1)
 
 
 @pytest.fixture(scope="module")
 def paper_field() -> NerfField:
     torch.manual_seed(0)
-    return NerfField(FieldConfig())
+    return NerfField(paper_mlp())
 
 
 def shapes(module: nn.Module) -> list[tuple[int, int]]:
@@ -56,14 +57,14 @@ def test_tiny_flops_by_hand():
     # depth 2, width 4, skip after layer 0, view 3, L = 1 for x and d: gamma widths 6 and 6.
     # trunk 6 -> 4, (4 + 6) -> 4; sigma 4 -> 1; feature 4 -> 4; view (4 + 6) -> 3; rgb 3 -> 3.
     # sum(in * out) = 24 + 40 + 4 + 16 + 30 + 9 = 123; flops = 246.
-    field = NerfField(FieldConfig(depth=2, width=4, skips=(0,), view_width=3, pos_freqs=1, dir_freqs=1))
+    field = NerfField(paper_mlp(depth=2, width=4, skip_after=1, view_width=3, pos_freqs=1, dir_freqs=1))
     assert shapes(field) == [(6, 4), (10, 4), (4, 1), (4, 4), (10, 3), (3, 3)]
     assert field.flops_per_sample() == 246
 
 
 def test_view_independent_ignores_directions():
     torch.manual_seed(0)
-    field = NerfField(FieldConfig(depth=2, width=16, view_width=8, skips=(), view_dependent=False))
+    field = NerfField(paper_mlp(depth=2, width=16, view_width=8, view_dependence=False))
     assert field.view.in_features == 16  # the feature alone
     x = torch.rand(10, 3)
     d1 = nn.functional.normalize(torch.randn(10, 3), dim=-1)
@@ -90,7 +91,7 @@ def test_view_dependent_needs_directions():
 
 
 def test_no_positional_encoding_uses_raw_xyz():
-    field = NerfField(FieldConfig(depth=2, width=8, view_width=4, skips=(0,), pos_freqs=0, dir_freqs=0))
+    field = NerfField(paper_mlp(depth=2, width=8, view_width=4, skip_after=1, pos_freqs=0, dir_freqs=0))
     # raw x (3) in; skip concatenates x again: 8 + 3; the view branch gets the raw d: 8 + 3.
     assert shapes(field) == [(3, 8), (11, 8), (8, 1), (8, 8), (11, 4), (4, 3)]
     rgb, sigma = field(torch.rand(5, 3), torch.rand(5, 3))
@@ -98,7 +99,7 @@ def test_no_positional_encoding_uses_raw_xyz():
 
 
 def test_include_input_widens_the_first_layer():
-    config = FieldConfig(depth=1, width=8, view_width=4, skips=(), pos_freqs=2, dir_freqs=1, include_input=True)
+    config = paper_mlp(depth=1, width=8, view_width=4, pos_freqs=2, dir_freqs=1, include_input=True)
     field = NerfField(config)
     # 3 * (2 * 2 + 1) = 15 and 3 * (2 * 1 + 1) = 9
     assert field.trunk[0].in_features == 15
@@ -114,13 +115,13 @@ def test_query_density_equals_forward_sigma():
 
 
 def test_softplus_density_is_positive_and_shifted():
-    field = NerfField(FieldConfig(depth=1, width=4, view_width=4, skips=(), density_activation="softplus"))
+    field = NerfField(paper_mlp(depth=1, width=4, view_width=4, density_activation="softplus"))
     # softplus(raw - 1): raw 1 -> ln 2, raw -> -inf -> 0 but positive.
     raw = torch.tensor([1.0, -30.0, 5.0])
     out = field.density_activation(raw)
     assert out[0].item() == pytest.approx(torch.log(torch.tensor(2.0)).item(), rel=1e-6)
     assert (out > 0).all()
-    relu_field = NerfField(FieldConfig(depth=1, width=4, view_width=4, skips=()))
+    relu_field = NerfField(paper_mlp(depth=1, width=4, view_width=4))
     assert torch.equal(relu_field.density_activation(raw), torch.tensor([1.0, 0.0, 5.0]))
 
 
@@ -138,7 +139,7 @@ def test_density_noise_only_when_asked():
 
 def test_field_gradients_reach_every_parameter():
     torch.manual_seed(0)
-    field = NerfField(FieldConfig(depth=2, width=16, view_width=8, skips=(0,), density_activation="softplus"))
+    field = NerfField(paper_mlp(depth=2, width=16, view_width=8, skip_after=1, density_activation="softplus"))
     rgb, sigma = field(torch.rand(32, 3) * 2 - 1, nn.functional.normalize(torch.randn(32, 3), dim=-1))
     (rgb.sum() + sigma.sum()).backward()
     for name, param in field.named_parameters():

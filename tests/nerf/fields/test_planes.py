@@ -6,8 +6,10 @@ from __future__ import annotations
 import pytest
 import torch
 
-from nerfpipe.nerf.fields.base import field_class
-from nerfpipe.nerf.fields.planes import PlaneField, PlaneFieldConfig, bilinear_corners
+from nerfpipe.nerf.registry import FIELDS, config_class, part_class
+
+from nerfpipe.nerf.fields.configs import PlanesConfig
+from nerfpipe.nerf.fields.planes import PlaneField, bilinear_corners
 
 
 def test_each_plane_reads_the_four_vertices_around_the_points_projection() -> None:
@@ -24,7 +26,7 @@ def test_each_plane_reads_the_four_vertices_around_the_points_projection() -> No
 
 
 def test_a_levels_feature_is_the_product_of_its_three_planes() -> None:
-    config = PlaneFieldConfig(levels=2, min_resolution=2, max_resolution=8, features=1)
+    config = PlanesConfig(levels=2, min_resolution=2, max_resolution=8, features=1)
     field = PlaneField((0.0,) * 3, (1.0,) * 3, config)
     assert field.table.shape == (3 * 3**2 + 3 * 9**2, 1) and float(field.table.detach().min()) >= 0.1
     with torch.no_grad():  # plane values that are functions of their vertex: xy -> 2, xz -> 3, yz -> i + 1
@@ -39,20 +41,21 @@ def test_a_levels_feature_is_the_product_of_its_three_planes() -> None:
 
 
 def test_the_registry_builds_it_and_its_spec_rebuilds_it() -> None:
-    cls = field_class("planes")
-    field = cls((-1.0, -2.0, 0.0), (1.0, 2.0, 3.0), PlaneFieldConfig(levels=3, min_resolution=16, max_resolution=256))
-    again = cls.from_spec(field.spec())
+    config = config_class(FIELDS, "planes")(**{k: v for k, v in vars(PlanesConfig(levels=3, min_resolution=16, max_resolution=256)).items()})
+    cls = part_class(config)
+    field = cls.from_config(config, ((-1.0, -2.0, 0.0), (1.0, 2.0, 3.0)))
+    again = cls.from_config(field.config, field.box())
     again.load_state_dict(field.state_dict())
     x, d = torch.rand(64, 3) * 2 - 0.5, torch.nn.functional.normalize(torch.randn(64, 3), dim=-1)
     for a, b in zip(field(x, d), again(x, d)):
         torch.testing.assert_close(a, b)
-    assert "3 levels of three planes of 16 to 256 cells a side" in cls.describe(field.spec())
+    assert "3 levels of three planes of 16 to 256 cells a side" in field.config.describe()
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
 def test_gradients_are_finite_at_the_edges_of_the_box_and_far_beyond(dtype) -> None:
     torch.manual_seed(0)
-    field = PlaneField((-1.0,) * 3, (1.0,) * 3, PlaneFieldConfig(levels=3, min_resolution=64, max_resolution=1024))
+    field = PlaneField((-1.0,) * 3, (1.0,) * 3, PlanesConfig(levels=3, min_resolution=64, max_resolution=1024))
     edges = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [1.0 - 1e-7, 0.0, -1.0], [1e30, -1e30, 0.0],
                           [float("inf"), 0.0, 0.0], [0.3, -0.2, 0.999999]])
     x = torch.cat([edges, torch.rand(5000, 3) * 2 - 1]).requires_grad_(True)

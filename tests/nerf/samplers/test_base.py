@@ -10,7 +10,9 @@ import torch
 from torch import nn
 
 from nerfpipe.nerf.spaces.rays import RayBatch
-from nerfpipe.nerf.samplers.base import HierarchicalSampler, SamplingConfig
+
+from nerfpipe.nerf.samplers.configs import HierarchicalConfig
+from nerfpipe.nerf.samplers.hierarchical import HierarchicalSampler
 from nerfpipe.nerf.samplers.sampling import stratified_samples
 from tests.nerf.fieldfns import model_of, render_fields
 
@@ -70,7 +72,7 @@ def test_constant_density_coarse_by_hand():
     # [2, 3], [3, 4]; sigma ln 2: alpha = 1/2 each, w = 1/2, 1/4, 1/8, 1/16, acc = 1 - 2^-4.
     # rgb over a white background = acc (0.2, 0.4, 0.6) + (1 - acc).
     field = Recorder()
-    out = render_rays(field, None, axis_rays(2), SamplingConfig(n_coarse=4, n_fine=0),
+    out = render_rays(field, None, axis_rays(2), HierarchicalConfig(n_coarse=4, n_fine=0),
                       background=torch.ones(3), randomized=False)
     assert out.earlier == () and out.evaluated == 8
     expected_w = torch.tensor([[0.5, 0.25, 0.125, 0.0625]] * 2)
@@ -90,7 +92,7 @@ def test_constant_density_coarse_by_hand():
 
 def test_fine_pass_uses_the_union_of_samples():
     field = Recorder()
-    out = render_rays(field, None, axis_rays(3), SamplingConfig(n_coarse=8, n_fine=16), randomized=False)
+    out = render_rays(field, None, axis_rays(3), HierarchicalConfig(n_coarse=8, n_fine=16), randomized=False)
     assert len(field.calls) == 2  # coarse, then the coarse field again for the fine pass
     assert field.calls[0].shape == (3 * 8, 3) and field.calls[1].shape == (3 * 24, 3)
     z = field.calls[1][:, 2].reshape(3, 24)
@@ -114,20 +116,20 @@ def test_fine_samples_concentrate_where_the_coarse_weights_are():
         seen.append(points[:, 2].clone())
         return slab(points, viewdirs)
 
-    render_rays(slab, recording_slab, axis_rays(1), SamplingConfig(n_coarse=16, n_fine=64), randomized=False)
+    render_rays(slab, recording_slab, axis_rays(1), HierarchicalConfig(n_coarse=16, n_fine=64), randomized=False)
     z = seen[0]
     assert ((z > 2.5) & (z < 3.5)).sum().item() >= 64
 
 
 def test_lindisp_sampling_reaches_the_field():
     field = Recorder()
-    render_rays(field, None, axis_rays(1, near=1.0, far=4.0), SamplingConfig(n_coarse=2, n_fine=0, lindisp=True),
+    render_rays(field, None, axis_rays(1, near=1.0, far=4.0), HierarchicalConfig(n_coarse=2, n_fine=0, lindisp="on"),
                 randomized=False)
     # bin centres in disparity between 1 and 1/4: 16/13, 16/7
     assert torch.allclose(field.calls[0][:, 2], torch.tensor([16 / 13, 16 / 7]), rtol=0, atol=1e-6)
 
 
-@pytest.mark.parametrize("sampling", [SamplingConfig(n_coarse=16, n_fine=0), SamplingConfig(n_coarse=16, n_fine=32)])
+@pytest.mark.parametrize("sampling", [HierarchicalConfig(n_coarse=16, n_fine=0), HierarchicalConfig(n_coarse=16, n_fine=32)])
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_batched_equals_per_ray(sampling, dtype):
     rays = random_rays(6, dtype=dtype)
@@ -147,7 +149,7 @@ def test_batched_equals_per_ray(sampling, dtype):
 
 def test_render_rays_in_chunks_equals_one_render():
     rays = random_rays(7, seed=3)
-    model = model_of(blob_field, blob_field, HierarchicalSampler(SamplingConfig(n_coarse=8, n_fine=8)))
+    model = model_of(blob_field, blob_field, HierarchicalSampler(HierarchicalConfig(n_coarse=8, n_fine=8)))
     whole = model.render(rays)
     chunked = model.render_rays(rays, chunk=3)
     for key in ("rgb", "depth", "disparity", "acc"):
@@ -156,13 +158,13 @@ def test_render_rays_in_chunks_equals_one_render():
 
 
 def test_render_rays_of_no_rays():
-    out = model_of(blob_field, None, HierarchicalSampler(SamplingConfig(n_coarse=4, n_fine=0))).render_rays(random_rays(0))
+    out = model_of(blob_field, None, HierarchicalSampler(HierarchicalConfig(n_coarse=4, n_fine=0))).render_rays(random_rays(0))
     assert all(v.numel() == 0 for k, v in out.items() if k != "samples")
 
 
 def test_randomized_rendering_is_seeded():
     rays = random_rays(4, seed=1)
-    sampling = SamplingConfig(n_coarse=8, n_fine=8)
+    sampling = HierarchicalConfig(n_coarse=8, n_fine=8)
 
     def run(seed):
         return render_rays(blob_field, None, rays, sampling, randomized=True,
@@ -189,7 +191,7 @@ def test_fine_pass_sends_no_gradient_to_the_coarse_field():
         rgb, sigma = blob_field(points, viewdirs)
         return rgb * b / 3.0, b * sigma
 
-    out = render_rays(coarse, fine, random_rays(4), SamplingConfig(n_coarse=8, n_fine=8), randomized=False)
+    out = render_rays(coarse, fine, random_rays(4), HierarchicalConfig(n_coarse=8, n_fine=8), randomized=False)
     out.rgb.sum().backward()
     assert a.grad is None
     assert b.grad is not None and b.grad.abs() > 0

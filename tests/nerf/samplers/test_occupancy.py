@@ -10,13 +10,17 @@ import pytest
 import torch
 
 from nerfpipe.nerf.fields.analytic import SphereField
+
 from nerfpipe.nerf.samplers.march import march, visible, within_budget
 from nerfpipe.nerf.model import RadianceModel
-from nerfpipe.nerf.samplers.occupancy import MarchingConfig, OccupancyGrid
+from nerfpipe.nerf.samplers.configs import MarchingConfig
+from nerfpipe.nerf.samplers.occupancy import OccupancyGrid
 from nerfpipe.nerf.spaces.ray_space import BoxSpace
 from nerfpipe.nerf.spaces.rays import RayBatch, intersect_box
 from nerfpipe.nerf.render.volume import RaySamples
-from nerfpipe.nerf.samplers.base import HierarchicalSampler, MarchingSampler, SamplingConfig
+from nerfpipe.nerf.samplers.configs import HierarchicalConfig
+from nerfpipe.nerf.samplers.hierarchical import HierarchicalSampler
+from nerfpipe.nerf.samplers.marching import MarchingSampler
 
 BOX = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
 
@@ -129,7 +133,7 @@ def test_marched_rendering_matches_dense_sampling_with_fewer_samples() -> None:
     config = MarchingConfig(steps=1024, early_stop=0.0)
     generator = torch.Generator().manual_seed(0)
     for _ in range(8):  # one random point per cell and update: cells the sphere barely enters need a few
-        grid.update(sphere.query_density, grid.diagonal / config.steps, config.threshold, all_cells=True,
+        grid.update(sphere.query_density, grid.diagonal / config.steps, config.occupancy_threshold, all_cells=True,
                     generator=generator)
     assert 0.05 < grid.occupancy() < 0.2  # the sphere fills 6.5 % of the box
     # exactly the cells the sphere enters (the nearest point of the cell to the centre is inside): what the
@@ -144,7 +148,7 @@ def test_marched_rendering_matches_dense_sampling_with_fewer_samples() -> None:
     rays = camera_rays()
     white = torch.ones(3)
     marched = marching(sphere, grid, config).render_rays(rays, background=white)
-    dense = RadianceModel(sphere, None, HierarchicalSampler(SamplingConfig(1024, 0)), SPACE, None).render_rays(
+    dense = RadianceModel(sphere, None, HierarchicalSampler(HierarchicalConfig(n_coarse=1024, n_fine=0)), SPACE, None).render_rays(
         rays, background=white)
     assert torch.allclose(marched["acc"], dense["acc"], atol=0.02)
     assert torch.allclose(marched["rgb"], dense["rgb"], atol=0.02)
@@ -231,16 +235,17 @@ def test_bad_grids_and_settings_are_refused() -> None:
 
 
 def test_a_marching_model_saves_and_loads_with_its_grid(tmp_path) -> None:
-    from nerfpipe.nerf.fields.grid import GridField, GridFieldConfig
+    from nerfpipe.nerf.fields.configs import GridConfig
+    from nerfpipe.nerf.fields.grid import GridField
     torch.manual_seed(0)
-    field = GridField(*BOX, GridFieldConfig(levels=2, min_resolution=4, max_resolution=8))
+    field = GridField(*BOX, GridConfig(levels=2, min_resolution=4, max_resolution=8))
     grid = OccupancyGrid(*BOX, resolution=8)
     grid.update(SphereField(radius=0.6).query_density, grid.diagonal / 64, 0.01, all_cells=True)
-    model = RadianceModel(field, None, MarchingSampler(grid, MarchingConfig(steps=64)), SPACE,
+    model = RadianceModel(field, None, MarchingSampler(grid, MarchingConfig(occupancy_resolution=8, steps=64)), SPACE,
                           (1.0, 1.0, 1.0), {})
     model.save(tmp_path)
     loaded = RadianceModel.load(tmp_path)
-    assert isinstance(loaded.coarse, GridField) and loaded.sampler.config == MarchingConfig(steps=64)
+    assert isinstance(loaded.coarse, GridField) and loaded.sampler.config == MarchingConfig(occupancy_resolution=8, steps=64)
     assert torch.equal(loaded.sampler.grid.occupied, grid.occupied) and 0 < loaded.sampler.grid.occupancy() < 1
     rays = camera_rays(64)
     a, b = model.render_rays(rays), loaded.render_rays(rays)

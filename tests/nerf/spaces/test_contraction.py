@@ -6,6 +6,7 @@ from __future__ import annotations
 import torch
 
 from nerfpipe.nerf.spaces.contraction import Contraction, contract, uncontract
+
 from nerfpipe.nerf.samplers.march import march
 from nerfpipe.nerf.samplers.occupancy import OccupancyGrid
 from nerfpipe.nerf.spaces.ray_space import ContractedSpace

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from nerfpipe.nerf.spaces.ray_space import BoxSpace, ContractedSpace, NdcSpace, space_from_json
+
 from nerfpipe.nerf.spaces.rays import camera_rays, pixel_centers
 from tests.helpers import look_at
 

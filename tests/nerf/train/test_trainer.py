@@ -3,18 +3,26 @@ step never evaluates much more than it asked for, however the occupancy grid cha
 
 from __future__ import annotations
 
+import dataclasses
+from typing import ClassVar
+
 import numpy as np
 import pytest
 import torch
 
-from nerfpipe.nerf.fields.mlp import FieldConfig, NerfField
+from tests.nerf.fieldfns import paper_mlp
+from nerfpipe.nerf.fields.mlp import NerfField
 from nerfpipe.nerf.model import RadianceModel
-from nerfpipe.nerf.samplers.occupancy import MarchingConfig, OccupancyGrid
+from nerfpipe.nerf.samplers.configs import MarchingConfig
+from nerfpipe.nerf.samplers.occupancy import OccupancyGrid
 from nerfpipe.nerf.spaces.ray_space import BoxSpace
 from nerfpipe.nerf.spaces.rays import pixel_centers
-from nerfpipe.nerf.samplers.base import HierarchicalSampler, MarchingSampler, SamplingConfig
+from nerfpipe.nerf.samplers.configs import HierarchicalConfig
+from nerfpipe.nerf.samplers.hierarchical import HierarchicalSampler
+from nerfpipe.nerf.samplers.marching import MarchingSampler
 from nerfpipe.nerf.train.stall import StallGuard, mean_colour_psnr
-from nerfpipe.nerf.train.trainer import PixelSet, TrainConfig, Trainer, set_precision
+from nerfpipe.nerf.train.trainer import PixelSet, Trainer, set_precision
+from tests.nerf.settings import train_settings
 from tests.helpers import look_at
 
 BOX = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
@@ -29,18 +37,23 @@ def pixels_of_one_view(size: int = 32) -> PixelSet:
                     near=torch.tensor([1.0]), far=torch.tensor([5.0]))
 
 
+@dataclasses.dataclass(frozen=True)
+class RareUpdates(MarchingConfig):
+    update_every: ClassVar[int] = 1000  # the grid stays as it starts: every cell occupied
+
+
 def marching_model() -> RadianceModel:
     torch.manual_seed(0)
-    field = NerfField(FieldConfig(depth=2, width=32, skips=(), view_width=16, pos_freqs=4, dir_freqs=2,
+    field = NerfField(paper_mlp(depth=2, width=32, view_width=16, pos_freqs=4, dir_freqs=2,
                                   density_activation="softplus"))
     grid = OccupancyGrid(*BOX, resolution=8)  # fresh: every cell occupied, every ray marched end to end
-    return RadianceModel(field, None, MarchingSampler(grid, MarchingConfig(steps=64, early_stop=1e-4, update_every=1000)),
+    return RadianceModel(field, None, MarchingSampler(grid, RareUpdates(steps=64, early_stop=1e-4)),
                          BoxSpace(BOX), (1.0, 1.0, 1.0), {})
 
 
 def test_a_step_evaluates_at_most_twice_the_samples_it_asks_for_and_the_batch_shrinks_at_once(tmp_path) -> None:
     model = marching_model()
-    config = TrainConfig(steps=10, batch_rays=1024, batch_samples=1000, lr=1e-3, lr_final=1e-4)
+    config = train_settings(steps=10, batch_rays=1024, batch_samples=1000, lr=1e-3, lr_final=1e-4)
     trainer = Trainer(model, pixels_of_one_view(), config, tmp_path, torch.device("cpu"))
     trainer.train_step(1)  # not a grid update step: the grid stays fully occupied
     # 1024 rays of about 15 samples each were drawn; only the leading rays within 2 x 1000 samples ran
@@ -55,7 +68,7 @@ def test_a_step_evaluates_at_most_twice_the_samples_it_asks_for_and_the_batch_sh
 def test_the_batch_grows_smoothly_when_rays_get_shorter(tmp_path) -> None:
     model = marching_model()
     model.sampler.grid.occupied.zero_()  # nothing occupied: no samples at all
-    config = TrainConfig(steps=10, batch_rays=1024, batch_samples=100_000, lr=1e-3, lr_final=1e-4)
+    config = train_settings(steps=10, batch_rays=1024, batch_samples=100_000, lr=1e-3, lr_final=1e-4)
     trainer = Trainer(model, pixels_of_one_view(), config, tmp_path, torch.device("cpu"))
     trainer.train_step(1)
     assert trainer.samples == 0 and trainer.rays == 1024
@@ -74,17 +87,17 @@ def tf32_flags_restored():
 
 
 def test_tf32_is_set_for_cuda_training_only(tf32_flags_restored) -> None:
-    set_precision(TrainConfig(tf32=True), torch.device("cpu"))
-    set_precision(TrainConfig(tf32=False), torch.device("cuda"))
+    set_precision(train_settings(tf32=True), torch.device("cpu"))
+    set_precision(train_settings(tf32=False), torch.device("cuda"))
     assert not torch.backends.cuda.matmul.allow_tf32 and not torch.backends.cudnn.allow_tf32
-    set_precision(TrainConfig(tf32=True), torch.device("cuda"))  # a flag only: needs no device
+    set_precision(train_settings(tf32=True), torch.device("cuda"))  # a flag only: needs no device
     assert torch.backends.cuda.matmul.allow_tf32 and torch.backends.cudnn.allow_tf32
 
 
 def test_the_trainer_applies_its_configs_precision(tmp_path, monkeypatch) -> None:
     applied = []
     monkeypatch.setattr("nerfpipe.nerf.train.trainer.set_precision", lambda config, device: applied.append((config, device)))
-    config = TrainConfig(steps=1, tf32=True)
+    config = train_settings(steps=1, tf32=True)
     Trainer(marching_model(), pixels_of_one_view(8), config, tmp_path, torch.device("cpu"))
     assert applied == [(config, torch.device("cpu"))]
 
@@ -118,7 +131,7 @@ def test_a_training_well_above_the_floor_passes_and_a_last_step_stall_is_reporte
 
 def test_a_restart_restores_the_initial_weights_and_grid_at_half_the_learning_rate(tmp_path) -> None:
     model = marching_model()
-    trainer = Trainer(model, pixels_of_one_view(), TrainConfig(steps=3, batch_rays=256, lr=1e-2, lr_final=1e-3), tmp_path,
+    trainer = Trainer(model, pixels_of_one_view(), train_settings(steps=3, batch_rays=256, lr=1e-2, lr_final=1e-3), tmp_path,
                       torch.device("cpu"))
     initial = {k: v.clone() for k, v in model.coarse.state_dict().items()}
     trainer.run()
@@ -135,7 +148,7 @@ def masked(pixels: PixelSet, alpha: float) -> PixelSet:
 
 
 def test_backdrop_pixels_teach_empty_space_against_a_random_colour_per_ray(tmp_path) -> None:
-    config = TrainConfig(steps=10, batch_rays=1024, batch_samples=0, lr=1e-3, lr_final=1e-4)
+    config = train_settings(steps=10, batch_rays=1024, batch_samples=0, lr=1e-3, lr_final=1e-4)
     empty = marching_model()
     empty.sampler.grid.occupied.zero_()  # nothing to hit: every ray shows the colour it is composited onto
 
@@ -156,24 +169,27 @@ def test_backdrop_pixels_teach_empty_space_against_a_random_colour_per_ray(tmp_p
 
 def test_the_random_backdrop_reaches_both_passes_of_section_5_2_sampling(tmp_path) -> None:
     torch.manual_seed(0)
-    field = NerfField(FieldConfig(depth=2, width=16, skips=(), view_width=8, pos_freqs=2, dir_freqs=0,
+    field = NerfField(paper_mlp(depth=2, width=16, view_width=8, pos_freqs=2, dir_freqs=0,
                                   density_activation="softplus"))
     with torch.no_grad():  # softplus(-100) ~ 4e-44: an empty field
         field.density.weight.zero_()
         field.density.bias.fill_(-100.0)
-    model = RadianceModel(field, None, HierarchicalSampler(SamplingConfig(8, 8)), BoxSpace(BOX), (1.0, 1.0, 1.0), {})
-    config = TrainConfig(steps=10, batch_rays=256, lr=1e-3, lr_final=1e-4)
+    model = RadianceModel(field, None, HierarchicalSampler(HierarchicalConfig(n_coarse=8, n_fine=8)), BoxSpace(BOX), (1.0, 1.0, 1.0), {})
+    config = train_settings(steps=10, batch_rays=256, lr=1e-3, lr_final=1e-4)
     trainer = Trainer(model, masked(pixels_of_one_view(8), 0.0), config, tmp_path, torch.device("cpu"))
     loss, _ = trainer.train_step(1)
     assert loss == pytest.approx(0.0, abs=1e-12)  # coarse + fine, each rendering the ray's own colour
 
 
-def test_a_time_budget_trains_until_it_is_spent_with_the_learning_rate_decaying_over_it(tmp_path) -> None:
+def test_a_time_budget_trains_until_it_is_spent_with_the_learning_rate_decaying_over_it(tmp_path, monkeypatch) -> None:
     import itertools
     import json
 
+    from nerfpipe.nerf.train import trainer as trainer_module
+
+    monkeypatch.setattr(trainer_module, "LOG_EVERY", 5)
     model = marching_model()
-    config = TrainConfig(steps=0, seconds=1.5, batch_rays=256, batch_samples=2000, lr=1e-2, lr_final=1e-3, log_every=5)
+    config = train_settings(steps=0, seconds=1.5, batch_rays=256, batch_samples=2000, lr=1e-2, lr_final=1e-3)
     ticks = itertools.count()
     clock = lambda: next(ticks) / 16  # noqa: E731 - each read 1/16 s later: a step (between two reads) takes that
     trainer = Trainer(model, pixels_of_one_view(), config, tmp_path, torch.device("cpu"), clock=clock)
@@ -200,28 +216,30 @@ def test_a_time_budget_trains_until_it_is_spent_with_the_learning_rate_decaying_
 def test_each_group_decays_to_its_own_final_rate_and_the_cameras_far_below_the_field() -> None:
     from types import SimpleNamespace
 
-    from nerfpipe.nerf.train.trainer import parameter_groups
+    from nerfpipe.nerf.train.trainer import POSE_WARMUP, parameter_groups
 
     field, gains, poses = torch.nn.Linear(2, 2), torch.nn.Linear(1, 1), torch.nn.Linear(1, 1)
     model = SimpleNamespace(fields=lambda: [field], appearance=gains, refinement=poses)
-    config = TrainConfig(lr=2e-2, lr_final=6e-3, appearance_lr=1e-2, pose_lr=3e-3, pose_lr_final=3e-5)
+    config = train_settings(lr=2e-2, lr_final=6e-3, appearance_lr=1e-2, pose_lr=3e-3)
     groups = parameter_groups(model, config)
     assert [g["base_lr"] for g in groups] == [2e-2, 1e-2, 3e-3]
     # the fields and the gains end at lr_final / lr of their rates, the cameras at 1/100 of theirs, whatever lr_final
     assert [g["final"] for g in groups] == pytest.approx([0.3, 0.3, 1 / 100])
-    assert groups[2]["warmup"] == config.pose_warmup and groups[0]["warmup"] == 0
+    assert groups[2]["warmup"] == POSE_WARMUP and groups[0]["warmup"] == 0
 
 
 def test_a_grid_fields_tables_learn_at_lr_and_its_mlps_at_their_share() -> None:
     from types import SimpleNamespace
 
-    from nerfpipe.nerf.fields.mlp import FieldConfig, NerfField
-    from nerfpipe.nerf.fields.grid import GridField, GridFieldConfig
+    from tests.nerf.fieldfns import paper_mlp
+    from nerfpipe.nerf.fields.mlp import NerfField
+    from nerfpipe.nerf.fields.configs import GridConfig
+    from nerfpipe.nerf.fields.grid import GridField
     from nerfpipe.nerf.train.trainer import parameter_groups
 
-    grid = GridField((0, 0, 0), (1, 1, 1), GridFieldConfig(levels=2, min_resolution=4, max_resolution=8, hidden=8))
-    mlp = NerfField(FieldConfig(depth=2, width=8, skips=(), view_width=8, pos_freqs=2, dir_freqs=1))
-    config = TrainConfig(lr=3e-2, lr_final=9e-3, mlp_lr_share=0.25)
+    grid = GridField((0, 0, 0), (1, 1, 1), GridConfig(levels=2, min_resolution=4, max_resolution=8, hidden=8))
+    mlp = NerfField(paper_mlp(depth=2, width=8, view_width=8, pos_freqs=2, dir_freqs=1))
+    config = train_settings(lr=3e-2, lr_final=9e-3, mlp_lr_share=0.25)
     groups = parameter_groups(SimpleNamespace(fields=lambda: [grid, mlp], appearance=None, refinement=None), config)
     assert [g["base_lr"] for g in groups] == pytest.approx([3e-2, 3e-2 * 0.25, 3e-2])  # the MLP field: all at lr
     assert groups[0]["params"] == [grid.table]
@@ -236,7 +254,7 @@ def test_a_diverged_training_is_a_stage_error_naming_the_learning_rate(tmp_path,
     become nan, and that is one line saying what to lower."""
     from nerfpipe.pipeline.errors import StageError
 
-    trainer = Trainer(marching_model(), pixels_of_one_view(8), TrainConfig(steps=3, lr=5.0), tmp_path,
+    trainer = Trainer(marching_model(), pixels_of_one_view(8), train_settings(steps=3, lr=5.0), tmp_path,
                       torch.device("cpu"))
     monkeypatch.setattr(trainer, "train_step", lambda step: (float("nan"), 0.0))
     with pytest.raises(StageError, match=r"^train: the training loss became nan at step 0, so the field diverged; "
