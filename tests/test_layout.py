@@ -54,5 +54,39 @@ def test_no_dataclass_has_over_20_fields():
     assert max(seen.values()) <= 20, {name: n for name, n in seen.items() if n > 20}
 
 
+def test_no_module_imports_itself_through_others():
+    """No import cycle, lazy imports inside functions included (``export.web`` and ``web_panel`` had one, and
+    ``imaging.decode`` and ``raw``): every strongly connected component of the module graph is one module."""
+    import grimp
+
+    graph = grimp.build_graph("nerfpipe")
+    imports = {m: {i for i in graph.find_modules_directly_imported_by(m) if i.startswith("nerfpipe")}
+               for m in graph.modules}
+    order, low, stack, on_stack, cycles = {}, {}, [], set(), []
+
+    def connect(v: str) -> None:  # Tarjan's strongly connected components
+        order[v] = low[v] = len(order)
+        stack.append(v)
+        on_stack.add(v)
+        for w in imports.get(v, ()):
+            if w not in order:
+                connect(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], order[w])
+        if low[v] == order[v]:
+            component = []
+            while not component or component[-1] != v:
+                component.append(stack.pop())
+                on_stack.discard(component[-1])
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for module in sorted(imports):
+        if module not in order:
+            connect(module)
+    assert len(imports) > 150 and not cycles, cycles
+
+
 def test_the_readme_is_at_most_300_lines():
     assert len((ROOT / "README.md").read_text(encoding="utf-8").splitlines()) <= 300

@@ -27,6 +27,7 @@ import numpy as np
 from nerfpipe.export.mesh import Mesh
 from nerfpipe.export.points import Cloud
 from nerfpipe.export.web_guard import LOOPBACK_NAMES, Gate, guarded, probe
+from nerfpipe.export.web_render import client_c2w, render_view
 from nerfpipe.pipeline.errors import NerfpipeError, ParamError
 
 log = logging.getLogger("nerfpipe")
@@ -185,16 +186,6 @@ def serve(scene: WebScene, host: str = "127.0.0.1", port: int = 8080, share: boo
     return viewer
 
 
-def client_c2w(camera: Any) -> np.ndarray:
-    """(4, 4) camera-to-world of a browser's camera (viser's are OpenCV-axed, as nerfpipe's)."""
-    import viser.transforms as tf
-
-    c2w = np.eye(4)
-    c2w[:3, :3] = tf.SO3(np.asarray(camera.wxyz)).as_matrix()
-    c2w[:3, 3] = camera.position
-    return c2w
-
-
 def _live_render(viewer: WebViewer, client: Any) -> None:
     """Render the client's view whenever it changes: fast at once, sharp once it has rested."""
     shown: tuple | None = None  # (camera state, width) last rendered
@@ -215,20 +206,6 @@ def _live_render(viewer: WebViewer, client: Any) -> None:
             shown = (state, width, time.time())
         else:
             time.sleep(0.02)
-
-
-def render_view(scene: WebScene, c2w: np.ndarray, fov: float, aspect: float, width: int) -> np.ndarray:
-    """(H, W, 3) uint8: the field seen by a pinhole camera at ``c2w`` (OpenCV axes) with vertical ``fov``."""
-    import torch
-
-    from nerfpipe.export.camera_path import view_range
-
-    height = max(2, round(width / aspect))
-    focal = 0.5 * height / np.tan(fov / 2)
-    near, far = view_range(c2w, scene.far)  # from wherever the browser's camera is
-    with torch.no_grad():
-        rendered = scene.model.render_image((focal, focal, width / 2, height / 2), c2w, width, height, near, far)
-    return (np.clip(rendered["rgb"].numpy(), 0, 1) * 255).astype(np.uint8)
 
 
 def web_scene(model_dir: Path, cameras_dir: Path, images_dir: Path, bounds_json: Path,

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from nerfpipe.export.camera_path import CameraPath, Keyframe
+from nerfpipe.export.web_render import client_c2w, render_view
 
 log = logging.getLogger("nerfpipe")
 
@@ -44,8 +45,6 @@ class Panel:
 
     def add_keyframe(self, camera: Any) -> int:
         """The camera's view as the next keyframe, drawn as an orange frustum; returns how many there are."""
-        from nerfpipe.export.web import client_c2w
-
         with self.lock:
             self.keyframes.append(Keyframe(client_c2w(camera), math.degrees(camera.fov)))
             self.frusta.append(self.viewer.server.scene.add_camera_frustum(
@@ -84,7 +83,6 @@ class Panel:
 
     def render_full(self, camera: Any) -> Path:
         """The camera's view rendered ``full_width`` pixels across, as ``RUN/views/view_<time>.png``."""
-        from nerfpipe.export.web import client_c2w, render_view
         from nerfpipe.imaging.png import write_png
 
         image = render_view(self.viewer.scene, client_c2w(camera), camera.fov, camera.aspect, self.full_width)

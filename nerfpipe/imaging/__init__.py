@@ -9,11 +9,7 @@ from nerfpipe.imaging.decode import (
     IMAGE_EXTENSIONS,
     RAW_EXTENSIONS,
     SIDECAR_EXTENSIONS,
-    DecodedPhoto,
     PhotoHeader,
-    PhotoSizeError,
-    RawOptions,
-    SizeLimits,
     apply_orientation,
     photo_kind,
     read_header,
@@ -21,6 +17,7 @@ from nerfpipe.imaging.decode import (
     unsupported_advice,
 )
 from nerfpipe.imaging.exif import ExifSummary, focal_prior_px, read_exif
+from nerfpipe.imaging.photo import DecodedPhoto, PhotoSizeError, RawOptions, SizeLimits
 from nerfpipe.imaging.integrity import check_integrity, sniff_container
 
 __all__ = [

@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from nerfpipe.imaging.decode import HIGHLIGHT_MODES, DecodedPhoto, RawOptions, SizeLimits, check_size
 from nerfpipe.imaging.exif import ExifSummary
+from nerfpipe.imaging.photo import HIGHLIGHT_MODES, DecodedPhoto, RawOptions, SizeLimits, check_size
 from nerfpipe.pipeline.errors import BadPhotoError
 
 

@@ -40,6 +40,7 @@ from nerfpipe.pipeline.plan import (
     plan_stages,
     running_because,
     stage_statuses,
+    same_outputs,
     stale_reasons,
     upstream_problem,
 )
@@ -279,10 +280,15 @@ class Pipeline:
     def _restore(self, planned: PlannedStage) -> StageOutcome | None:
         name = planned.name
         hit = self.store.get(name, planned.key)
-        if hit is None or upstream_problem(hit, self._current_upstream(name)) is not None:
+        current = self._current_upstream(name)
+        if hit is None or upstream_problem(hit, current) is not None:
             return None
         if self.store.latest_key(name) == planned.key:
-            log.info("%s: up to date, reusing its result", name)
+            same = same_outputs(hit, current)
+            if same:  # early cutoff: what it was built on came out the same
+                log.info("%s: %s computed again to the same outputs; its result stands", name, " and ".join(same))
+            else:
+                log.info("%s: up to date, reusing its result", name)
             return StageOutcome(name, "cached", planned.key, hit.path, 0.0)
         self.store.set_latest(name, planned.key)
         log.info("%s: reusing the result of an earlier run with these settings", name)

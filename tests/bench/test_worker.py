@@ -25,9 +25,9 @@ def test_bench_trains_with_the_train_stages_configuration(tmp_path: Path, monkey
     trained = []  # (config, training pixels, field class) of each Trainer made
     make = Trainer.__init__
 
-    def recording(self, model, pixels, config, out, device):
-        trained.append((config, len(pixels.rgb), type(model.coarse).__name__))
-        make(self, model, pixels, config, out, device)
+    def recording(self, model, pixels, config, out, device, **kwargs):
+        trained.append((config, len(pixels.rgb), type(model.coarse).__name__, kwargs))
+        make(self, model, pixels, config, out, device, **kwargs)
 
     monkeypatch.setattr(Trainer, "__init__", recording)
     stage = Pipeline(default_stages(), capture, run_dir, None, overrides).run(until="train")[-1]
@@ -35,7 +35,8 @@ def test_bench_trains_with_the_train_stages_configuration(tmp_path: Path, monkey
             "overrides": overrides, "budget": 60.0, "checkpoints": [30.0], "eval_views": 0}
     bench = worker.run(spec)
 
-    (stage_config, stage_pixels, stage_field), (bench_config, bench_pixels, bench_field) = trained
+    (stage_config, stage_pixels, stage_field, stage_kw), (bench_config, bench_pixels, bench_field, bench_kw) = trained
+    assert stage_kw == bench_kw  # the scene's density noise, the same for both
     assert stage_config.tf32 and stage_config.seed == 3 and stage_config.steps == 4
     # the bench keeps its copies of the model in memory instead of writing checkpoints; nothing else differs
     assert bench_config == dataclasses.replace(stage_config, checkpoint_every=10**9, keep_checkpoints=1)

@@ -14,15 +14,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from nerfpipe.imaging.photo import DecodedPhoto, PhotoSizeError, RawOptions, SizeLimits
 from nerfpipe.imaging.decode import (
     IMAGE_EXTENSIONS,
     RAW_EXTENSIONS,
     SIDECAR_EXTENSIONS,
-    DecodedPhoto,
     PhotoHeader,
-    PhotoSizeError,
-    RawOptions,
-    SizeLimits,
     apply_orientation,
     photo_kind,
     read_header,
