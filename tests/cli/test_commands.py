@@ -113,7 +113,10 @@ def test_stages_filters_by_name_and_speaks_json():
     assert list(doc) == ["sfm", "train"]  # in the graph's order
     field = next(p for p in doc["train"]["parameters"] if p["name"] == "field.max_resolution")
     assert field == {"name": "field.max_resolution", "type": "int", "default": 128,
-                     "help": "grid: cells a side of the finest level", "bounds": [1, 8192]}
+                     "help": "(grid, hash, planes) cells a side of the finest level", "bounds": [1, 8192],
+                     "kinds": ["grid", "hash", "planes"]}
+    chunk = next(p for p in doc["train"]["parameters"] if p["name"] == "chunk")
+    assert chunk["keyed"] is False and chunk["help"].endswith("changing it reruns nothing")
     assert doc["train"]["presets"]["draft"]["steps"] == 500 and doc["train"]["upstream"]
     bad = run_cli("stages", "trian")
     assert bad.returncode != 0 and bad.stderr.strip().startswith("error: unknown stage 'trian'; stages are: ingest")
