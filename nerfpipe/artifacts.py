@@ -1,13 +1,14 @@
 """What the stages hand each other: typed views of their JSON artifacts, and the names of their files.
 
-A stage reads another stage's JSON only through these classes (``ImageIndex.load(inputs["images_json"])``,
-``Bounds.load(...)``, ``SceneDecisions.load(...)``, ``ViewSplit.load(...)``); each writes the same JSON,
-key for key, as it reads, so cache keys and files stay as they were. Camera sets have their own class,
+A stage reads another stage's JSON only through these classes, by their typed references at the end of this
+module (``inputs.load(BOUNDS)`` is a ``Bounds``, ``inputs.load(WORLD)`` a ``CameraSet``); each writes the same
+JSON, key for key, as it reads, so cache keys and files stay as they were. Camera sets have their own class,
 ``nerfpipe.geometry.cameras.CameraSet``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass, field
@@ -16,7 +17,9 @@ from typing import Any
 
 import numpy as np
 
+from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.stage import ArtifactRef
 from nerfpipe.pipeline.store import write_json_atomic
 
 PHOTO_SUBFOLDER = "images"  # LLFF and COLMAP captures keep their photos in this sub-folder
@@ -86,24 +89,81 @@ def view_file_stem(name: str) -> str:
 
 # -- ingest: images.json ---------------------------------------------------------------------------------
 @dataclass(frozen=True)
+class PhotoRecord:
+    """One ingested photo (or video frame), as ``images.json`` records it.
+
+    ``name``: its file in ingest's ``images/``; ``source``: the photo it came from (relative to the capture) with
+    its sha256 and bytes; ``width`` x ``height`` as ingested, ``source_width`` x ``source_height`` as taken,
+    ``scale`` the one over the other; ``mask``: its alpha as ``masks/NAME`` (or None); ``exif``: the
+    ``ExifSummary`` as JSON; ``focal_prior``: ``{"focal_px", "source"}`` (or None); ``split``: the capture's
+    train/val/test (or None); ``video_frame`` and ``time_s`` for a video's frames.
+    """
+
+    name: str
+    source: str = ""
+    source_sha256: str = ""
+    source_bytes: int = 0
+    format: str | None = None
+    width: int = 0
+    height: int = 0
+    source_width: int = 0
+    source_height: int = 0
+    scale: float = 1.0
+    bit_depth: int = 8
+    has_alpha: bool = False
+    mask: str | None = None
+    raw: bool = False
+    linear: bool = False
+    exif: dict[str, Any] = field(default_factory=dict)
+    focal_prior: dict[str, Any] | None = None
+    split: str | None = None
+    video_frame: int | None = None
+    time_s: float | None = None
+
+    VIDEO = ("video_frame", "time_s")  # written only for a video's frames
+
+    @property
+    def focal_px(self) -> float | None:
+        """The focal length prior in pixels, where EXIF gave one."""
+        return None if self.focal_prior is None else self.focal_prior.get("focal_px")
+
+    @property
+    def gps(self) -> Any:
+        return self.exif.get("gps")
+
+    def to_json(self) -> dict[str, Any]:
+        doc = dataclasses.asdict(self)
+        for key in self.VIDEO:
+            if doc[key] is None:
+                del doc[key]
+        return doc
+
+    @staticmethod
+    def from_json(doc: dict[str, Any]) -> "PhotoRecord":
+        known = {f.name for f in dataclasses.fields(PhotoRecord)}
+        return PhotoRecord(**{k: v for k, v in doc.items() if k in known})
+
+
+@dataclass(frozen=True)
 class ImageIndex:
-    """Ingest's ``images.json``: the capture layout, one record per ingested photo (name, source, size,
-    EXIF, split ...), and the photos it skipped."""
+    """Ingest's ``images.json``: the capture layout, one record per ingested photo, and the photos it skipped."""
 
     layout: str
-    records: list[dict[str, Any]]
+    records: list[PhotoRecord]
     skipped: list[dict[str, Any]] = field(default_factory=list)
 
     @staticmethod
     def load(path: Path) -> ImageIndex:
         doc = _read(path)
-        return ImageIndex(doc.get("layout", "folder"), doc["images"], doc.get("skipped", []))
+        return ImageIndex(doc.get("layout", "folder"), [PhotoRecord.from_json(r) for r in doc["images"]],
+                          doc.get("skipped", []))
 
     def save(self, path: Path) -> None:
-        write_json_atomic(path, {"layout": self.layout, "images": self.records, "skipped": self.skipped})
+        write_json_atomic(path, {"layout": self.layout, "images": [r.to_json() for r in self.records],
+                                 "skipped": self.skipped})
 
-    def by_name(self) -> dict[str, dict[str, Any]]:
-        return {r["name"]: r for r in self.records}
+    def by_name(self) -> dict[str, PhotoRecord]:
+        return {r.name: r for r in self.records}
 
 
 # -- bounds: bounds.json ---------------------------------------------------------------------------------
@@ -281,3 +341,14 @@ class ViewSplit:
 
     def save(self, path: Path) -> None:
         write_json_atomic(path, {"train": self.train, "heldout": self.heldout, "rule": self.rule})
+
+
+# -- typed references: the artifacts above by the name stages require them under, with their loaders -------
+IMAGES_JSON = ArtifactRef("images_json", ImageIndex.load)
+BOUNDS = ArtifactRef("bounds", Bounds.load)
+SCENE = ArtifactRef("scene", SceneDecisions.load)
+VIEWS = ArtifactRef("views", ViewSplit.load)
+SFM_MODEL = ArtifactRef("sfm_model", CameraSet.load)  # the SfM frame, as COLMAP or the pose files gave it
+PINHOLE = ArtifactRef("pinhole", CameraSet.load)  # undistorted
+WORLD = ArtifactRef("world", CameraSet.load)  # normalized (bounds)
+CAMERAS = ArtifactRef("cameras", CameraSet.load)  # as trained (refined poses)

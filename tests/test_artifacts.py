@@ -13,6 +13,7 @@ from nerfpipe.artifacts import (
     Decision,
     FrameBounds,
     ImageIndex,
+    PhotoRecord,
     SceneDecisions,
     ViewSplit,
     frame_image_path,
@@ -123,12 +124,30 @@ def test_scene_decisions_round_trip_ndc_and_describe(tmp_path):
 
 
 def test_image_index_and_view_split_round_trip(tmp_path):
-    index = ImageIndex("llff", [{"name": "a.png", "width": 4}, {"name": "b.png", "width": 8}], [{"source": "c.jpg"}])
+    index = ImageIndex("llff", [PhotoRecord("a.png", width=4), PhotoRecord("b.png", width=8)], [{"source": "c.jpg"}])
     index.save(tmp_path / "images.json")
     assert ImageIndex.load(tmp_path / "images.json") == index
-    assert index.by_name()["b.png"]["width"] == 8
+    assert index.by_name()["b.png"].width == 8
     split = ViewSplit(["a.png"], ["b.png"], "every 8th image")
     split.save(tmp_path / "views.json")
     assert ViewSplit.load(tmp_path / "views.json") == split
     assert json.loads((tmp_path / "views.json").read_text()) == {"train": ["a.png"], "heldout": ["b.png"],
                                                                  "rule": "every 8th image"}
+
+
+def test_a_photo_record_round_trips_through_images_json_key_for_key(tmp_path) -> None:
+    from nerfpipe.artifacts import IMAGES_JSON, ImageIndex, PhotoRecord
+    from nerfpipe.pipeline.stage import StageInputs
+
+    photo = {"name": "a.png", "source": "a.jpg", "source_sha256": "ab", "source_bytes": 10, "format": "jpeg",
+             "width": 40, "height": 30, "source_width": 400, "source_height": 300, "scale": 0.1, "bit_depth": 8,
+             "has_alpha": False, "mask": None, "raw": False, "linear": False, "exif": {"make": "X", "gps": None},
+             "focal_prior": {"focal_px": 35.0, "source": "exif"}, "split": "train"}
+    frame = {**photo, "name": "frame_0000.png", "format": "video", "focal_prior": None, "split": None,
+             "video_frame": 12, "time_s": 0.4}
+    index = ImageIndex("folder", [PhotoRecord.from_json(photo), PhotoRecord.from_json(frame)])
+    index.save(tmp_path / "images.json")
+    doc = json.loads((tmp_path / "images.json").read_text())
+    assert doc["images"] == [photo, frame]  # a photo's record has no video fields: the file is as before
+    loaded = StageInputs({"images_json": tmp_path / "images.json"}, tmp_path).load(IMAGES_JSON)
+    assert loaded == index and loaded.by_name()["a.png"].focal_px == 35.0 and loaded.records[1].video_frame == 12

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from nerfpipe.artifacts import PhotoRecord
 from nerfpipe.pipeline.errors import StageError
 
 
@@ -41,11 +42,11 @@ def border_pixels(rgb: np.ndarray, band: float = 0.03) -> np.ndarray:
 
 
 def decide_background(
-    records: list[dict[str, Any]], paths: list[Path], params: Any
+    records: list[PhotoRecord], paths: list[Path], params: Any
 ) -> tuple[str, str, dict[str, Any], tuple[float, float, float] | None]:
     """(value, evidence, measured, border colour) from the alpha flags and the images' border pixels."""
     n = len(records)
-    with_alpha = sum(bool(r.get("has_alpha")) for r in records)
+    with_alpha = sum(bool(r.has_alpha) for r in records)
     take = np.unique(np.linspace(0, n - 1, min(n, params.background_images)).round().astype(int))
     borders, transparent = [], []
     for i in take:

@@ -9,16 +9,17 @@ from typing import Any, Callable
 
 import numpy as np
 
+from nerfpipe.artifacts import PhotoRecord
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.geometry.normalize import project
 
 EXPOSURE_STEP_STOPS = 1.0 / 3.0  # cameras step exposure in thirds of a stop: anything less is rounding
 
 
-def decide_photometric(records: list[dict[str, Any]]) -> tuple[str, str, dict[str, Any]]:
+def decide_photometric(records: list[PhotoRecord]) -> tuple[str, str, dict[str, Any]]:
     n = len(records)
-    raw = sum(bool(r.get("raw")) for r in records)
-    linear = sum(bool(r.get("linear")) for r in records)
+    raw = sum(bool(r.raw) for r in records)
+    linear = sum(bool(r.linear) for r in records)
     value = "linear_raw" if linear == n else "srgb"
     evidence = f"{linear} of {n} photos are RAW developed linearly ({raw} RAW in all)"
     if 0 < linear < n:
@@ -104,12 +105,12 @@ def _group_median(group: np.ndarray, values: np.ndarray, groups: int) -> np.ndar
     return out
 
 
-def decide_exposure(records: list[dict[str, Any]], measure: Callable[[], dict[str, float]] | None = None,
+def decide_exposure(records: list[PhotoRecord], measure: Callable[[], dict[str, float]] | None = None,
                     ) -> tuple[bool, str, dict[str, Any]]:
     """Whether exposure varies: EXIF where two photos or more have it, else ``measure()`` (each photo's stops
     from the brightness of the same points, ``measure_exposure``), else assumed constant. ``measured["stops"]``:
     each photo's exposure relative to the mean of those known."""
-    exif = {r["name"]: v for r in records if (v := exposure_value(r.get("exif") or {})) is not None}
+    exif = {r.name: v for r in records if (v := exposure_value(r.exif or {})) is not None}
     n = len(records)
     if len(exif) >= 2:
         stops, how = exif, f"EXIF exposure (time x ISO / f-number^2) of {len(exif)} of {n} photos"

@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from nerfpipe.pipeline.stage import ArtifactRef
+
 PNG_MAX = 65535
 
 
@@ -127,3 +129,6 @@ def read_view(folder: Path, view: DepthView) -> dict[str, np.ndarray]:
     out: dict[str, Any] = {key: np.load(f"{stem}.{key}.npy") for key in ("depth", "acc", "disparity")}
     out["rgb"] = rgb[..., ::-1].astype(np.float32) / 255.0
     return out
+
+
+DEPTH_INDEX = ArtifactRef("depth_index", DepthIndex.load)  # export_depth's depth.json, typed

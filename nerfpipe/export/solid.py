@@ -52,3 +52,26 @@ def solid_surface(solid: np.ndarray, origin: np.ndarray, voxel: float, close: in
     index = surface.vertex.positions.numpy()[:, ::-1].astype(np.float64)
     triangles = surface.triangle.indices.numpy().astype(np.int64)[:, ::-1]
     return Mesh(np.asarray(origin) + voxel * (index - pad), np.ascontiguousarray(triangles))
+
+
+def watertight(density: DensityFn, grid: Grid, threshold: float, block: int = 64, device: object = "cpu",
+               close: int = 4) -> Mesh:
+    """The closed, manifold surface of where ``density`` reaches ``threshold`` on ``grid`` (``occupancy``, then
+    ``solid_surface`` with tunnels up to about ``2 * close`` voxels closed), in the grid's coordinates. Raises
+    ``ValueError`` when nothing reaches the threshold."""
+    mesh = solid_surface(occupancy(density, grid, threshold, block, device), grid.origin, grid.voxel, close)
+    if mesh.faces == 0:
+        raise ValueError("no point of the grid reaches the density threshold")
+    return mesh
+
+
+def closure(mesh: Mesh) -> dict[str, object]:
+    """What trimesh and Open3D say of ``mesh``: its triangles, Euler number (2 for a sphere's topology), whether
+    it is watertight and whether every edge joins at most two triangles."""
+    import trimesh
+
+    from nerfpipe.export.mesh import to_open3d
+
+    checked = trimesh.Trimesh(mesh.vertices, mesh.triangles, process=False)
+    return {"faces": mesh.faces, "euler": int(checked.euler_number), "watertight": bool(checked.is_watertight),
+            "edge_manifold": bool(to_open3d(mesh).is_edge_manifold())}

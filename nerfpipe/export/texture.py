@@ -213,3 +213,11 @@ def write_textured_glb(path: Path, mesh: TexturedMesh, to_gltf: np.ndarray, unit
                             visual=trimesh.visual.TextureVisuals(uv=uv, material=material), process=False)
     solid.metadata.update({"units": units, "up": "+y", "generator": "nerfpipe"})
     solid.export(path, file_type="glb")
+
+
+def spread(names: list[str], count: int) -> list[str]:
+    """At most ``count`` of ``names`` (all where ``count`` is 0), evenly spaced along them: photos in capture
+    order, of which neighbours see much the same, so the texture loses little and bakes in a share of the time."""
+    if count <= 0 or len(names) <= count:
+        return names
+    return [names[i] for i in np.unique(np.linspace(0, len(names) - 1, count).round().astype(int))]

@@ -47,6 +47,7 @@ from nerfpipe.pipeline.plan import (
 from nerfpipe.pipeline.run_config import RunConfig, run_command
 from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress
 from nerfpipe.pipeline.store import ArtifactStore, Committed, Damage
+from nerfpipe.pipeline.summary import Summary
 
 log = logging.getLogger("nerfpipe")
 
@@ -339,7 +340,8 @@ class Pipeline:
         ctx = StageContext(log=logging.getLogger(f"nerfpipe.stages.{name}"), progress=self.progress, debug=self.debug,
                            extra=self.extra, allotment=self._allotment(planned))
         try:
-            summary = dict(planned.stage.run(inputs, work, planned.params, ctx) or {})
+            returned = planned.stage.run(inputs, work, planned.params, ctx)
+            summary = returned.to_json() if isinstance(returned, Summary) else dict(returned or {})
             missing = [rel for rel in planned.stage.provides.values() if not (work / rel).exists()]
             if missing:
                 raise RuntimeError(f"stage {name} did not write its declared artifacts {missing}")

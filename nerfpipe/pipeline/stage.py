@@ -13,16 +13,32 @@ import contextlib
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, ClassVar, Iterator, Mapping
+from typing import Any, Callable, ClassVar, Generic, Iterator, Mapping, TypeVar
 
 from nerfpipe.pipeline.budget import Allotment
 from nerfpipe.pipeline.fingerprint import Fingerprint
+from nerfpipe.pipeline.summary import Summary
 
 
 def capture_root(source: Path) -> Path:
     """The folder capture files are named relative to: the capture folder, or the folder of a capture that
     is one file (a video)."""
     return source if source.is_dir() else source.parent
+
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class ArtifactRef(Generic[T]):
+    """A typed reference to an artifact: the name a stage requires it by and the loader that reads it
+    (``nerfpipe.artifacts.BOUNDS``), so that a hand-off is a type, not a string and a file format."""
+
+    name: str
+    loader: Callable[[Path], T]
+
+    def load(self, path: Path) -> T:
+        return self.loader(path)
 
 
 @dataclass(frozen=True)
@@ -36,6 +52,10 @@ class StageInputs:
 
     def __getitem__(self, artifact: str) -> Path:
         return self.artifacts[artifact]
+
+    def load(self, artifact: ArtifactRef[T]) -> T:
+        """The artifact ``artifact`` names, read by its loader: ``inputs.load(BOUNDS)`` is a ``Bounds``."""
+        return artifact.load(self[artifact.name])
 
     def path(self, fp: Fingerprint) -> Path:
         return capture_root(self.source) / fp.relpath
@@ -68,6 +88,7 @@ class Stage:
     name: ClassVar[str]
     version: ClassVar[int]
     Params: ClassVar[type]
+    Summary: ClassVar[type[Summary]] = Summary  # what ``run`` returns: the stage's figures and its ``describe()``
     presets: ClassVar[Mapping[str, Mapping[str, Any]]] = {}
     requires: ClassVar[tuple[str, ...]] = ()
     provides: ClassVar[Mapping[str, str]] = {}
@@ -109,9 +130,9 @@ class Stage:
         return None
 
     def describe(self, result: Path, manifest: Mapping[str, Any]) -> list[str]:
-        """Lines ``nerfpipe status`` prints about a committed result (its folder and manifest)."""
-        return []
+        """Lines ``nerfpipe status`` prints about a committed result (its folder and manifest): its summary's."""
+        return self.Summary.from_json(manifest.get("summary") or {}).describe()
 
-    def run(self, inputs: StageInputs, out: Path, params: Any, ctx: StageContext) -> Mapping[str, Any] | None:
-        """Produce every artifact in ``provides`` inside ``out``; return a JSON-able summary for the manifest."""
+    def run(self, inputs: StageInputs, out: Path, params: Any, ctx: StageContext) -> Summary | None:
+        """Produce every artifact in ``provides`` inside ``out``; return its ``Summary`` for the manifest."""
         raise NotImplementedError

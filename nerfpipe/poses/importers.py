@@ -31,7 +31,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from nerfpipe.artifacts import PHOTO_SUBFOLDER
+from nerfpipe.artifacts import PHOTO_SUBFOLDER, PhotoRecord
 from nerfpipe.geometry.cameras import (
     CAMERA_MODELS,
     OPENGL_TO_OPENCV,
@@ -58,7 +58,7 @@ from nerfpipe.poses.photos import (
 )
 
 
-def import_poses(layout: CaptureLayout, records: list[dict[str, Any]]) -> CameraSet:
+def import_poses(layout: CaptureLayout, records: list[PhotoRecord]) -> CameraSet:
     """The poses of ``layout.pose_files`` for the ingested photos ``records`` (images.json ``images``)."""
     if layout.kind == "folder":
         raise ValueError(f"{layout.capture} has no pose files to import; its poses come from SfM")
@@ -114,7 +114,7 @@ def import_colmap(layout: CaptureLayout, photos: Photos) -> CameraSet:
         R = checked_rotation(w2c[:3, :3], images_file, where)
         camera_id = table.add(to_ingested_size(cam, record, images_file, where), key=image.camera_id)
         frame_of_image[image.image_id] = len(frames)
-        frames.append(Frame(record["name"], camera_id, invert_pose(pose_from_rt(R, checked_position(w2c[:3, 3],
+        frames.append(Frame(record.name, camera_id, invert_pose(pose_from_rt(R, checked_position(w2c[:3, 3],
                                                                                                      images_file, where)))))
     unregistered.update(photos.name(p) for p in layout.photos if photos.relpath(p) not in seen)
 
@@ -203,7 +203,7 @@ def import_transforms(layout: CaptureLayout, photos: Photos) -> CameraSet:
             values = {**shared, **{k: entry[k] for k in INTRINSIC_KEYS if k in entry}}
             camera = to_ingested_size(transforms_camera(values, record, pose_file, where), record, pose_file, where)
             c2w = c2w_gl @ OPENGL_TO_OPENCV
-            frames.append(Frame(record["name"], table.add(camera), c2w, layout.splits.get(relpath)))
+            frames.append(Frame(record.name, table.add(camera), c2w, layout.splits.get(relpath)))
     return CameraSet(table.cameras, frames, None, "transforms_json", sorted(unregistered), hints)
 
 
@@ -242,7 +242,7 @@ def transform_matrix(entry: dict[str, Any], pose_file: Path, where: str) -> np.n
                                                                                             where))
 
 
-def transforms_camera(values: dict[str, Any], record: dict[str, Any], pose_file: Path, where: str) -> Camera:
+def transforms_camera(values: dict[str, Any], record: PhotoRecord[str, Any], pose_file: Path, where: str) -> Camera:
     """The camera of a frame at the size the pose file states (or, without w/h, the photo's source size)."""
 
     def number(key: str, default: float | None = None, positive: bool = False) -> float | None:
@@ -255,8 +255,8 @@ def transforms_camera(values: dict[str, Any], record: dict[str, Any], pose_file:
             raise InputError(pose_file, f"{where}: {key} is {value!r}, it must be positive", "fix or regenerate the pose file")
         return float(value)
 
-    width = round(number("w", record["source_width"], positive=True))
-    height = round(number("h", record["source_height"], positive=True))
+    width = round(number("w", record.source_width, positive=True))
+    height = round(number("h", record.source_height, positive=True))
 
     def focal_from_fov(key: str, size: int) -> float | None:
         angle = number(key, positive=True)

@@ -73,8 +73,8 @@ def import_llff(layout: CaptureLayout, photos: Photos) -> CameraSet:
             continue
         camera = Camera.pinhole(focal, focal, width / 2, height / 2, round(width), round(height))
         camera_id = table.add(to_ingested_size(camera, record, pose_file, where))
-        frames.append(Frame(record["name"], camera_id, pose_from_rt(R, checked_position(pose[:, 3], pose_file, where))))
-        bounds[record["name"]] = [near, far]
+        frames.append(Frame(record.name, camera_id, pose_from_rt(R, checked_position(pose[:, 3], pose_file, where))))
+        bounds[record.name] = [near, far]
     return CameraSet(table.cameras, frames, None, "llff", sorted(unregistered),
                      PoseHints(relative_names(layout, layout.pose_files), llff_bounds=bounds))
 

@@ -34,10 +34,10 @@ def import_middlebury(layout: CaptureLayout, photos: Photos) -> CameraSet:
                 unregistered.append(photos.name(path))
                 continue
             fx, fy, cx, cy = (float(v) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
-            camera = Camera.pinhole(fx, fy, cx, cy, record["source_width"], record["source_height"])
+            camera = Camera.pinhole(fx, fy, cx, cy, record.source_width, record.source_height)
             camera_id = table.add(to_ingested_size(camera, record, pose_file, f"line {line_no}"))
             t = checked_position(t, pose_file, f"line {line_no}")
-            frames.append(Frame(record["name"], camera_id, invert_pose(pose_from_rt(R, t))))
+            frames.append(Frame(record.name, camera_id, invert_pose(pose_from_rt(R, t))))
     return CameraSet(table.cameras, frames, None, "middlebury", sorted(unregistered),
                      PoseHints(relative_names(layout, layout.pose_files)))
 

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from nerfpipe.artifacts import output_names
+from nerfpipe.artifacts import PhotoRecord, output_names
 from nerfpipe.geometry.cameras import Camera
 from nerfpipe.pipeline.errors import InputError
 from nerfpipe.poses.layout import CaptureLayout
@@ -25,23 +25,23 @@ ASPECT_TOLERANCE = 0.01  # relative aspect-ratio mismatch between a pose file's 
 class Photos:
     """Maps the photos pose files name to their images.json records and ingest names."""
 
-    def __init__(self, layout: CaptureLayout, records: list[dict[str, Any]]) -> None:
+    def __init__(self, layout: CaptureLayout, records: list[PhotoRecord]) -> None:
         self.capture = layout.capture
-        self._by_source = {r["source"]: r for r in records}
-        self._by_resolved = {(self.capture / r["source"]).resolve(): r for r in records}
+        self._by_source = {r.source: r for r in records}
+        self._by_resolved = {(self.capture / r.source).resolve(): r for r in records}
         self._names = output_names([self.relpath(p) for p in layout.photos])
 
     def relpath(self, path: Path) -> str:
         return path.relative_to(self.capture).as_posix()
 
-    def record(self, path: Path) -> dict[str, Any] | None:
+    def record(self, path: Path) -> PhotoRecord | None:
         record = self._by_source.get(self.relpath(path))
         return record if record is not None else self._by_resolved.get(path.resolve())
 
     def name(self, path: Path) -> str:
         record = self.record(path)
         if record is not None:
-            return record["name"]
+            return record.name
         return self._names.get(self.relpath(path), self.relpath(path))
 
 
@@ -59,17 +59,17 @@ class CameraTable:
         return self._ids[(key, camera)]
 
 
-def to_ingested_size(camera: Camera, record: dict[str, Any], pose_file: Path, where: str) -> Camera:
+def to_ingested_size(camera: Camera, record: PhotoRecord[str, Any], pose_file: Path, where: str) -> Camera:
     """``camera`` (for the original photo) scaled to the photo's ingested size ``record["width"/"height"]``.
 
     A camera whose aspect ratio is not the photo's (after EXIF orientation) describes other images.
     """
-    src_w, src_h = record["source_width"], record["source_height"]
+    src_w, src_h = record.source_width, record.source_height
     if abs(src_w * camera.height - src_h * camera.width) > ASPECT_TOLERANCE * src_h * camera.width:
         raise InputError(pose_file, f"{where}: the camera is {camera.width}x{camera.height} but the photo "
-                         f"{record['source']} is {src_w}x{src_h}",
+                         f"{record.source} is {src_w}x{src_h}",
                          "the pose file must describe these photos, in the same orientation and aspect ratio")
-    width, height = record["width"], record["height"]
+    width, height = record.width, record.height
     return replace(camera.scaled(width / camera.width, height / camera.height), width=width, height=height)
 
 

@@ -35,8 +35,8 @@ def capture(run: RunData) -> str | None:
     figures = []
     for i, record in enumerate(records[:MAX_THUMBS]):
         target = run.img / f"thumb_{i:03d}.png"
-        if thumbnail(photos / record["name"], target):
-            figures.append(figure(f"img/{target.name}", record["name"]))
+        if thumbnail(photos / record.name, target):
+            figures.append(figure(f"img/{target.name}", record.name))
     more = f"<p>and {len(records) - MAX_THUMBS} more</p>" if len(records) > MAX_THUMBS else ""
     return section("Capture", f"<p>{len(records)} photos from <code>{html.escape(str(run.source))}</code></p>"
                    f"{grid(figures)}{more}")

@@ -17,11 +17,10 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from nerfpipe.artifacts import Bounds, FrameBounds
+from nerfpipe.artifacts import PINHOLE, Bounds, FrameBounds
 from nerfpipe.geometry.cameras import CameraSet, Points
 from nerfpipe.geometry.normalize import (
     Similarity,
@@ -34,6 +33,7 @@ from nerfpipe.geometry.normalize import (
 )
 from nerfpipe.geometry.rig import look_at_center, rig_kind, rig_radius
 from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 
 # Without points a non-converging rig says nothing about depth: wide bounds in normalized units (the
@@ -119,27 +119,38 @@ def transform_camera_set(cameras: CameraSet, similarity: Similarity) -> CameraSe
                      dataclasses.replace(cameras.hints))
 
 
+@dataclass(frozen=True)
+class BoundsSummary(Summary):
+    """How near/far were found (``points`` or ``sphere``), the rig, the scale to the normalized world, and the
+    nearest near and farthest far."""
+
+    method: str = ""
+    rig: str = ""
+    scale: float = 0.0
+    near: float | None = None
+    far: float | None = None
+    frames: int = 0
+
+    def describe(self) -> list[str]:
+        if self.near is None or self.far is None:
+            return []
+        return [f"{self.frames} images, {self.method}-based near/far {self.near:.3g} .. {self.far:.3g} "
+                f"(normalized units), {self.rig} rig, scale {self.scale:.4g}"]
+
+
 class BoundsStage(Stage):
     """Normalize the world (z up, scene in [-1, 1]^3) and compute per-image near/far bounds."""
 
     name = "bounds"
     version = 3  # 3: up from the y axes of photos turned a quarter; 2: the points' scene box grows by box_margin
     Params = BoundsParams
+    Summary = BoundsSummary
     requires = ("pinhole",)
     provides = {"world": "world", "bounds": "bounds.json"}
     libraries = ("numpy",)
 
-    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
-        s = manifest.get("summary", {})
-        if "near" not in s:
-            return []
-        return [
-            f"{s.get('frames')} images, {s.get('method')}-based near/far {s['near']:.3g} .. {s['far']:.3g} "
-            f"(normalized units), {s.get('rig')} rig, scale {s.get('scale', 0.0):.4g}"
-        ]
-
-    def run(self, inputs: StageInputs, out: Path, params: BoundsParams, ctx: StageContext) -> dict[str, Any]:
-        sfm = CameraSet.load(inputs["pinhole"])
+    def run(self, inputs: StageInputs, out: Path, params: BoundsParams, ctx: StageContext) -> BoundsSummary:
+        sfm = inputs.load(PINHOLE)
         if not sfm.frames:
             raise StageError("bounds: no registered images to normalize; check the sfm / pose import result")
         c2ws = np.array([f.c2w for f in sfm.frames])
@@ -172,8 +183,8 @@ class BoundsStage(Stage):
             "bounds: %d images, %s-based near/far %.3g .. %.3g (normalized units), scale %.4g, %s rig",
             len(frames), method, bounds.near, bounds.far, similarity.scale, kind,
         )
-        return {"method": method, "rig": kind, "scale": similarity.scale, "near": bounds.near, "far": bounds.far,
-                "frames": len(frames)}
+        return BoundsSummary(method=method, rig=kind, scale=similarity.scale, near=bounds.near, far=bounds.far,
+                             frames=len(frames))
 
     @staticmethod
     def _from_points(world: CameraSet, params: BoundsParams, ctx: StageContext):

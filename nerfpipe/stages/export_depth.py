@@ -13,12 +13,13 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
-from nerfpipe.artifacts import Bounds, ViewSplit, view_file_stem
+from nerfpipe.artifacts import BOUNDS, CAMERAS, VIEWS, ViewSplit, view_file_stem
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.pipeline.budget import fit_to_allotment
 from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 
 
@@ -56,12 +57,33 @@ def wanted_views(split: ViewSplit, params: ExportDepthParams) -> list[tuple[str,
     return wanted + [("heldout", n) for n in split.heldout] * (params.views in ("all", "heldout"))
 
 
+@dataclass(frozen=True)
+class ExportDepthSummary(Summary):
+    """The views whose depth was written, their size and what each cost, and their mean opacity."""
+
+    views: int = 0
+    train_views: int = 0
+    heldout_views: int = 0
+    scale: float = 0.0
+    width: int = 0
+    height: int = 0
+    seconds_per_view: float = 0.0
+    mean_acc: float = 0.0
+
+    def describe(self) -> list[str]:
+        if not self.views:
+            return []
+        return [f"{self.views} views ({self.train_views} training, {self.heldout_views} held out) at "
+                f"{self.width}x{self.height}, {self.seconds_per_view:.1f} s each; mean opacity {self.mean_acc:.2f}"]
+
+
 class ExportDepthStage(Stage):
     """Depth, opacity and disparity maps (.npy, 16-bit PNG, preview) of every training and held-out view."""
 
     name = "export_depth"
     version = 1
     Params = ExportDepthParams
+    Summary = ExportDepthSummary
     presets = {
         "preview": {"scale": 0.125},
         # full resolution: what other tools want, at 16x the rendering time of the default
@@ -74,19 +96,12 @@ class ExportDepthStage(Stage):
     budget_share = 0.08
     optional = True
 
-    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
-        s = manifest.get("summary", {})
-        if "views" not in s:
-            return []
-        return [f"{s['views']} views ({s['train_views']} training, {s['heldout_views']} held out) at "
-                f"{s['width']}x{s['height']}, {s['seconds_per_view']:.1f} s each; mean opacity {s['mean_acc']:.2f}"]
-
     def expected_bytes(self, inputs: StageInputs, params: ExportDepthParams) -> int:
         """The float32 depth, opacity and disparity arrays of every view (the PNGs beside them add less)."""
-        world = CameraSet.load(inputs["cameras"])
+        world = inputs.load(CAMERAS)
         by_name = {f.name: f for f in world.frames}
         total = 0
-        for _, name in wanted_views(ViewSplit.load(inputs["views"]), params):
+        for _, name in wanted_views(inputs.load(VIEWS), params):
             if name in by_name:
                 camera = world.camera_of(by_name[name])
                 width, height = scaled_size(camera.width, camera.height, params.scale)
@@ -125,13 +140,13 @@ class ExportDepthStage(Stage):
             ctx.log.warning(longer)
         return scale
 
-    def run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> dict[str, Any]:
+    def run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> ExportDepthSummary:
         from nerfpipe.nerf.device import rendering_device
 
         with rendering_device(params.device, "export_depth.device") as device:
             return self._run(inputs, out, params, ctx, device)
 
-    def _run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext, device) -> dict[str, Any]:
+    def _run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext, device) -> ExportDepthSummary:
         import numpy as np
 
         from nerfpipe.export.depth import DepthIndex, DepthView, png_scale_for, write_view
@@ -139,9 +154,9 @@ class ExportDepthStage(Stage):
 
         began = time.perf_counter()
         model = RadianceModel.load(inputs["model"].parent, device)
-        world = CameraSet.load(inputs["cameras"])  # the training cameras as refined
-        bounds = Bounds.load(inputs["bounds"])
-        split = ViewSplit.load(inputs["views"])
+        world = inputs.load(CAMERAS)  # the training cameras as refined
+        bounds = inputs.load(BOUNDS)
+        split = inputs.load(VIEWS)
         near_far = bounds.near_far()
         by_name = {f.name: f for f in world.frames}
         wanted = wanted_views(split, params)
@@ -175,13 +190,13 @@ class ExportDepthStage(Stage):
         DepthIndex(views, png_scale, bounds.to_sfm, params.acc_threshold).save(out / "depth.json")
         seconds = time.perf_counter() - started
         ctx.log.info("export_depth: %d views in %.0f s (%.1f s a view)", len(views), seconds, seconds / max(len(views), 1))
-        return {
-            "views": len(views),
-            "train_views": sum(v.role == "train" for v in views),
-            "heldout_views": sum(v.role == "heldout" for v in views),
-            "scale": scale,
-            "width": views[0].width if views else 0,
-            "height": views[0].height if views else 0,
-            "seconds_per_view": round(seconds / max(len(views), 1), 3),
-            "mean_acc": round(float(np.mean(accs)), 4) if accs else 0.0,
-        }
+        return ExportDepthSummary(
+            views=len(views),
+            train_views=sum(v.role == "train" for v in views),
+            heldout_views=sum(v.role == "heldout" for v in views),
+            scale=scale,
+            width=views[0].width if views else 0,
+            height=views[0].height if views else 0,
+            seconds_per_view=round(seconds / max(len(views), 1), 3),
+            mean_acc=round(float(np.mean(accs)), 4) if accs else 0.0,
+        )

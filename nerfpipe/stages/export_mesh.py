@@ -35,10 +35,11 @@ from typing import Any, Literal
 
 import numpy as np
 
-from nerfpipe.artifacts import Bounds, SceneDecisions
+from nerfpipe.artifacts import BOUNDS, CAMERAS, SCENE, VIEWS, Bounds, SceneDecisions
 from nerfpipe.pipeline.budget import check_affordable
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.resources import check_memory
+from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 
 FORMATS = (".ply", ".obj", ".glb")
@@ -77,6 +78,43 @@ class ExportMeshParams:
         check_memory("texture", "the texture's texels, with the photos' sums baked into them", TEXEL_BYTES * self.texture**2)
 
 
+@dataclass(frozen=True)
+class ExportMeshSummary(Summary):
+    """The mesh: its method, size and pieces; the texture and how the textured mesh scored on the held-out
+    views (``nerfpipe.export.mesh_score``); the watertight remesh and the Poisson surface, where made."""
+
+    method: str = ""
+    faces: int = 0
+    vertices: int = 0
+    voxel: float = 0.0
+    components: int = 0
+    components_kept: int = 0
+    faces_before_cleaning: int = 0
+    poisson_faces: int | None = None
+    texture: dict[str, Any] | None = None  # {"size", "faces", "photos", "seconds"}
+    heldout: dict[str, Any] | None = None  # ``score_views``
+    watertight: dict[str, Any] | None = None  # ``nerfpipe.export.solid.closure``
+    seconds: float = 0.0
+
+    def describe(self) -> list[str]:
+        if not self.faces:
+            return []
+        lines = [f"{self.method}: {self.faces} triangles, {self.vertices} vertices ({self.components_kept} of "
+                 f"{self.components} pieces kept) at voxel {self.voxel:.4g}, {self.seconds:.0f} s"]
+        if self.texture is not None:
+            t = self.texture
+            lines.append(f"texture: {t['size']} x {t['size']} texels on {t['faces']} triangles, from {t['photos']} "
+                         f"training photos in {t['seconds']:.0f} s (mesh.glb)")
+        if self.heldout is not None:
+            h = self.heldout
+            lines.append(f"held-out views: the textured mesh {h['mesh_psnr']:.2f} dB ({h['covered_psnr']:.2f} dB over "
+                         f"the {100 * h['coverage']:.0f} % of the pixels it covers), the field {h['field_psnr']:.2f} dB; "
+                         f"mean colour {100 * float(np.mean(h['colour_ratio'])):.0f} % of the photos'")
+        if self.poisson_faces is not None:
+            lines.append(f"poisson: {self.poisson_faces} triangles")
+        return lines
+
+
 class ExportMeshStage(Stage):
     """Triangle mesh (marching cubes, a Poisson surface of the points, or TSDF fusion) as PLY, OBJ and GLB in
     the SfM frame."""
@@ -84,6 +122,7 @@ class ExportMeshStage(Stage):
     name = "export_mesh"
     version = 4  # 4: a scene by Poisson, the blend of the photos corrected for those missing a texel; 3: a texture from the photos, scored on the held-out views; 2: the GLB +Y up, PBR, linear colours
     Params = ExportMeshParams
+    Summary = ExportMeshSummary
     presets = {
         "preview": {"resolution": 128, "target_faces": 50_000},
         "fine": {"resolution": 512, "target_faces": 1_000_000},
@@ -98,37 +137,18 @@ class ExportMeshStage(Stage):
     libraries = ("torch", "numpy", "open3d", "trimesh")
     accelerated = True
 
-    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
-        s = manifest.get("summary", {})
-        if "faces" not in s:
-            return []
-        lines = [f"{s['method']}: {s['faces']} triangles, {s['vertices']} vertices ({s['components_kept']} of "
-                 f"{s['components']} pieces kept) at voxel {s['voxel']:.4g}, {s['seconds']:.0f} s"]
-        if "texture" in s:
-            t = s["texture"]
-            lines.append(f"texture: {t['size']} x {t['size']} texels on {t['faces']} triangles, from {t['photos']} "
-                         f"training photos in {t['seconds']:.0f} s (mesh.glb)")
-        if "heldout" in s:
-            h = s["heldout"]
-            covers = (f" ({h['covered_psnr']:.2f} dB over the {100 * h['coverage']:.0f} % of the pixels it covers)"
-                      if "coverage" in h else "")
-            lines.append(f"held-out views: the textured mesh {h['mesh_psnr']:.2f} dB{covers}, the field {h['field_psnr']:.2f} "
-                         f"dB; mean colour {100 * float(np.mean(h['colour_ratio'])):.0f} % of the photos'")
-        if s.get("poisson_faces") is not None:
-            lines.append(f"poisson: {s['poisson_faces']} triangles")
-        return lines
-
-    def run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext) -> dict[str, Any]:
+    def run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext) -> ExportMeshSummary:
         from nerfpipe.nerf.device import rendering_device
 
         with rendering_device(params.device, "export_mesh.device") as device:
             return self._run(inputs, out, params, ctx, device)
 
-    def _run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext, device) -> dict[str, Any]:
+    def _run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext,
+             device) -> ExportMeshSummary:
         import torch
 
         from nerfpipe.export import points as point_clouds
-        from nerfpipe.export.depth import DepthIndex, read_view
+        from nerfpipe.export.depth import DEPTH_INDEX, read_view
         from nerfpipe.export.mesh import (
             Grid,
             clean,
@@ -146,11 +166,11 @@ class ExportMeshStage(Stage):
         from nerfpipe.nerf.model import RadianceModel
 
         started = time.perf_counter()
-        bounds = Bounds.load(inputs["bounds"])
+        bounds = inputs.load(BOUNDS)
         lo, hi = bounds.box()
         model = RadianceModel.load(inputs["model"].parent, device)
         far = max(f.far for f in bounds.frames)
-        scene = SceneDecisions.load(inputs["scene"])
+        scene = inputs.load(SCENE)
         method = chosen_method(params.method, scene)
         if method == "marching_cubes":
             box = model.ray_space.mesh_box(far, (tuple(lo), tuple(hi)), params.region)
@@ -173,7 +193,7 @@ class ExportMeshStage(Stage):
                          params.poisson_depth, voxel)
             mesh = poisson(point_clouds.to_open3d(points), params.poisson_depth, box=box)
         else:
-            index = DepthIndex.load(inputs["depth_index"])
+            index = inputs.load(DEPTH_INDEX)
             views = [(read_view(inputs["depth"], v), v.K(), np.asarray(v.c2w)) for v in index.views if v.role == "train"]
             voxel = float((hi - lo).max()) / params.resolution
             ctx.log.info("export_mesh: TSDF fusion of %d views at voxel %.4g", len(views), voxel)
@@ -208,7 +228,7 @@ class ExportMeshStage(Stage):
         summary: dict[str, Any] = {
             "method": method, "faces": mesh.faces, "vertices": len(mesh.vertices), "voxel": voxel,
             "components": report.components, "components_kept": report.components_kept,
-            "faces_before_cleaning": report.faces_before, "poisson_faces": None, **scores,
+            "faces_before_cleaning": report.faces_before, **scores,
         }
         if params.watertight:
             grid = Grid.over(*model.ray_space.mesh_box(far, (tuple(lo), tuple(hi)), params.region), params.resolution)
@@ -227,7 +247,7 @@ class ExportMeshStage(Stage):
         summary["seconds"] = round(time.perf_counter() - started, 2)
         ctx.log.info("export_mesh: %d triangles, %d vertices -> mesh.ply, mesh.obj (SfM frame), mesh.glb (+Y up)", mesh.faces,
                      len(mesh.vertices))
-        return summary
+        return ExportMeshSummary(**summary)
 
 
 GLB_UNITS = "arbitrary (the SfM frame's)"
@@ -255,102 +275,76 @@ def chosen_method(method: str, scene: SceneDecisions) -> str:
     return "poisson" if scene.background.value == "none" else "marching_cubes"
 
 
-def psnr(rendered: np.ndarray, photo: np.ndarray) -> float:
-    return float(-10 * np.log10(max(float(np.mean((rendered - photo) ** 2)), 1e-10)))
-
-
 def write_watertight(out: Path, model: Any, grid: Any, params: ExportMeshParams, device: Any, textured: Any,
                      bounds: Bounds, to_gltf: np.ndarray) -> dict[str, Any]:
-    """``mesh_watertight.ply`` (SfM frame) and ``.glb`` (+Y up): the solid where the density reaches the
-    threshold, remeshed closed and manifold (``nerfpipe.export.solid``), coloured from the texture if there
-    is one; returns what trimesh and Open3D say of it."""
+    """``mesh_watertight.ply`` (SfM frame) and ``.glb`` (+Y up): the closed, manifold remesh of where the
+    density reaches the threshold (``nerfpipe.export.solid``), coloured from the texture if there is one;
+    returns what trimesh and Open3D say of it."""
     import torch
-    import trimesh
 
-    from nerfpipe.export.mesh import to_open3d, transformed, write_mesh
-    from nerfpipe.export.solid import occupancy, solid_surface
+    from nerfpipe.export.mesh import transformed, write_mesh
+    from nerfpipe.export.solid import closure, watertight
     from nerfpipe.export.texture import colours_at
 
     field = model.fine if model.fine is not None else model.coarse
-    solid = occupancy(field.query_density, grid, params.density_threshold, params.block, device)
-    mesh = solid_surface(solid, grid.origin, grid.voxel, params.close_voxels)
-    if mesh.faces == 0:
-        raise StageError("export_mesh: the watertight remesh found no solid; lower export_mesh.density_threshold")
+    try:
+        mesh = watertight(field.query_density, grid, params.density_threshold, params.block, device, params.close_voxels)
+    except ValueError:
+        raise StageError("export_mesh: the watertight remesh found no solid; lower export_mesh.density_threshold") from None
     mesh.vertices = model.ray_space.from_field(torch.as_tensor(mesh.vertices)).numpy()
     if textured is not None:
         mesh.colors = colours_at(textured, mesh.vertices)
     write_mesh(transformed(mesh, bounds.to_sfm), out / "mesh_watertight.ply")
     write_mesh(transformed(mesh, to_gltf), out / "mesh_watertight.glb")
-    checked = trimesh.Trimesh(mesh.vertices, mesh.triangles, process=False)
-    return {"faces": mesh.faces, "euler": int(checked.euler_number), "watertight": bool(checked.is_watertight),
-            "edge_manifold": bool(to_open3d(mesh).is_edge_manifold())}
+    return closure(mesh)
 
 
 def bake_and_score(inputs: StageInputs, mesh: Any, params: ExportMeshParams, ctx: StageContext) -> tuple[Any, dict]:
-    """The mesh (normalized world) textured from the training photos at their trained poses, and how its
-    renders score on the held-out views beside the field's: PSNR against the same photos the train stage
-    scored on, and the mesh's mean colour over the pixels it covers as a share of the photos' there."""
-    from nerfpipe.artifacts import ViewSplit, view_file_stem
-    from nerfpipe.export.texture import Photo, bake, render
-    from nerfpipe.geometry.cameras import CameraSet
+    """The mesh (normalized world) textured from the training photos at their trained poses
+    (``nerfpipe.export.texture.bake``), and how its renders score on the held-out views beside the field's
+    (``nerfpipe.export.mesh_score``): against the same photos the train stage scored on."""
+    from nerfpipe.artifacts import view_file_stem
+    from nerfpipe.export.mesh_score import HeldoutView, score_views
+    from nerfpipe.export.texture import Photo, bake, spread
     from nerfpipe.imaging.png import read_png
     from nerfpipe.nerf.train.images import ImageLoader
 
     began = time.perf_counter()
-    cameras = CameraSet.load(inputs["cameras"])
+    cameras = inputs.load(CAMERAS)
     loader = ImageLoader(inputs["images"], inputs["undistorted_images"], inputs["pinhole"], cameras,
-                         Bounds.load(inputs["bounds"]), SceneDecisions.load(inputs["scene"]))
-    split = ViewSplit.load(inputs["views"])
+                         inputs.load(BOUNDS), inputs.load(SCENE))
     frames = {f.name: f for f in cameras.frames}
 
     def intrinsics(camera: Any) -> np.ndarray:
         return np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])
 
-    names = spread([n for n in split.train if n in frames], params.texture_photos)
+    names = spread([n for n in inputs.load(VIEWS).train if n in frames], params.texture_photos)
     photos = [Photo(np.round(np.clip(loader.image(frames[n]), 0, 1) * 255).astype(np.uint8),
                     intrinsics(cameras.camera_of(frames[n])), np.asarray(frames[n].c2w)) for n in names]
     textured = bake(mesh, photos, params.texture_faces, params.texture)
     seconds = time.perf_counter() - began
     ctx.log.info("export_mesh: a %d x %d texture on %d triangles from %d training photos in %.0f s", params.texture,
                  params.texture, textured.faces, len(photos), seconds)
-    metrics = json.loads(inputs["metrics"].read_text(encoding="utf-8"))
-    mesh_psnr, covered_psnr, coverage, field_psnr, covered, seen = [], [], [], [], [], []
-    for view in metrics.get("views", []):
+    views = []
+    for view in json.loads(inputs["metrics"].read_text(encoding="utf-8")).get("views", []):
         truth = inputs["eval"] / f"{view_file_stem(view['name'])}.gt.png"
         if view["name"] not in frames or not truth.exists():
             continue
         photo = read_png(truth)[..., :3].astype(np.float64) / 255.0
         camera = cameras.camera_of(frames[view["name"]])
         camera = camera.scaled(photo.shape[1] / camera.width, photo.shape[0] / camera.height)
-        rgb, hit = render(textured, intrinsics(camera), np.asarray(frames[view["name"]].c2w), camera.width, camera.height,
-                          loader.background)
-        mesh_psnr.append(psnr(rgb, photo))
-        covered_psnr.append(psnr(rgb[hit], photo[hit]) if hit.any() else 0.0)
-        coverage.append(float(hit.mean()))
-        field_psnr.append(float(view["psnr"]))
-        covered.append(rgb[hit].sum(axis=0))
-        seen.append(photo[hit].sum(axis=0))
+        views.append(HeldoutView(photo, intrinsics(camera), np.asarray(frames[view["name"]].c2w), float(view["psnr"])))
     scores: dict[str, Any] = {"texture": {"size": params.texture, "faces": textured.faces, "photos": len(photos),
                                           "seconds": round(seconds, 1)}}
-    if mesh_psnr:
-        ratio = np.sum(covered, axis=0) / np.maximum(np.sum(seen, axis=0), 1e-9)
-        scores["heldout"] = {"mesh_psnr": round(float(np.mean(mesh_psnr)), 3), "field_psnr": round(float(np.mean(field_psnr)), 3),
-                             "covered_psnr": round(float(np.mean(covered_psnr)), 3),
-                             "coverage": round(float(np.mean(coverage)), 4), "views": len(mesh_psnr),
-                             "colour_ratio": [round(float(r), 4) for r in ratio]}
+    heldout = score_views(textured, views, loader.background)
+    if heldout is not None:
+        scores["heldout"] = heldout
+        ratio = heldout["colour_ratio"]
         ctx.log.info("export_mesh: the textured mesh on %d held-out views: PSNR %.2f dB (the field: %.2f dB); over the "
                      "%.0f %% of the pixels it covers %.2f dB, its mean colour there %.0f %% of the photos' (r, g, b: %s)",
-                     len(mesh_psnr), np.mean(mesh_psnr), np.mean(field_psnr), 100 * float(np.mean(coverage)),
-                     np.mean(covered_psnr), 100 * float(np.mean(ratio)), ", ".join(f"{r:.3f}" for r in ratio))
+                     len(views), heldout["mesh_psnr"], heldout["field_psnr"], 100 * heldout["coverage"],
+                     heldout["covered_psnr"], 100 * float(np.mean(ratio)), ", ".join(f"{r:.3f}" for r in ratio))
     return textured, scores
-
-
-def spread(names: list[str], count: int) -> list[str]:
-    """At most ``count`` of ``names`` (all where ``count`` is 0), evenly spaced along them: photos in capture
-    order, of which neighbours see much the same, so the texture loses little and bakes in a share of the time."""
-    if count <= 0 or len(names) <= count:
-        return names
-    return [names[i] for i in np.unique(np.linspace(0, len(names) - 1, count).round().astype(int))]
 
 
 TEXEL_BYTES = 64  # a texel's colour sums, weights and best view while baking, in float32 and float64

@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from nerfpipe.artifacts import Bounds, SceneDecisions
-from nerfpipe.geometry.cameras import CameraSet
+from nerfpipe.artifacts import BOUNDS, SCENE, SFM_MODEL
 from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 
 
@@ -47,12 +47,36 @@ class ExportPointsParams:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
 
 
+@dataclass(frozen=True)
+class ExportPointsSummary(Summary):
+    """The points kept, of those back-projected from the training views' depth, and the SfM sparse cloud."""
+
+    points: int = 0
+    raw_points: int = 0
+    views: int = 0
+    voxel: float = 0.0
+    after_voxel: int = 0
+    sparse_points: int = 0
+    acc_threshold: float = 0.0
+    consistency: dict[str, Any] | None = None  # {"agreed", "solid", ...}: the check against neighbouring views
+
+    def describe(self) -> list[str]:
+        if not self.views:
+            return []
+        sparse = f"; SfM sparse cloud: {self.sparse_points} points" if self.sparse_points else "; no SfM sparse points"
+        agreed = (f", {self.consistency['agreed']} of {self.consistency['solid']} solid pixels confirmed by other views"
+                  if self.consistency else "")
+        return [f"{self.points} points from {self.views} training views ({self.raw_points} back-projected{agreed}, "
+                f"voxel {self.voxel:.4g}){sparse}"]
+
+
 class ExportPointsStage(Stage):
     """Point cloud from rendered depth (PLY, SfM frame), plus the SfM sparse cloud."""
 
     name = "export_points"
     version = 2  # 2: points only where neighbouring views' depths agree
     Params = ExportPointsParams
+    Summary = ExportPointsSummary
     presets = {"dense": {"target_points": 1_000_000}, "preview": {"target_points": 50_000}}
     requires = ("depth", "depth_index", "bounds", "scene", "sfm_model")
     provides = {"points": "points.ply"}
@@ -60,23 +84,13 @@ class ExportPointsStage(Stage):
     optional = True
     libraries = ("numpy", "open3d")
 
-    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
-        s = manifest.get("summary", {})
-        if "points" not in s:
-            return []
-        sparse = f"; SfM sparse cloud: {s['sparse_points']} points" if s.get("sparse_points") else "; no SfM sparse points"
-        agreed = (f", {s['consistency']['agreed']} of {s['consistency']['solid']} solid pixels confirmed by other views"
-                  if s.get("consistency") else "")
-        return [f"{s['points']} points from {s['views']} training views ({s['raw_points']} back-projected{agreed}, "
-                f"voxel {s['voxel']:.4g}){sparse}"]
-
-    def run(self, inputs: StageInputs, out: Path, params: ExportPointsParams, ctx: StageContext) -> dict[str, Any]:
-        from nerfpipe.export.depth import DepthIndex, read_view
+    def run(self, inputs: StageInputs, out: Path, params: ExportPointsParams, ctx: StageContext) -> ExportPointsSummary:
+        from nerfpipe.export.depth import DEPTH_INDEX, read_view
         from nerfpipe.export.points import Cloud, agreement, clean_cloud, solid, transformed, views_to_points, write_ply
 
-        index = DepthIndex.load(inputs["depth_index"])
-        bounds = Bounds.load(inputs["bounds"])
-        scene = SceneDecisions.load(inputs["scene"])
+        index = inputs.load(DEPTH_INDEX)
+        bounds = inputs.load(BOUNDS)
+        scene = inputs.load(SCENE)
         train = [v for v in index.views if v.role == "train"]
         if not train:
             raise StageError("export_points: the depth export holds no training views; "
@@ -114,7 +128,7 @@ class ExportPointsStage(Stage):
         ctx.log.info("export_points: %d points (%d back-projected from %d views) -> points.ply (SfM frame)", len(cleaned),
                      len(cloud), len(train))
 
-        sparse = CameraSet.load(inputs["sfm_model"]).points
+        sparse = inputs.load(SFM_MODEL).points
         sparse_count = 0
         if sparse is not None and len(sparse.xyz):
             rgb = np.asarray(sparse.rgb, dtype=np.float64)
@@ -122,8 +136,8 @@ class ExportPointsStage(Stage):
             sparse_count = len(sparse.xyz)
         else:
             ctx.log.info("export_points: the poses came without sparse points, so there is no sparse.ply")
-        return {
-            "points": len(cleaned), "raw_points": len(cloud), "views": len(train), "voxel": report.voxel,
-            "after_voxel": report.after_voxel, "sparse_points": sparse_count, "acc_threshold": params.acc_threshold,
-            "consistency": checked,
-        }
+        return ExportPointsSummary(
+            points=len(cleaned), raw_points=len(cloud), views=len(train), voxel=report.voxel,
+            after_voxel=report.after_voxel, sparse_points=sparse_count, acc_threshold=params.acc_threshold,
+            consistency=checked,
+        )

@@ -7,6 +7,7 @@ The photos themselves are only ever read.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -17,10 +18,11 @@ from typing import Any, Literal
 
 import numpy as np
 
-from nerfpipe.artifacts import ImageIndex, output_names
+from nerfpipe.artifacts import ImageIndex, PhotoRecord, output_names
 from nerfpipe.imaging.png import write_png
 from nerfpipe.pipeline.errors import BadPhotoError, InputError
 from nerfpipe.pipeline.fingerprint import Fingerprint
+from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.poses.layout import detect_layout
 
@@ -96,12 +98,38 @@ def to_bit_depth(pixels: np.ndarray, bits: int) -> np.ndarray:
     return pixels
 
 
+@dataclass(frozen=True)
+class IngestSummary(Summary):
+    """What ingest made: photos (or a video's frames), their megapixels as taken, and how many were skipped,
+    RAW, with alpha or with an EXIF focal prior."""
+
+    images: int = 0
+    skipped: int = 0
+    source_megapixels: float = 0.0
+    raw: int = 0
+    with_alpha: int = 0
+    with_focal_prior: int = 0
+    video: dict[str, Any] | None = None  # {"file", "frames", "fps", "seconds"} for a video capture
+
+    def describe(self) -> list[str]:
+        if self.video is not None:
+            v = self.video
+            return [f"{self.images} frames of {v['file']} ({v['frames']} frames, {v['seconds']:.0f} s at "
+                    f"{v['fps']:g} fps), each the sharpest of its stretch"]
+        line = f"{self.images} photos ({self.source_megapixels} MP)"
+        extras = [f"{n} {label}" for n, label in ((self.skipped, "skipped"), (self.raw, "RAW"),
+                                                  (self.with_alpha, "with alpha"),
+                                                  (self.with_focal_prior, "with an EXIF focal prior")) if n]
+        return [line + (", " + ", ".join(extras) if extras else "")]
+
+
 class IngestStage(Stage):
     """Decode photos (JPEG, PNG, TIFF, camera RAW), apply EXIF orientation, downscale, write PNGs + images.json."""
 
     name = "ingest"
     version = 3  # 2: layout and splits in images.json, sub-folder names; 3: short or tiny videos refused
     Params = IngestParams
+    Summary = IngestSummary
     presets = {
         "draft": {"max_size": 400},
         "fast": {"max_size": 800},
@@ -114,18 +142,6 @@ class IngestStage(Stage):
     provides = {"images": "images", "images_json": "images.json"}
     libraries = ("numpy", "opencv-contrib-python-headless", "rawpy")
     inputs_label = "photos"
-
-    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
-        s = manifest.get("summary", {})
-        if "video" in s:
-            v = s["video"]
-            line = (f"{s.get('images')} frames of {v['file']} ({v['frames']} frames, {v['seconds']:.0f} s at "
-                    f"{v['fps']:g} fps), each the sharpest of its stretch")
-            return [line]
-        line = f"{s.get('images')} photos ({s.get('source_megapixels')} MP)"
-        extras = [f"{s[k]} {label}" for k, label in (("skipped", "skipped"), ("raw", "RAW"), ("with_alpha", "with alpha"),
-                                                      ("with_focal_prior", "with an EXIF focal prior")) if s.get(k)]
-        return [line + (", " + ", ".join(extras) if extras else "")]
 
     def input_files(self, source: Path, params: IngestParams) -> list[Path]:
         """The photos, their heads checked before the engine hashes them: a file that is no photo (a 3 GB
@@ -165,7 +181,7 @@ class IngestStage(Stage):
                 total += width * height * header.channels * depth
         return int(total * PNG_SHARE)
 
-    def run(self, inputs: StageInputs, out: Path, params: IngestParams, ctx: StageContext) -> dict[str, Any]:
+    def run(self, inputs: StageInputs, out: Path, params: IngestParams, ctx: StageContext) -> IngestSummary:
         from nerfpipe.imaging import RawOptions
 
         raw = RawOptions(params.raw_linear, params.raw_highlight_mode, params.raw_white_balance)
@@ -208,10 +224,9 @@ class IngestStage(Stage):
         if not records:
             raise InputError(inputs.source, "none of the photos could be used", "see the warnings above for each file")
 
-        for record in records:
-            record["split"] = layout.splits.get(record["source"])
+        records = [dataclasses.replace(r, split=layout.splits.get(r.source)) for r in records]
         ImageIndex(layout.kind, records, skipped).save(out / "images.json")
-        megapixels = sum(r["source_width"] * r["source_height"] for r in records) / 1e6
+        megapixels = sum(r.source_width * r.source_height for r in records) / 1e6
         ctx.log.info(
             "ingest: %d photos (%.1f MP) -> %s%s",
             len(records),
@@ -219,17 +234,12 @@ class IngestStage(Stage):
             ", ".join(sorted({f"{r['width']}x{r['height']}" for r in records})),
             f", {len(skipped)} skipped" if skipped else "",
         )
-        return {
-            "images": len(records),
-            "skipped": len(skipped),
-            "source_megapixels": round(megapixels, 3),
-            "raw": sum(r["raw"] for r in records),
-            "with_alpha": sum(r["has_alpha"] for r in records),
-            "with_focal_prior": sum(r["focal_prior"] is not None for r in records),
-        }
+        return IngestSummary(images=len(records), skipped=len(skipped), source_megapixels=round(megapixels, 3),
+                             raw=sum(r.raw for r in records), with_alpha=sum(r.has_alpha for r in records),
+                             with_focal_prior=sum(r.focal_prior is not None for r in records))
 
     @staticmethod
-    def _video(inputs: StageInputs, out: Path, params: IngestParams, ctx: StageContext) -> dict[str, Any]:
+    def _video(inputs: StageInputs, out: Path, params: IngestParams, ctx: StageContext) -> IngestSummary:
         """A video capture: about ``video_frames`` frames, each the sharpest of its window, as PNGs; each
         record keeps the frame's index and time in the video."""
         import cv2
@@ -260,24 +270,22 @@ class IngestStage(Stage):
             height, width = pixels.shape[:2]
             name = f"frame_{i:04d}.png"  # numbered in order, so SfM matches them sequentially
             write_png(out / "images" / name, pixels)
-            records.append({
-                "name": name, "source": fp.relpath, "source_sha256": fp.sha256, "source_bytes": fp.size,
-                "format": "video", "width": width, "height": height, "source_width": src_w, "source_height": src_h,
-                "scale": width / src_w, "bit_depth": 8, "has_alpha": False, "mask": None, "raw": False,
-                "linear": False, "exif": ExifSummary().to_json(), "focal_prior": None, "split": None,
-                "video_frame": frame.index, "time_s": round(frame.time_s, 4),
-            })
+            records.append(PhotoRecord(
+                name=name, source=fp.relpath, source_sha256=fp.sha256, source_bytes=fp.size, format="video",
+                width=width, height=height, source_width=src_w, source_height=src_h, scale=width / src_w, bit_depth=8,
+                has_alpha=False, mask=None, raw=False, linear=False, exif=ExifSummary().to_json(), focal_prior=None,
+                split=None, video_frame=frame.index, time_s=round(frame.time_s, 4),
+            ))
         ImageIndex("video", records).save(out / "images.json")
         seconds = decoded / rate
         ctx.log.info("ingest: %d of the %d frames of %s (%.0f s at %.3g fps), each the sharpest of its %.2f s -> %dx%d",
                      len(records), decoded, fp.relpath, seconds, rate, seconds / len(records),
-                     records[0]["width"], records[0]["height"])
-        return {
-            "images": len(records), "skipped": 0,
-            "source_megapixels": round(sum(r["source_width"] * r["source_height"] for r in records) / 1e6, 3),
-            "raw": 0, "with_alpha": 0, "with_focal_prior": 0,
-            "video": {"file": fp.relpath, "frames": decoded, "fps": round(rate, 3), "seconds": round(seconds, 3)},
-        }
+                     records[0].width, records[0].height)
+        return IngestSummary(
+            images=len(records),
+            source_megapixels=round(sum(r.source_width * r.source_height for r in records) / 1e6, 3),
+            video={"file": fp.relpath, "frames": decoded, "fps": round(rate, 3), "seconds": round(seconds, 3)},
+        )
 
     @staticmethod
     def _convert(
@@ -288,7 +296,7 @@ class IngestStage(Stage):
         out: Path,
         params: IngestParams,
         raw: Any,
-    ) -> dict[str, Any]:
+    ) -> PhotoRecord:
         import cv2
 
         from nerfpipe.imaging import (
@@ -334,22 +342,22 @@ class IngestStage(Stage):
             pixels = np.ascontiguousarray(pixels[..., :3])
         write_png(out / "images" / name, pixels)
         prior = focal_prior_px(photo.exif, width, height)
-        return {
-            "name": name,
-            "source": fp.relpath,
-            "source_sha256": fp.sha256,
-            "source_bytes": fp.size,
-            "format": photo_kind(path),
-            "width": width,
-            "height": height,
-            "source_width": src_w,
-            "source_height": src_h,
-            "scale": width / src_w,
-            "bit_depth": bits,
-            "has_alpha": photo.has_alpha,
-            "mask": mask_rel,
-            "raw": photo.is_raw,
-            "linear": photo.linear,
-            "exif": photo.exif.to_json(),
-            "focal_prior": None if prior is None else {"focal_px": prior[0], "source": prior[1]},
-        }
+        return PhotoRecord(
+            name=name,
+            source=fp.relpath,
+            source_sha256=fp.sha256,
+            source_bytes=fp.size,
+            format=photo_kind(path),
+            width=width,
+            height=height,
+            source_width=src_w,
+            source_height=src_h,
+            scale=width / src_w,
+            bit_depth=bits,
+            has_alpha=photo.has_alpha,
+            mask=mask_rel,
+            raw=photo.is_raw,
+            linear=photo.linear,
+            exif=photo.exif.to_json(),
+            focal_prior=None if prior is None else {"focal_px": prior[0], "source": prior[1]},
+        )

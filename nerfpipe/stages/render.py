@@ -25,11 +25,12 @@ from typing import Any, Iterator, Literal, Sequence
 
 import numpy as np
 
-from nerfpipe.artifacts import Bounds, SceneDecisions
-from nerfpipe.geometry.cameras import Camera, CameraSet
+from nerfpipe.artifacts import BOUNDS, CAMERAS, SCENE
+from nerfpipe.geometry.cameras import Camera
 from nerfpipe.imaging.png import read_png, srgb_encode, write_png
 from nerfpipe.pipeline.budget import check_affordable, fit_to_allotment
 from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
 
@@ -122,12 +123,33 @@ def render_size(camera: Camera, scale: float, max_side: int = 0, short_side: int
     return (max(2, 2 * round(width / 2)), max(2, 2 * round(height / 2)))
 
 
+@dataclass(frozen=True)
+class RenderSummary(Summary):
+    """The video: its frames, path, size, rate and what a frame cost, and the depth range its colours span."""
+
+    frames: int = 0
+    path: str = ""
+    seconds_per_frame: float = 0.0
+    resolution: list[int] = field(default_factory=lambda: [0, 0])  # width, height
+    fps: float = 0.0
+    device: str = ""
+    depth_range: list[float] | None = None
+
+    def describe(self) -> list[str]:
+        if not self.frames:
+            return []
+        width, height = self.resolution
+        return [f"{self.frames} frames of {width}x{height} at {self.fps:g} fps, {self.seconds_per_frame:.2f} s a frame "
+                f"on {self.device}", f"path: {self.path}"]
+
+
 class RenderStage(Stage):
     """Render novel views along a spiral (forward-facing) or an orbit (360°): PNG frames, MP4s, the path."""
 
     name = "render"
     version = 7  # 7: sweeps framed on the largest gap; 6: orbits from 300 deg of azimuth (270 before); 5: keyframe paths
     Params = RenderParams
+    Summary = RenderSummary
     presets = {
         "preview": PREVIEW,
         "draft": PREVIEW,  # with ingest's and the others' draft: a quick run end to end
@@ -146,24 +168,13 @@ class RenderStage(Stage):
         """A camera path file, when ``path`` names one: its content enters the cache key."""
         return [] if params.path in PATH_KINDS else [Path(params.path)]
 
-    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
-        s = manifest.get("summary", {})
-        if "frames" not in s:
-            return []
-        width, height = s["resolution"]
-        return [
-            (f"{s['frames']} frames of {width}x{height} at {s['fps']:g} fps, {s['seconds_per_frame']:.2f} s a frame "
-             f"on {s['device']}"),
-            f"path: {s['path']}",
-        ]
-
-    def run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext) -> dict[str, Any]:
+    def run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext) -> RenderSummary:
         from nerfpipe.nerf.device import rendering_device
 
         with rendering_device(params.device, "render.device") as device:
             return self._run(inputs, out, params, ctx, device)
 
-    def _run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext, device) -> dict[str, Any]:
+    def _run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext, device) -> RenderSummary:
         from nerfpipe.export.camera_path import CameraPath, view_range
         from nerfpipe.export.paths import path_for_scene
         from nerfpipe.export.video import write_mp4
@@ -172,9 +183,9 @@ class RenderStage(Stage):
 
         began = time.perf_counter()
         model = RadianceModel.load(inputs["model"].parent, device)
-        world = CameraSet.load(inputs["cameras"])  # the training cameras as refined
-        bounds = Bounds.load(inputs["bounds"])
-        layout = SceneDecisions.load(inputs["scene"]).layout.value
+        world = inputs.load(CAMERAS)  # the training cameras as refined
+        bounds = inputs.load(BOUNDS)
+        layout = inputs.load(SCENE).layout.value
         if not world.frames:
             raise StageError("render: the normalized world has no cameras to build a path from; check the bounds stage")
 
@@ -234,15 +245,15 @@ class RenderStage(Stage):
             description, layout, fps, cameras, (bounds.near, bounds.far), depth_range, to_sfm, poses))
         per_frame = seconds / max(len(poses), 1)
         ctx.log.info("render: %d frames in %.1f s (%.2f s a frame) -> render.mp4, depth.mp4", count, seconds, per_frame)
-        return {
-            "frames": count,
-            "path": description,
-            "seconds_per_frame": round(per_frame, 3),
-            "resolution": [width, height],
-            "fps": fps,
-            "device": str(device),
-            "depth_range": [round(v, 6) for v in depth_range] if depth_range is not None else None,
-        }
+        return RenderSummary(
+            frames=count,
+            path=description,
+            seconds_per_frame=round(per_frame, 3),
+            resolution=[width, height],
+            fps=fps,
+            device=str(device),
+            depth_range=[round(v, 6) for v in depth_range] if depth_range is not None else None,
+        )
 
 
 def with_fov(camera: Camera, fov: float) -> Camera:

@@ -24,6 +24,7 @@ user set (``--set scene.layout=forward``) keeps the measured evidence and says s
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -32,9 +33,9 @@ from nerfpipe.analysis.background import decide_background
 from nerfpipe.analysis.exposure import decide_exposure, decide_photometric, measure_exposure
 from nerfpipe.analysis.layout import decide_layout
 from nerfpipe.analysis.lens import decide_lens
-from nerfpipe.artifacts import Bounds, Decision, ImageIndex, SceneDecisions
-from nerfpipe.geometry.cameras import CameraSet
+from nerfpipe.artifacts import BOUNDS, IMAGES_JSON, PINHOLE, WORLD, Decision, SceneDecisions
 from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 
 NAMED_COLORS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
@@ -110,34 +111,51 @@ class SceneParams:
             raise ValueError(f"background_images must be >= 1, got {self.background_images}")
 
 
+@dataclass(frozen=True)
+class SceneSummary(Summary):
+    """The decisions' values; their evidence is in ``scene.json`` (``SceneDecisions``), which ``describe`` reads."""
+
+    layout: str = ""
+    background: str = ""
+    background_color: list[float] | None = None
+    lens: Any = None
+    photometric: str = ""
+    exposure_varies: bool = False
+
+    def describe(self) -> list[str]:
+        return [f"{name} is {value}" for name, value in dataclasses.asdict(self).items()]
+
+
 class SceneStage(Stage):
     """Decide the scene layout, background, lens and photometry from the data, with the evidence."""
 
     name = "scene"
     version = 4  # 4: azimuth coverage leaves out cameras from overhead; 3: exposure measured from the points' brightness without EXIF; each photo's stops recorded
     Params = SceneParams
+    Summary = SceneSummary
     requires = ("images", "images_json", "pinhole", "world", "bounds", "undistorted_images")
     provides = {"scene": "scene.json"}
     libraries = ("numpy", "opencv-contrib-python-headless")
 
     def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
+        """Each decision with its evidence, from ``scene.json``; its summary's values where that is gone."""
         path = result / "scene.json"
-        return SceneDecisions.load(path).describe() if path.exists() else []
+        return SceneDecisions.load(path).describe() if path.exists() else super().describe(result, manifest)
 
-    def run(self, inputs: StageInputs, out: Path, params: SceneParams, ctx: StageContext) -> dict[str, Any]:
-        records = ImageIndex.load(inputs["images_json"]).records
+    def run(self, inputs: StageInputs, out: Path, params: SceneParams, ctx: StageContext) -> SceneSummary:
+        records = inputs.load(IMAGES_JSON).records
         if not records:
             raise StageError("scene: images.json lists no images")
-        pinhole = CameraSet.load(inputs["pinhole"])
-        world = CameraSet.load(inputs["world"])
-        bounds = Bounds.load(inputs["bounds"])
+        pinhole = inputs.load(PINHOLE)
+        world = inputs.load(WORLD)
+        bounds = inputs.load(BOUNDS)
         if not world.frames:
             raise StageError("scene: no registered images in the normalized world")
 
         layout, layout_text, layout_numbers = decide_layout(world, bounds, params)
         roots = pinhole.hints.image_roots
         paths = [
-            (inputs["undistorted_images"] if roots.get(r["name"]) == "undistort" else inputs["images"]) / r["name"]
+            (inputs["undistorted_images"] if roots.get(r.name) == "undistort" else inputs["images"]) / r.name
             for r in records
         ]
         background, background_text, background_numbers, border = decide_background(records, paths, params)
@@ -156,7 +174,7 @@ class SceneStage(Stage):
         photometric, photometric_text, photometric_numbers = decide_photometric(records)
         linear = photometric == "linear_raw"
         exposure, exposure_text, exposure_numbers = decide_exposure(
-            records, lambda: measure_exposure(world, dict(zip((r["name"] for r in records), paths)), linear))
+            records, lambda: measure_exposure(world, dict(zip((r.name for r in records), paths)), linear))
 
         chosen_layout = layout if params.layout == "auto" else params.layout
         if chosen_layout == "inward360" and chosen_background == "none":
@@ -183,4 +201,4 @@ class SceneStage(Stage):
         scene.save(out / "scene.json")
         for line in scene.describe():
             ctx.log.info("scene: %s", line)
-        return scene.values()
+        return SceneSummary(**scene.values())

@@ -19,8 +19,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from nerfpipe.artifacts import ImageIndex
+from nerfpipe.artifacts import IMAGES_JSON, PhotoRecord
 from nerfpipe.geometry.cameras import CameraSet
+from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.poses.layout import check_colmap_model, detect_layout
 
@@ -81,12 +82,60 @@ class SfmParams:
             raise ValueError(f"min_triangulated_points must be at least 1, got {self.min_triangulated_points}")
 
 
+@dataclass(frozen=True)
+class SfmSummary(Summary):
+    """How the poses were found (COLMAP's mapper, or imported), how many photos they cover, and the sparse
+    points: their reprojection error and track length (SfM), or where they came from (an import)."""
+
+    method: str = ""
+    registered: int = 0
+    total: int = 0
+    unregistered: list[str] = field(default_factory=list)
+    points: int = 0
+    mean_reprojection_error_px: float | None = None  # SfM's
+    mean_track_length: float | None = None
+    matcher: str | None = None
+    matcher_reason: str | None = None
+    single_camera: bool | None = None
+    focal_priors: int | None = None
+    relaxed_retry_used: bool | None = None
+    points_from: str | None = None  # an import's: "triangulated", "pose file" or "none"
+    triangulation: dict[str, Any] | None = None  # {"matcher", "seconds", "mean_reprojection_error_px", ...}
+    triangulation_fallback: str | None = None
+    aabb_scale: float | None = None  # instant-ngp's hint from a transforms.json
+
+    def describe(self) -> list[str]:
+        line = f"{self.method}: {self.registered}/{self.total} photos registered"
+        if self.mean_reprojection_error_px is not None and self.points_from is None:
+            line += (f", mean reprojection error {self.mean_reprojection_error_px} px, "
+                     f"mean track length {self.mean_track_length}, {self.points} points")
+        lines = [line + self.points_line()]
+        if self.triangulation_fallback:
+            lines.append(f"warning: {self.triangulation_fallback}")
+        if self.aabb_scale:
+            lines.append(aabb_hint(self.aabb_scale))
+        if self.unregistered:
+            lines.append("unregistered: " + ", ".join(self.unregistered))
+        return lines
+
+    def points_line(self) -> str:
+        """Where an import's points came from: '' for SfM (its line already counts them)."""
+        if self.points_from == "triangulated" and self.triangulation is not None:
+            t = self.triangulation
+            return (f", {self.points} points triangulated with the poses fixed ({t['matcher']} matching, "
+                    f"{t['seconds']:.0f} s, mean reprojection error {t['mean_reprojection_error_px']} px)")
+        if self.points_from == "pose file":
+            return f", {self.points} points from the pose file"
+        return ", no sparse points" if self.points_from == "none" else ""
+
+
 class SfmStage(Stage):
     """Camera poses + sparse points: COLMAP SfM through pycolmap, or the capture's own pose files."""
 
     name = "sfm"
     version = 6  # 6: sfm.triangulate_max_size; 5: LLFF poses triangulated too; 4: known poses matched with their nearest cameras; 3: triangulated points
     Params = SfmParams
+    Summary = SfmSummary
     presets = {
         "draft": {"max_image_size": 800, "max_features": 4096},
         "fast": {"max_image_size": 1024},
@@ -98,21 +147,6 @@ class SfmStage(Stage):
     libraries = ("pycolmap", "numpy")
     inputs_label = "pose files"
 
-    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
-        s = manifest.get("summary", {})
-        line = f"{s.get('method')}: {s.get('registered')}/{s.get('total')} photos registered"
-        if "mean_reprojection_error_px" in s:
-            line += (f", mean reprojection error {s['mean_reprojection_error_px']} px, "
-                     f"mean track length {s['mean_track_length']}, {s['points']} points")
-        lines = [line + points_line(s)]
-        if s.get("triangulation_fallback"):
-            lines.append(f"warning: {s['triangulation_fallback']}")
-        if s.get("aabb_scale"):
-            lines.append(aabb_hint(s["aabb_scale"]))
-        if s.get("unregistered"):
-            lines.append("unregistered: " + ", ".join(s["unregistered"]))
-        return lines
-
     def input_files(self, source: Path, params: SfmParams) -> list[Path]:
         if params.poses == "sfm":
             return []
@@ -121,8 +155,8 @@ class SfmStage(Stage):
             check_colmap_model(source, "or pass --set sfm.poses=sfm to compute the poses and ignore the model")
         return layout.pose_files
 
-    def run(self, inputs: StageInputs, out: Path, params: SfmParams, ctx: StageContext) -> dict[str, Any]:
-        records = ImageIndex.load(inputs["images_json"]).records
+    def run(self, inputs: StageInputs, out: Path, params: SfmParams, ctx: StageContext) -> SfmSummary:
+        records = inputs.load(IMAGES_JSON).records
         layout = detect_layout(inputs.source, None if params.poses in ("auto", "sfm") else params.poses)
         (out / "model").mkdir()
         if params.poses == "sfm" or layout.kind in ("folder", "video"):
@@ -132,22 +166,10 @@ class SfmStage(Stage):
         else:
             cameras, summary = import_with_points(inputs["images"], layout, records, out, params, ctx)
         cameras.save(out / "model")
-        return summary
+        return SfmSummary.from_json(summary)
 
 
-def points_line(s: dict[str, Any]) -> str:
-    """Where an import's points came from, for ``describe``: '' for SfM (its line already counts them)."""
-    source = s.get("points_from")
-    if source == "triangulated":
-        t = s["triangulation"]
-        return (f", {s['points']} points triangulated with the poses fixed "
-                f"({t['matcher']} matching, {t['seconds']:.0f} s, mean reprojection error {t['mean_reprojection_error_px']} px)")
-    if source == "pose file":
-        return f", {s['points']} points from the pose file"
-    return ", no sparse points" if source == "none" else ""
-
-
-def needs_points(cameras: CameraSet, records: list[dict]) -> bool:
+def needs_points(cameras: CameraSet, records: list[PhotoRecord]) -> bool:
     """Whether imported poses call for triangulated points: the pose file has no points, and the photos are
     no alpha renders (a synthetic object inside the camera ring, which the bounds stage's rig box holds).
 
@@ -156,7 +178,7 @@ def needs_points(cameras: CameraSet, records: list[dict]) -> bool:
     the cameras' distance from the centre, the triangulated points' box 1.0 x 1.5 x 1.1 times it, so the
     grids spend 3-5 times the cells a side on the cup: held-out views scored 25.3 dB against 24.1 after
     150 s of training, for 22 s of triangulation."""
-    has_alpha = bool(records) and all(r.get("has_alpha") for r in records)
+    has_alpha = bool(records) and all(r.has_alpha for r in records)
     return cameras.points is None and not has_alpha
 
 
@@ -169,7 +191,7 @@ def aabb_hint(scale: float) -> str:
 
 
 def import_with_points(
-    image_dir: Path, layout: Any, records: list[dict], out: Path, params: SfmParams, ctx: StageContext
+    image_dir: Path, layout: Any, records: list[PhotoRecord], out: Path, params: SfmParams, ctx: StageContext
 ) -> tuple[CameraSet, dict[str, Any]]:
     """The capture's own poses; points triangulated for them as ``sfm.triangulate`` asks, else its own."""
     from nerfpipe.poses.colmap.triangulate import triangulate_known_poses

@@ -17,6 +17,7 @@ paper holds out 1/8 of its real scenes (Section 6.1).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
@@ -37,6 +38,7 @@ from nerfpipe.nerf.fields.configs import FieldConfig, GridConfig
 from nerfpipe.nerf.samplers.configs import MarchingConfig, SamplerConfig
 from nerfpipe.pipeline.params import param
 from nerfpipe.pipeline.resources import check_memory
+from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
 
@@ -163,12 +165,98 @@ PRESETS = {
 }
 
 
+@dataclass(frozen=True)
+class Throughput(Summary):
+    """What training drew: field evaluations and rays a second, samples a ray, and how often each training
+    pixel was drawn on average."""
+
+    samples_per_s: float = 0.0
+    samples_per_ray: float = 0.0
+    rays: int | None = None
+    rays_per_s: float | None = None
+    rays_per_pixel: float | None = None
+
+
+@dataclass(frozen=True)
+class HeldoutScores(Summary):
+    """The held-out views and how they scored, at which size, against what (``protocol``)."""
+
+    heldout: int = 0
+    heldout_rule: str = ""
+    eval_scale: float | None = None
+    eval_size: list[int] | None = None  # width, height
+    psnr: float | None = None
+    ssim: float | None = None
+    psnr_photo: float | None = None  # against the photos as taken, where the scores are against masked ones
+    psnr_mean_appearance: float | None = None  # whole views at the training photos' mean exposure
+    protocol: str | None = None
+
+
+@dataclass(frozen=True)
+class TrainSummary(Summary):
+    """The train stage's figures (also the head of ``metrics.json``, written flat)."""
+
+    steps: int = 0
+    budget_seconds: float | None = None
+    train_seconds: float = 0.0
+    throughput: Throughput = Throughput()
+    field: str = ""
+    occupancy: float | None = None
+    device: str = ""
+    train_images: int = 0
+    scores: HeldoutScores = HeldoutScores()
+    appearance: dict[str, Any] | None = None  # {"images", "spread_stops", "darkest", "brightest"}
+    pose_refinement: dict[str, Any] | None = None  # {"cameras", "median_rotation_deg", ...}
+    resumed_from: int | None = None
+    stall_guard: dict[str, Any] = dataclasses.field(default_factory=dict)
+    decisions: list[str] = dataclasses.field(default_factory=list)
+
+    def describe(self) -> list[str]:
+        if not self.steps:
+            return []
+        s, x = self.scores, self.throughput
+        if s.psnr is None:
+            return [f"{self.steps} steps in {self.train_seconds:.0f} s on {self.device}; no held-out views to evaluate"]
+        size = f" at {s.eval_size[0]}x{s.eval_size[1]}" if s.eval_size else ""
+        seen = (f", {x.rays:,} rays ({x.rays_per_s:,.0f} a second, {x.rays_per_pixel:.3g} a training pixel)"
+                if x.rays is not None else "")
+        lines = [f"{self.steps} steps in {self.train_seconds:.0f} s on {self.device} "
+                 f"({x.samples_per_s:.0f} samples/s{seen}); {s.heldout} held-out views ({s.heldout_rule}){size}: "
+                 f"PSNR {s.psnr:.2f} dB, SSIM {s.ssim:.3f}"
+                 + (f" against the masked photos ({s.psnr_photo:.2f} dB against the photos as taken)"
+                    if s.psnr_photo is not None else "")]
+        if s.protocol:
+            lines.append(f"held-out protocol: {s.protocol}")
+        if s.psnr_mean_appearance is not None:
+            lines.append(f"at the training photos' mean exposure, whole views: PSNR {s.psnr_mean_appearance:.2f} dB")
+        if self.appearance:
+            a = self.appearance
+            lines.append(f"per-image exposure learned for {a['images']} photos: they span {a['spread_stops']:.2f} stops "
+                         f"(darkest {a['darkest']}, brightest {a['brightest']})")
+        if self.pose_refinement:
+            p = self.pose_refinement
+            lines.append(f"{p['cameras']} training cameras refined: median {p['median_rotation_deg']:.2f} deg and "
+                         f"{100 * p['median_translation_share']:.2f}% of the camera distance, at most "
+                         f"{p['max_rotation_deg']:.2f} deg ({p['largest']}); exports and renders use the refined poses")
+        if self.resumed_from:
+            lines.append(f"resumed from the checkpoint at step {self.resumed_from}")
+        guard = self.stall_guard
+        if guard.get("restarted_at"):
+            lines.append(f"batch PSNR stalled at the mean-colour level ({guard['mean_colour_psnr']:.1f} dB); restarted "
+                         f"at step {guard['restarted_at']} at half the learning rate")
+        if guard.get("stalled"):
+            lines.append(f"STALLED: batch PSNR {guard['batch_psnr_ema']:.1f} dB stayed at the mean-colour level "
+                         f"({guard['mean_colour_psnr']:.1f} dB); the renders are close to one flat colour")
+        return lines
+
+
 class TrainStage(Stage):
     """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
 
     name = "train"
     version = 12  # 12: model.json holds the parts' configs; 11: directions into the colour MLP as they are (L = 0; 4 before); 10: poses refined beyond 2 px
     Params = TrainParams
+    Summary = TrainSummary
     presets = PRESETS
     requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")
     provides = {"model": "model.pt", "model_json": "model.json", "metrics": "metrics.json", "eval": "eval",
@@ -183,45 +271,7 @@ class TrainStage(Stage):
             return params.steps * FASTEST_STEP_SECONDS, f"steps={params.steps}"
         return params.seconds, f"seconds={params.seconds:g}"
 
-    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
-        s = manifest.get("summary", {})
-        if "steps" not in s:
-            return []
-        if s.get("psnr") is None:
-            return [f"{s['steps']} steps in {s['train_seconds']:.0f} s on {s['device']}; no held-out views to evaluate"]
-        size = f" at {s['eval_size'][0]}x{s['eval_size'][1]}" if s.get("eval_size") else ""
-        seen = (f", {s['rays']:,} rays ({s['rays_per_s']:,.0f} a second, {s['rays_per_pixel']:.3g} a training pixel)"
-                if "rays" in s else "")
-        lines = [f"{s['steps']} steps in {s['train_seconds']:.0f} s on {s['device']} "
-                 f"({s['samples_per_s']:.0f} samples/s{seen}); {s['heldout']} held-out views ({s['heldout_rule']}){size}: "
-                 f"PSNR {s['psnr']:.2f} dB, SSIM {s['ssim']:.3f}"
-                 + (f" against the masked photos ({s['psnr_photo']:.2f} dB against the photos as taken)"
-                    if s.get("psnr_photo") is not None else "")]
-        if s.get("protocol"):
-            lines.append(f"held-out protocol: {s['protocol']}")
-        if s.get("psnr_mean_appearance") is not None:
-            lines.append(f"at the training photos' mean exposure, whole views: PSNR {s['psnr_mean_appearance']:.2f} dB")
-        if s.get("appearance"):
-            a = s["appearance"]
-            lines.append(f"per-image exposure learned for {a['images']} photos: they span {a['spread_stops']:.2f} stops "
-                         f"(darkest {a['darkest']}, brightest {a['brightest']})")
-        if s.get("pose_refinement"):
-            p = s["pose_refinement"]
-            lines.append(f"{p['cameras']} training cameras refined: median {p['median_rotation_deg']:.2f} deg and "
-                         f"{100 * p['median_translation_share']:.2f}% of the camera distance, at most "
-                         f"{p['max_rotation_deg']:.2f} deg ({p['largest']}); exports and renders use the refined poses")
-        if s.get("resumed_from"):
-            lines.append(f"resumed from the checkpoint at step {s['resumed_from']}")
-        guard = s.get("stall_guard") or {}
-        if guard.get("restarted_at"):
-            lines.append(f"batch PSNR stalled at the mean-colour level ({guard['mean_colour_psnr']:.1f} dB); restarted "
-                         f"at step {guard['restarted_at']} at half the learning rate")
-        if guard.get("stalled"):
-            lines.append(f"STALLED: batch PSNR {guard['batch_psnr_ema']:.1f} dB stayed at the mean-colour level "
-                         f"({guard['mean_colour_psnr']:.1f} dB); the renders are close to one flat colour")
-        return lines
-
-    def run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext) -> dict[str, Any]:
+    def run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext) -> TrainSummary:
         # torch is imported here, not at the top: the CPU settings of training must come before its first use
         from nerfpipe.nerf.cpu import flush_denormals, keep_freed_memory
         from nerfpipe.nerf.device import resolve_device
@@ -235,7 +285,7 @@ class TrainStage(Stage):
                                     "denormal numbers; training on dark backgrounds may slow down (the CLI avoids this)")
             return self._run(inputs, out, params, ctx, device)
 
-    def _run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext, device) -> dict[str, Any]:
+    def _run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext, device) -> TrainSummary:
         started = time.monotonic()
         from nerfpipe.nerf.policy import build_model, density_noise
         from nerfpipe.nerf.train.evaluation import evaluate, evaluation_scale, scaled_size
@@ -300,34 +350,35 @@ class TrainStage(Stage):
                                     *scaled_size(first.width, first.height, scale), predicted, predicted - kept, kept)
             with ctx.progress(len(views.heldout), "evaluate") as advance:
                 evaluation = evaluate(model, loader, views.heldout, out / "eval", params.chunk, advance, scale=scale)
-        summary = {
-            "steps": trainer.step,
-            "budget_seconds": params.seconds if params.steps == 0 else None,
-            "train_seconds": round(trainer.elapsed, 2),
-            "samples_per_s": round(trainer.total_samples / max(trainer.elapsed, 1e-9)),
-            "samples_per_ray": round(trainer.total_samples / max(trainer.total_rays, 1), 2),
-            # what a step is spent on: the rays drawn, and how often each training pixel was drawn on average
-            "rays": trainer.total_rays,
-            "rays_per_s": round(trainer.total_rays / max(trainer.elapsed, 1e-9)),
-            "rays_per_pixel": round(trainer.total_rays / max(int(pixels.rgb.shape[0]), 1), 4),
-            "field": model.field_kind,
-            "occupancy": model.sampler.stats().get("occupancy"),
-            "device": str(device),
-            "train_images": len(views.train),
-            "heldout": len(views.heldout),
-            "heldout_rule": views.rule,
-            "eval_scale": evaluation["scale"],
-            "eval_size": evaluation["views"][0]["size"] if evaluation["views"] else None,
-            "psnr": evaluation["psnr"],
-            "ssim": evaluation["ssim"],
-            **{key: evaluation[key] for key in ("psnr_photo", "psnr_mean_appearance") if key in evaluation},
+        summary = TrainSummary(
+            steps=trainer.step,
+            budget_seconds=params.seconds if params.steps == 0 else None,
+            train_seconds=round(trainer.elapsed, 2),
+            throughput=Throughput(
+                samples_per_s=round(trainer.total_samples / max(trainer.elapsed, 1e-9)),
+                samples_per_ray=round(trainer.total_samples / max(trainer.total_rays, 1), 2),
+                # what a step is spent on: the rays drawn, and how often each training pixel was drawn on average
+                rays=trainer.total_rays,
+                rays_per_s=round(trainer.total_rays / max(trainer.elapsed, 1e-9)),
+                rays_per_pixel=round(trainer.total_rays / max(int(pixels.rgb.shape[0]), 1), 4),
+            ),
+            field=model.field_kind,
+            occupancy=model.sampler.stats().get("occupancy"),
+            device=str(device),
+            train_images=len(views.train),
+            scores=HeldoutScores(
+                heldout=len(views.heldout), heldout_rule=views.rule, eval_scale=evaluation["scale"],
+                eval_size=evaluation["views"][0]["size"] if evaluation["views"] else None,
+                psnr=evaluation["psnr"], ssim=evaluation["ssim"], psnr_photo=evaluation.get("psnr_photo"),
+                psnr_mean_appearance=evaluation.get("psnr_mean_appearance"), protocol=evaluation["protocol"],
+            ),
             **per_image,
-            "resumed_from": resumed,
-            "stall_guard": trainer.guard.report(),
-            "decisions": decisions,
-            "protocol": evaluation["protocol"],
-        }
-        write_json_atomic(out / "metrics.json", {**summary, "views": evaluation["views"], "eval_seconds": evaluation["seconds"]})
+            resumed_from=resumed,
+            stall_guard=trainer.guard.report(),
+            decisions=decisions,
+        )
+        write_json_atomic(out / "metrics.json", {**summary.to_json(), "views": evaluation["views"],
+                                                 "eval_seconds": evaluation["seconds"]})
         if evaluation["psnr"] is not None:
             photo = f" (against the photos as taken, backdrop included: {evaluation['psnr_photo']:.2f} dB)" \
                 if "psnr_photo" in evaluation else ""

@@ -16,14 +16,15 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 
-from nerfpipe.artifacts import ImageIndex
+from nerfpipe.artifacts import IMAGES_JSON, SFM_MODEL, PhotoRecord
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
 from nerfpipe.imaging.png import read_png, write_png
 from nerfpipe.pipeline.errors import StageError
+from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 
 
@@ -64,12 +65,31 @@ def pinhole_of(camera: Camera) -> Camera:
     return Camera.pinhole(camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
 
 
+@dataclass(frozen=True)
+class UndistortSummary(Summary):
+    """The cameras, how many were resampled to pinhole and how far their distortion moved a pixel at most."""
+
+    cameras: int = 0
+    undistorted_cameras: int = 0
+    images_undistorted: int = 0
+    images_passed_through: int = 0
+    max_displacement_px: float | None = 0.0  # None: beyond 90 degrees
+
+    def describe(self) -> list[str]:
+        moved = "beyond 90 degrees" if self.max_displacement_px is None else f"{self.max_displacement_px:.2f} px"
+        if self.undistorted_cameras:
+            return [f"{self.images_undistorted} images undistorted ({self.undistorted_cameras} of {self.cameras} "
+                    f"cameras, max displacement {moved}), {self.images_passed_through} untouched"]
+        return [f"{self.cameras} pinhole cameras, max displacement {moved}: images untouched"]
+
+
 class UndistortStage(Stage):
     """Make every camera a pinhole: resample the images of cameras with noticeable lens distortion."""
 
     name = "undistort"
     version = 1
     Params = UndistortParams
+    Summary = UndistortSummary
     presets = {
         "draft": {"interpolation": "linear"},
         "fast": {"interpolation": "linear"},
@@ -78,21 +98,11 @@ class UndistortStage(Stage):
     provides = {"pinhole": "pinhole", "undistorted_images": "images"}
     libraries = ("numpy", "opencv-contrib-python-headless")
 
-    def describe(self, result: Path, manifest: dict[str, Any]) -> list[str]:
-        s = manifest.get("summary", {})
-        largest = s.get("max_displacement_px")
-        moved = "beyond 90 degrees" if largest is None else f"{largest:.2f} px"
-        if s.get("undistorted_cameras"):
-            return [f"{s.get('images_undistorted')} images undistorted ({s.get('undistorted_cameras')} of "
-                    f"{s.get('cameras')} cameras, max displacement {moved}), "
-                    f"{s.get('images_passed_through')} untouched"]
-        return [f"{s.get('cameras')} pinhole cameras, max displacement {moved}: images untouched"]
-
-    def run(self, inputs: StageInputs, out: Path, params: UndistortParams, ctx: StageContext) -> dict[str, Any]:
+    def run(self, inputs: StageInputs, out: Path, params: UndistortParams, ctx: StageContext) -> UndistortSummary:
         from nerfpipe.geometry.distortion import max_distortion_displacement, undistortion_maps
 
-        model = CameraSet.load(inputs["sfm_model"])
-        records = ImageIndex.load(inputs["images_json"]).by_name()
+        model = inputs.load(SFM_MODEL)
+        records = inputs.load(IMAGES_JSON).by_name()
         self._check_frames(model, records)
         (out / "images").mkdir()
         (out / "pinhole").mkdir()
@@ -147,20 +157,20 @@ class UndistortStage(Stage):
 
         ctx.log.info("undistort: %s", self._log_line(displacement, written, params.threshold_px))
         largest = max(displacement.values(), default=0.0)
-        return {
-            "cameras": len(model.cameras),
-            "undistorted_cameras": len(written),
-            "images_undistorted": sum(written.values()),
-            "images_passed_through": len(model.frames) - sum(written.values()),
-            "max_displacement_px": round(largest, 4) if math.isfinite(largest) else None,
-        }
+        return UndistortSummary(
+            cameras=len(model.cameras),
+            undistorted_cameras=len(written),
+            images_undistorted=sum(written.values()),
+            images_passed_through=len(model.frames) - sum(written.values()),
+            max_displacement_px=round(largest, 4) if math.isfinite(largest) else None,
+        )
 
     @staticmethod
     def _resample(source: Path, target: Path, maps: tuple[np.ndarray, np.ndarray], interpolation: str) -> None:
         write_png(target, remap_image(read_png(source), *maps, interpolation))
 
     @staticmethod
-    def _check_frames(model: CameraSet, records: dict[str, dict[str, Any]]) -> None:
+    def _check_frames(model: CameraSet, records: dict[str, PhotoRecord]) -> None:
         for frame in model.frames:
             if frame.camera_id not in model.cameras:
                 raise StageError(
@@ -172,9 +182,9 @@ class UndistortStage(Stage):
                     f"sfm model: frame {frame.name} is not an ingest image; rerun sfm on the current ingest output"
                 )
             camera = model.cameras[frame.camera_id]
-            if (record["width"], record["height"]) != (camera.width, camera.height):
+            if (record.width, record.height) != (camera.width, camera.height):
                 raise StageError(
-                    f"sfm model: frame {frame.name} is {record['width']}x{record['height']} pixels but its camera "
+                    f"sfm model: frame {frame.name} is {record.width}x{record.height} pixels but its camera "
                     f"{frame.camera_id} is {camera.width}x{camera.height}; rerun sfm on the current ingest output"
                 )
 

@@ -49,3 +49,19 @@ def test_occupancy_samples_the_density_at_the_grid_points_block_by_block():
     x = np.linspace(-1, 1, 21)
     X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
     assert np.array_equal(ball, np.sqrt(X**2 + Y**2 + Z**2) < 0.55)
+
+
+def test_watertight_remeshes_a_density_and_closure_says_so():
+    from nerfpipe.export.solid import closure, watertight
+
+    grid = Grid.over(np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0]), 32)
+
+    def ball(points):  # density 10 inside a ball of radius 0.5, 0 outside (torch points, as a field takes them)
+        return 10.0 * (points.norm(dim=-1) < 0.5).float()
+
+    mesh = watertight(ball, grid, threshold=1.0, close=1)
+    assert closure(mesh) == {"faces": mesh.faces, "euler": 2, "watertight": True, "edge_manifold": True}
+    radius = np.linalg.norm(mesh.vertices, axis=1)
+    assert 0.4 < radius.mean() < 0.6
+    with pytest.raises(ValueError, match="no point of the grid reaches"):
+        watertight(ball, grid, threshold=100.0)

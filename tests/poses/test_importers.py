@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from nerfpipe import Pipeline
-from nerfpipe.artifacts import output_names
+from nerfpipe.artifacts import ImageIndex, PhotoRecord, output_names
 from nerfpipe.geometry.cameras import CameraSet, invert_pose
 from nerfpipe.pipeline import InputError
 from nerfpipe.poses.importers import import_poses
@@ -23,7 +23,7 @@ from tests.helpers import TEMPLE, shared
 LEGO_FOCAL_400 = 0.5 * 400 / np.tan(0.5 * 0.6911112070083618)  # 555.5555 px
 
 
-def fake_records(layout: CaptureLayout, skip: tuple[str, ...] = ()) -> list[dict]:
+def fake_records(layout: CaptureLayout, skip: tuple[str, ...] = ()) -> list[PhotoRecord]:
     """images.json records as ingest writes them at full size (max_size=0), without decoding into a run."""
     relpaths = [p.relative_to(layout.capture).as_posix() for p in layout.photos]
     names = output_names(relpaths)
@@ -32,8 +32,8 @@ def fake_records(layout: CaptureLayout, skip: tuple[str, ...] = ()) -> list[dict
         if rel in skip:
             continue
         width, height = image_size(path)
-        records.append({"name": names[rel], "source": rel, "width": width, "height": height,
-                        "source_width": width, "source_height": height, "split": layout.splits.get(rel)})
+        records.append(PhotoRecord(names[rel], source=rel, width=width, height=height, source_width=width,
+                                   source_height=height, split=layout.splits.get(rel)))
     return records
 
 
@@ -47,9 +47,9 @@ def image_size(path: Path) -> tuple[int, int]:
     return width, height
 
 
-def ingest_records(capture: Path, run: Path, max_size: int) -> list[dict]:
+def ingest_records(capture: Path, run: Path, max_size: int) -> list[PhotoRecord]:
     outcome = Pipeline([IngestStage()], capture, run, overrides={"ingest": {"max_size": str(max_size)}}).run()[0]
-    return json.loads((outcome.path / "images.json").read_text())["images"]
+    return ImageIndex.load(outcome.path / "images.json").records
 
 
 def temple_lines() -> list[str]:

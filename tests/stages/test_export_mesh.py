@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from nerfpipe.pipeline.params import ParamError, build_params
-from nerfpipe.stages.export_mesh import ExportMeshParams, ExportMeshStage, chosen_method, spread
+from nerfpipe.export.texture import spread
+from nerfpipe.stages.export_mesh import ExportMeshParams, ExportMeshStage, chosen_method
 from tests.nerf.scenes import scene_of
 
 

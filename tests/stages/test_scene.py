@@ -12,7 +12,7 @@ import pytest
 from nerfpipe import Pipeline
 from nerfpipe.analysis.exposure import decide_exposure, decide_photometric, measure_exposure
 from nerfpipe.analysis.layout import decide_layout
-from nerfpipe.artifacts import Bounds, FrameBounds, SceneDecisions
+from nerfpipe.artifacts import Bounds, FrameBounds, PhotoRecord, SceneDecisions
 from nerfpipe.geometry.cameras import OPENGL_TO_OPENCV, Camera, CameraSet, Frame, Points, PoseHints, invert_pose
 from nerfpipe.geometry.normalize import in_view
 from nerfpipe.pipeline import ParamError, parse_assignments
@@ -297,9 +297,9 @@ def test_layout_unbounded_when_cameras_share_no_centre():
 
 # -- photometry from the ingest records ------------------------------------------------------------------
 def record(t: float | None, f: float | None, iso: int | None, raw: bool = False, linear: bool = False,
-           name: str | None = None) -> dict:
+           name: str | None = None) -> PhotoRecord:
     name = name or f"{t}_{f}_{iso}_{np.random.default_rng().integers(1 << 30)}.png"
-    return {"name": name, "raw": raw, "linear": linear, "exif": {"exposure_time_s": t, "f_number": f, "iso": iso}}
+    return PhotoRecord(name, raw=raw, linear=linear, exif={"exposure_time_s": t, "f_number": f, "iso": iso})
 
 
 def test_exposure_varies_beyond_a_third_of_a_stop():

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+from nerfpipe.artifacts import ImageIndex, PhotoRecord
 from nerfpipe import Pipeline
 from nerfpipe.geometry.align import rotation_angle_deg, umeyama
 from nerfpipe.geometry.cameras import CameraSet, invert_pose
@@ -69,9 +70,9 @@ def test_temple_registers_all_16_and_matches_the_calibration(tmp_path, mapper):
     assert all(len(v) > 20 for v in cameras.points.visible)
 
 
-def records(n: int, gps: bool = False, names: str = "IMG_{:04d}.jpg") -> list[dict]:
-    return [{"name": names.format(3 * i + 7), "width": 640, "height": 480,
-             "exif": {"gps": [48.0, 2.0, 30.0] if gps else None}} for i in range(n)]
+def records(n: int, gps: bool = False, names: str = "IMG_{:04d}.jpg") -> list[PhotoRecord]:
+    return [PhotoRecord(names.format(3 * i + 7), width=640, height=480,
+                        exif={"gps": [48.0, 2.0, 30.0] if gps else None}) for i in range(n)]
 
 
 def test_matcher_choice():
@@ -102,13 +103,13 @@ def test_exif_focal_prior_and_gps_reach_colmap(tmp_path):
                             0x0003: "E", 0x0004: (Fraction(2), Fraction(17), Fraction(40))})
         (folder / f"t{i}.jpg").write_bytes(photos.jpeg(image[:, :, ::-1], exif, quality=95))
     ingest = Pipeline([IngestStage()], folder, tmp_path / "run").run()[0]
-    recs = json.loads((ingest.path / "images.json").read_text())["images"]
+    recs = ImageIndex.load(ingest.path / "images.json").records
     assert single_camera(recs)
 
     database = tmp_path / "database.db"
     pycolmap.Database.open(database).close()
     reader = pycolmap.ImageReaderOptions()
-    pycolmap.extract_features(database, ingest.path / "images", [r["name"] for r in recs],
+    pycolmap.extract_features(database, ingest.path / "images", [r.name for r in recs],
                               pycolmap.CameraMode.SINGLE, reader, device=pycolmap.Device.cpu)
     assert write_priors(database, recs, single=True) == 4
     match_features(database, "spatial", SfmParams())

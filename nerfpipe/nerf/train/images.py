@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from nerfpipe.artifacts import Bounds, SceneDecisions, frame_image_path
+from nerfpipe.artifacts import BOUNDS, SCENE, WORLD, Bounds, SceneDecisions, frame_image_path
 from nerfpipe.geometry.cameras import CameraSet, Frame
 from nerfpipe.geometry.hull import Silhouettes
 from nerfpipe.imaging.masks import object_mask
@@ -88,7 +88,7 @@ class ImageLoader:
         """The loader of the train stage's inputs (``images``, ``undistorted_images``, ``pinhole``, ``world``,
         ``bounds``, ``scene``)."""
         return ImageLoader(inputs["images"], inputs["undistorted_images"], inputs["pinhole"],
-                           CameraSet.load(inputs["world"]), Bounds.load(inputs["bounds"]), SceneDecisions.load(inputs["scene"]))
+                           inputs.load(WORLD), inputs.load(BOUNDS), inputs.load(SCENE))
 
     def stored(self, frame: Frame) -> np.ndarray:
         """(H, W, 3 or 4) float32 in [0, 1]: the frame's image as ingest or undistort wrote it (grey as RGB)."""

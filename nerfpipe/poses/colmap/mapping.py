@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pycolmap
 
+from nerfpipe.artifacts import PhotoRecord
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, invert_pose
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.stage import StageContext
@@ -17,10 +18,10 @@ from nerfpipe.poses.colmap.matching import choose_matcher, match_features
 
 
 def run_sfm(
-    image_dir: Path, records: list[dict], out: Path, params: Any, ctx: StageContext
+    image_dir: Path, records: list[PhotoRecord], out: Path, params: Any, ctx: StageContext
 ) -> tuple[CameraSet, dict[str, Any]]:
 
-    names = [r["name"] for r in records]
+    names = [r.name for r in records]
     if len(names) < params.min_images:
         raise StageError(
             f"only {len(names)} photo{'s' if len(names) != 1 else ''} to reconstruct; SfM needs at least "
@@ -97,28 +98,28 @@ def run_sfm(
     return cameras, summary
 
 
-def single_camera(records: list[dict]) -> bool:
+def single_camera(records: list[PhotoRecord]) -> bool:
     """One physical camera: every photo has the same size and the same EXIF make, model and focal prior."""
-    def identity(r: dict) -> tuple:
-        exif = r.get("exif") or {}
-        prior = (r.get("focal_prior") or {}).get("focal_px")
-        return (r["width"], r["height"], exif.get("make"), exif.get("model"), None if prior is None else round(prior, 1))
+    def identity(r: PhotoRecord) -> tuple:
+        exif = r.exif or {}
+        prior = (r.focal_prior or {}).get("focal_px")
+        return (r.width, r.height, exif.get("make"), exif.get("model"), None if prior is None else round(prior, 1))
     return len({identity(r) for r in records}) == 1
 
 
-def write_priors(database: Path, records: list[dict], single: bool) -> int:
+def write_priors(database: Path, records: list[PhotoRecord], single: bool) -> int:
     """Seed each camera's focal length with the EXIF prior from ingest, and each image's position with its
     GPS (for spatial matching): COLMAP's own reader sees no EXIF in the PNGs ingest writes."""
-    by_name = {r["name"]: r for r in records}
+    by_name = {r.name: r for r in records}
     with pycolmap.Database.open(database) as db:
         cameras = {c.camera_id: c for c in db.read_all_cameras()}
         focal_by_camera: dict[int, list[float]] = {}
         for image in db.read_all_images():
             record = by_name[image.name]
-            prior = record.get("focal_prior")
+            prior = record.focal_prior
             if prior:
                 focal_by_camera.setdefault(image.camera_id, []).append(prior["focal_px"])
-            gps = (record.get("exif") or {}).get("gps")
+            gps = (record.exif or {}).get("gps")
             if gps:
                 lat, lon, alt = gps
                 db.write_pose_prior(pycolmap.PosePrior(
@@ -168,19 +169,19 @@ def registered_count(model: Any) -> int:
     return 0 if model is None else int(model.num_reg_images())
 
 
-def camera_set_from_reconstruction(model: Any, records: list[dict]) -> CameraSet:
+def camera_set_from_reconstruction(model: Any, records: list[PhotoRecord]) -> CameraSet:
     """A pycolmap ``Reconstruction`` of the ingested images as a ``CameraSet`` (OpenCV c2w, COLMAP cameras)."""
     from nerfpipe.poses.importers import colmap_points
 
     cameras = {int(cid): Camera(c.model.name, int(c.width), int(c.height), tuple(float(p) for p in c.params))
                for cid, c in model.cameras.items()}
-    split_of = {r["name"]: r.get("split") for r in records}
+    split_of = {r.name: r.split for r in records}
     frames, frame_of_image = [], {}
     for image in sorted((img for img in model.images.values() if img.has_pose), key=lambda img: img.name):
         w2c = np.vstack([np.asarray(image.cam_from_world().matrix(), dtype=np.float64), [0.0, 0.0, 0.0, 1.0]])
         frame_of_image[image.image_id] = len(frames)
         frames.append(Frame(image.name, int(image.camera_id), invert_pose(w2c), split_of.get(image.name)))
     registered = {f.name for f in frames}
-    unregistered = [r["name"] for r in records if r["name"] not in registered]
+    unregistered = [r.name for r in records if r.name not in registered]
     points = colmap_points(model, frame_of_image, len(frames))
     return CameraSet(cameras, frames, points, "colmap_sfm", unregistered)

@@ -10,17 +10,18 @@ from typing import Any
 import numpy as np
 import pycolmap
 
+from nerfpipe.artifacts import PhotoRecord
 from nerfpipe.pipeline.errors import StageError
 
 
-def choose_matcher(records: list[dict], params: Any) -> tuple[str, str]:
+def choose_matcher(records: list[PhotoRecord], params: Any) -> tuple[str, str]:
     """Which COLMAP matcher suits the capture, and why (the reason is logged and kept in the manifest)."""
     n = len(records)
     if params.matcher != "auto":
         return params.matcher, "set by sfm.matcher"
     if n <= params.exhaustive_max:
         return "exhaustive", f"{n} photos <= sfm.exhaustive_max {params.exhaustive_max}"
-    with_gps = sum(1 for r in records if (r.get("exif") or {}).get("gps"))
+    with_gps = sum(1 for r in records if (r.exif or {}).get("gps"))
     if with_gps >= 0.9 * n:
         return "spatial", f"{with_gps} of {n} photos carry GPS"
     if looks_like_video(records):
@@ -28,13 +29,13 @@ def choose_matcher(records: list[dict], params: Any) -> tuple[str, str]:
     return "exhaustive", f"{n} photos, no GPS, not numbered frames (exhaustive matching is slow at this size)"
 
 
-def looks_like_video(records: list[dict]) -> bool:
+def looks_like_video(records: list[PhotoRecord]) -> bool:
     """Frames of a video: ingest took them from one, or their names end in mostly consecutive numbers."""
-    if records and all("video_frame" in r for r in records):
+    if records and all(r.video_frame is not None for r in records):
         return True
     numbers = []
     for r in records:
-        match = re.search(r"(\d+)\D*$", r["name"])
+        match = re.search(r"(\d+)\D*$", r.name)
         if match is None:
             return False
         numbers.append(int(match.group(1)))

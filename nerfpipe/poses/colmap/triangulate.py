@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import pycolmap
 
+from nerfpipe.artifacts import PhotoRecord
 from nerfpipe.geometry.cameras import CameraSet, Points
 from nerfpipe.pipeline.stage import StageContext
 from nerfpipe.poses.colmap.log import colmap_log
@@ -82,7 +83,7 @@ def max_pose_change(model: Any, cameras: CameraSet) -> float:
     return change
 
 
-def choose_triangulation_matcher(records: list[dict], params: Any) -> tuple[str, str]:
+def choose_triangulation_matcher(records: list[PhotoRecord], params: Any) -> tuple[str, str]:
     """Which photos to match when the poses are known: each with its ``sfm.spatial_neighbors`` nearest
     cameras (spatial), since the poses say which photos can see the same points; all pairs only when that
     is hardly more. Measured on the cup (77 photos, LLFF poses), against all 2926 pairs: 10 neighbours kept
@@ -98,7 +99,7 @@ def choose_triangulation_matcher(records: list[dict], params: Any) -> tuple[str,
 
 
 def triangulate_known_poses(
-    image_dir: Path, cameras: CameraSet, records: list[dict], out: Path, params: Any, ctx: StageContext
+    image_dir: Path, cameras: CameraSet, records: list[PhotoRecord], out: Path, params: Any, ctx: StageContext
 ) -> tuple[Points | None, dict[str, Any]]:
     """Triangulate in a scratch folder, so the stage's result holds only what is the same on every run (COLMAP's
     database and its log, which has timestamps, stay out; a failure's reason is in the summary)."""
@@ -107,7 +108,7 @@ def triangulate_known_poses(
 
 
 def triangulate_in(
-    work: Path, image_dir: Path, cameras: CameraSet, records: list[dict], params: Any, ctx: StageContext
+    work: Path, image_dir: Path, cameras: CameraSet, records: list[PhotoRecord], params: Any, ctx: StageContext
 ) -> tuple[Points | None, dict[str, Any]]:
     """The pycolmap script: SIFT on the posed photos, matching, then COLMAP's point triangulator with the
     known poses and intrinsics held fixed, its files in ``work``. Returns the points, or None (with the
@@ -116,7 +117,7 @@ def triangulate_in(
 
     start = time.monotonic()
     names = [f.name for f in cameras.frames]
-    by_name = {r["name"]: r for r in records}
+    by_name = {r.name: r for r in records}
     matcher, why = choose_triangulation_matcher([by_name[n] for n in names], params)
     info: dict[str, Any] = {"photos": len(names), "matcher": matcher, "matcher_reason": why,
                             "max_image_size": min(params.triangulate_max_size, params.max_image_size)}
