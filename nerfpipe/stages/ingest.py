@@ -231,7 +231,7 @@ class IngestStage(Stage):
             "ingest: %d photos (%.1f MP) -> %s%s",
             len(records),
             megapixels,
-            ", ".join(sorted({f"{r['width']}x{r['height']}" for r in records})),
+            ", ".join(sorted({f"{r.width}x{r.height}" for r in records})),
             f", {len(skipped)} skipped" if skipped else "",
         )
         return IngestSummary(images=len(records), skipped=len(skipped), source_megapixels=round(megapixels, 3),
