@@ -187,25 +187,37 @@ def serve(scene: WebScene, host: str = "127.0.0.1", port: int = 8080, share: boo
 
 
 def _live_render(viewer: WebViewer, client: Any) -> None:
-    """Render the client's view whenever it changes: fast at once, sharp once it has rested."""
-    shown: tuple | None = None  # (camera state, width) last rendered
+    """Render the client's view whenever it changes: fast at once, sharp once it has rested (``render_due``)."""
+    shown: tuple | None = None
     while not viewer._stop.is_set() and client.client_id in viewer.server.get_clients():
-        camera = client.camera
-        state = (tuple(np.round(camera.wxyz, 5)), tuple(np.round(camera.position, 5)), round(camera.fov, 5),
-                 round(camera.aspect, 4))
-        moved = shown is None or shown[0] != state
-        rested = time.time() - camera.update_timestamp > REST_SECONDS
-        sharp = viewer.scene.sharp_width
-        width = sharp if rested else FAST_WIDTH
-        refresh = viewer.scene.refresh_seconds
-        due = refresh is not None and shown is not None and time.time() - shown[2] > refresh
-        if moved or (rested and (shown[1] != sharp or due)):
-            client.scene.set_background_image(render_view(viewer.scene, client_c2w(camera), camera.fov, camera.aspect,
-                                                          width), format="jpeg")
-            viewer.renders += 1
-            shown = (state, width, time.time())
-        else:
+        rendered = render_due(viewer, client, shown, time.time())
+        if rendered is None:
             time.sleep(0.02)
+        else:
+            shown = rendered
+
+
+def render_due(viewer: WebViewer, client: Any, shown: tuple | None, now: float) -> tuple | None:
+    """One look at the client's view at time ``now`` (seconds, as its camera's ``update_timestamp``): render it
+    if it moved since ``shown`` (camera state, width, time) was rendered (``FAST_WIDTH``), if it has rested
+    ``REST_SECONDS`` since it moved and is not yet sharp (``sharp_width``), or if it rested and the scene asks
+    for a refresh every ``refresh_seconds`` (a field in training). Returns what is shown now, None if nothing
+    was rendered."""
+    camera = client.camera
+    state = (tuple(np.round(camera.wxyz, 5)), tuple(np.round(camera.position, 5)), round(camera.fov, 5),
+             round(camera.aspect, 4))
+    moved = shown is None or shown[0] != state
+    rested = now - camera.update_timestamp > REST_SECONDS
+    sharp = viewer.scene.sharp_width
+    refresh = viewer.scene.refresh_seconds
+    due = refresh is not None and shown is not None and now - shown[2] > refresh
+    if not (moved or (rested and (shown[1] != sharp or due))):
+        return None
+    width = sharp if rested else FAST_WIDTH
+    client.scene.set_background_image(render_view(viewer.scene, client_c2w(camera), camera.fov, camera.aspect, width),
+                                      format="jpeg")
+    viewer.renders += 1
+    return state, width, now
 
 
 def web_scene(model_dir: Path, cameras_dir: Path, images_dir: Path, bounds_json: Path,

@@ -55,12 +55,18 @@ def format_duration(seconds: float) -> str:
 @dataclass
 class JobBudget:
     """``given``: seconds, or ``auto`` (then ``resolve()`` names the seconds, asked once, when a stage first
-    needs an allotment). ``started``: when the job began (``time.monotonic``)."""
+    needs an allotment). ``clock``: seconds from any start (``time.monotonic``; a test's own steps as it
+    says); ``started``: when the job began, by that clock."""
 
     given: float | str
     resolve: Callable[[], float] | None = None
-    started: float = field(default_factory=time.monotonic)
+    clock: Callable[[], float] = time.monotonic
+    started: float | None = None
     _seconds: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.started is None:
+            self.started = self.clock()
 
     @property
     def seconds(self) -> float:
@@ -74,7 +80,7 @@ class JobBudget:
         return self._seconds
 
     def elapsed(self) -> float:
-        return time.monotonic() - self.started
+        return self.clock() - self.started
 
     def share(self, fraction: float) -> float:
         """The seconds a stage with this share of the budget is allotted."""

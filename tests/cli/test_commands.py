@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import importlib.metadata
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -160,18 +159,14 @@ def test_a_config_file_sets_parameters_set_wins_and_the_run_writes_its_own(captu
 
 
 @pytest.mark.slow
-def test_a_ten_second_run_of_the_demo_finishes_with_a_video(tmp_path):
-    """The quick run a new user tries first: too little training for good exports, but it ends with exit 0,
-    a render.mp4, and a mesh or the reason there is none; no stage's shortfall fails the run."""
+def test_a_short_run_of_the_demo_finishes_with_a_video_and_a_mesh(tmp_path):
+    """The quick run a new user tries first: a few hundred steps, a fixed amount of work (not a time, which a
+    busy machine would turn into fewer steps), that ends with exit 0, a render.mp4 and a mesh."""
     # 12 frames rather than 45: the video at its floor size, a quarter of the suite's time for it
-    result = run_cli("run", TEMPLE, "--out", tmp_path / "run", "--set", "train.seconds=10", "--set",
+    result = run_cli("run", TEMPLE, "--out", tmp_path / "run", "--set", "train.steps=400", "--set",
                      "ingest.max_size=320", "--set", "render.frames=12", timeout=900)
     assert result.returncode == 0, result.stderr
     assert "Traceback" not in result.stderr and "error:" not in result.stderr
+    assert "warnings" not in " ".join(result.stdout.split())  # no stage failed or was skipped
     assert len(list((tmp_path / "run" / "stages" / "render").glob("*/render.mp4"))) == 1
-    meshes = list((tmp_path / "run" / "stages" / "export_mesh").glob("*/mesh.ply"))
-    # with too little density for a surface the optional stage fails (or, on a machine so busy that training
-    # takes a few steps, is skipped after export_points found no opaque pixel), and the run says why
-    said = " ".join(result.stdout.split())
-    assert meshes or re.search(r"finished with warnings: .*export_mesh (failed \(export_mesh: \w|skipped \(export_points "
-                               r"failed\))", said), said
+    assert len(list((tmp_path / "run" / "stages" / "export_mesh").glob("*/mesh.ply"))) == 1

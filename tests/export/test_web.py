@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import threading
 import time
 from dataclasses import dataclass, field
 from types import SimpleNamespace
@@ -41,26 +40,23 @@ class FakeClient:
         self.scene = SimpleNamespace(set_background_image=lambda image, format: self.shown.append(image.shape[:2]))
 
 
-def watch(scene: WebScene, client: FakeClient, seconds: float, move_at: float | None = None) -> None:
-    """Run the live render for ``seconds`` against a fake server holding ``client``, moving its camera once."""
+def watch(scene: WebScene, client: FakeClient, seconds: float, move_at: float | None = None,
+          tick: float = 0.02) -> None:
+    """The live render looking at ``client`` every ``tick`` seconds for ``seconds`` of a clock the test keeps
+    (no thread, no sleep), its camera moved once at ``move_at``."""
     server = SimpleNamespace(get_clients=lambda: {client.client_id: client})
     viewer = WebViewer(server, scene, Gate(0))
-    client.camera.update_timestamp = time.time()  # the view has just been set
-    thread = threading.Thread(target=web._live_render, args=(viewer, client), daemon=True)
-    thread.start()
-    started = time.time()
-    if move_at is not None:
-        time.sleep(move_at)
-        client.camera.position = np.array([0.5, -3.0, 0.0])
-        client.camera.update_timestamp = time.time()
-    time.sleep(max(0.0, seconds - (time.time() - started)))
-    viewer._stop.set()
-    thread.join(timeout=5)
-    assert not thread.is_alive()
+    client.camera.update_timestamp = 0.0  # the view has just been set
+    shown = None
+    for step in range(round(seconds / tick)):
+        now = step * tick
+        if move_at is not None and abs(now - move_at) < tick / 2:
+            client.camera.position = np.array([0.5, -3.0, 0.0])
+            client.camera.update_timestamp = now
+        shown = web.render_due(viewer, client, shown, now) or shown
 
 
-def test_a_finished_field_is_rendered_fast_when_moved_then_sharp_once_and_then_left_alone(monkeypatch) -> None:
-    monkeypatch.setattr(web, "REST_SECONDS", 1.0)  # a wide margin: a loaded CI machine starts the thread late
+def test_a_finished_field_is_rendered_fast_when_moved_then_sharp_once_and_then_left_alone() -> None:
     model = CountingModel()
     client = FakeClient()
     watch(WebScene([], model=model), client, seconds=4.0, move_at=2.0)
@@ -71,10 +67,20 @@ def test_a_finished_field_is_rendered_fast_when_moved_then_sharp_once_and_then_l
 
 def test_a_field_in_training_is_rendered_again_at_rest() -> None:
     model = CountingModel()
-    watch(WebScene([], model=model, sharp_width=160, refresh_seconds=0.3), FakeClient(), seconds=2.0)
-    # fast at once, then 160 px at rest and again every 0.3 s although the view never moved
-    assert model.widths[0] == FAST_WIDTH and set(model.widths[1:]) == {160}
-    assert 4 <= len(model.widths) - 1 <= 7, model.widths
+    watch(WebScene([], model=model, sharp_width=160, refresh_seconds=0.3), FakeClient(), seconds=2.0, tick=0.25)
+    # looking every 0.25 s: fast at once; 160 px once rested more than REST_SECONDS (0.3 s), at 0.5 s; then
+    # again each time more than 0.3 s have passed, at 1.0 and 1.5 s, although the view never moved
+    assert model.widths == [FAST_WIDTH, 160, 160, 160]
+
+
+def test_the_live_render_thread_stops_when_the_viewer_does() -> None:
+    """The thread ``serve`` starts per client: it renders the view at once, and ends when the viewer stops."""
+    model, client = CountingModel(), FakeClient()
+    viewer = WebViewer(SimpleNamespace(get_clients=lambda: {client.client_id: client}), WebScene([], model=model),
+                       Gate(0))
+    viewer._stop.set()  # stopped before it looked: it renders nothing and returns
+    web._live_render(viewer, client)
+    assert model.widths == []
 
 
 def listening_addresses(port: int) -> set[str]:

@@ -31,11 +31,13 @@ def test_a_duration_that_is_no_duration_is_one_line_naming_it(text):
 
 
 def test_the_elastic_stage_gets_the_budget_less_what_was_spent_and_the_later_shares():
-    job = JobBudget(100.0, started=time.monotonic() - 30.0)
+    now = [1000.0]
+    job = JobBudget(100.0, clock=lambda: now[0])
+    now[0] += 30.0  # the job has spent 30 s
     # 100 s - 30 s spent - (10 % + 20 %) of 100 s for the stages after it
-    assert job.remainder([0.1, 0.2]) == pytest.approx(40.0, abs=0.5)
+    assert job.elapsed() == 30.0 and job.remainder([0.1, 0.2]) == 40.0
     assert job.share(0.25) == 25.0
-    assert JobBudget(10.0, started=time.monotonic() - 30.0).remainder([0.5]) == 0.0  # overspent: nothing, never less
+    assert JobBudget(10.0, clock=lambda: now[0], started=now[0] - 30.0).remainder([0.5]) == 0.0  # overspent: never less
 
 
 def test_auto_is_sized_once_by_the_callers_rule():

@@ -8,7 +8,6 @@ import json
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -77,33 +76,34 @@ def free_port() -> int:
 
 @pytest.mark.slow
 def test_training_writes_model_metrics_and_held_out_renders(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    import threading
     import urllib.error
     import urllib.request
 
     # watched (`nerfpipe run --view`): the web viewer answers while the field trains, and is gone afterwards
-    port, pages, done = free_port(), [], threading.Event()
+    from nerfpipe.nerf.train.trainer import Trainer
 
-    def poll() -> None:
-        while not done.is_set():
-            try:
-                with urllib.request.urlopen(f"http://localhost:{port}", timeout=2) as page:
-                    pages.append(page.status)
-            except urllib.error.HTTPError as refused:  # it answers, but not without the printed URL's token
-                pages.append(refused.code)
-            except OSError:
-                pass
-            time.sleep(0.2)
+    port, pages = free_port(), []
 
-    poller = threading.Thread(target=poll, daemon=True)
-    poller.start()
-    with caplog.at_level("INFO", logger="nerfpipe"):
+    def fetch() -> int | str:
+        try:
+            with urllib.request.urlopen(f"http://localhost:{port}", timeout=30) as page:
+                return page.status
+        except urllib.error.HTTPError as refused:  # it answers, but not without the printed URL's token
+            return refused.code
+        except OSError:
+            return "closed"
+
+    step = Trainer.train_step
+
+    def looking(self, at: int):  # mid-training, ask the viewer for its page
+        if at == 150:
+            pages.append(fetch())
+        return step(self, at)
+
+    with caplog.at_level("INFO", logger="nerfpipe"), pytest.MonkeyPatch.context() as patch:
+        patch.setattr(Trainer, "train_step", looking)
         outcome = lego_pipeline(tmp_path / "run", extra={"watch_port": port}).run(until="train")[-1]
-    answered = len(pages)
-    time.sleep(1.0)
-    done.set()
-    poller.join()
-    assert answered > 0 and set(pages) == {403} and len(pages) == answered  # served during training only
+    assert pages == [403] and fetch() == "closed"  # served during training, and only then
     assert f"train: watch the field learn at http://localhost:{port}" in caplog.text
     out = outcome.path
     metrics = json.loads((out / "metrics.json").read_text())
@@ -139,26 +139,41 @@ def test_training_writes_model_metrics_and_held_out_renders(tmp_path: Path, capl
     assert model.background == (1.0, 1.0, 1.0) and model.ray_space.box is not None
 
 
+KILL_AFTER_STEP_100 = """
+import os, signal, sys
+
+from nerfpipe.nerf.train import trainer
+
+save = trainer.save_checkpoint
+
+
+def save_then_die(folder, step, *args, **kwargs):
+    save(folder, step, *args, **kwargs)
+    if step == 100:
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+trainer.save_checkpoint = save_then_die
+sys.argv = ["nerfpipe", *sys.argv[1:]]
+from nerfpipe.cli.main import main
+
+main()
+"""
+
+
 def test_resumed_training_matches_an_uninterrupted_one(tmp_path: Path) -> None:
     """SIGKILL mid-training; the rerun resumes from the last checkpoint and ends at the same weights."""
     lego = shared("nerf_synthetic_lego_400")
     run_dir = tmp_path / "killed"
     cmd = [sys.executable, "-m", "nerfpipe", "run", str(lego), "--out", str(run_dir), "--until", "train", *tiny_cli_args()]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.time() + 900  # a loaded 2-core machine can take minutes to reach step 100
-    try:
-        while time.time() < deadline and proc.poll() is None:
-            if list(run_dir.glob(".work/train-*/checkpoints/step_0000100.pt")):
-                break
-            time.sleep(0.05)
-        assert proc.poll() is None, "training ended before it could be killed: " + proc.stderr.read().decode()[-2000:]
-        proc.send_signal(signal.SIGKILL)
-    finally:
-        proc.wait(timeout=30)
+    # the run kills itself right after writing the checkpoint of step 100: no race with a watcher's clock
+    killed = subprocess.run([sys.executable, "-c", KILL_AFTER_STEP_100, *cmd[3:]], capture_output=True, text=True,
+                            timeout=900)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr[-2000:]
     assert not (run_dir / "stages" / "train").exists() or not list((run_dir / "stages" / "train").glob("*/manifest.json"))
     written = sorted(run_dir.glob(".work/train-*/checkpoints/step_*.pt"))
     last = max(int(p.stem.split("_")[1]) for p in written)
-    assert last in (100, 200)
+    assert last == 100
 
     resumed = lego_pipeline(run_dir).run(until="train")[-1]
     assert resumed.action == "ran" and resumed.summary["resumed_from"] == last
