@@ -28,7 +28,6 @@ from nerfpipe.nerf.samplers.base import Sampler
 from nerfpipe.nerf.spec import ModelSpec
 from nerfpipe.pipeline.errors import InputError
 
-LEGACY_NAMES = {"sampler": "occupancy"}  # what a part's state was saved under in models before it was renamed
 
 # what one field call may hold without gradients (rendering): a large chunk of rays, or many samples a ray left
 # after early termination, is evaluated in pieces whose activations (each linear layer's output and its
@@ -164,7 +163,7 @@ class RadianceModel:
     def load_state(self, weights: dict[str, Any]) -> None:
         for name, part in self.parts().items():
             if part.state_dict():
-                part.load_state_dict(weights[name] if name in weights else weights[LEGACY_NAMES[name]])
+                part.load_state_dict(weights[name])
 
     @property
     def spec(self) -> ModelSpec:
@@ -184,7 +183,11 @@ class RadianceModel:
     @staticmethod
     def load(folder: Path, device: torch.device | str = "cpu") -> "RadianceModel":
         """The model ``save`` wrote: built from the spec in model.json, then its weights loaded."""
-        spec = ModelSpec.from_json(json.loads((folder / "model.json").read_text()))
+        try:
+            spec = ModelSpec.from_json(json.loads((folder / "model.json").read_text()))
+        except (KeyError, TypeError, ValueError) as err:  # a model.json of an older nerfpipe, or damaged
+            raise InputError(folder / "model.json", f"is not a model this nerfpipe can build ({err})",
+                             "rerun with `--force train` to train it again") from None
         model = build(spec, device)
         model.load_state(load_tensors(folder / "model.pt", device, "model"))
         return model

@@ -1,4 +1,4 @@
-"""The parts a model is made of, by name: fields and samplers.
+"""The parts a model is made of, by name: fields, samplers, and the ray spaces a model.json names.
 
 Each entry names a part's config (``nerfpipe.nerf.fields.configs``, ``nerfpipe.nerf.samplers.configs``): the
 user's parameter group for that kind, whose ``target`` is the part's class. A new field or sampler is one
@@ -21,6 +21,12 @@ FIELDS: dict[str, Any] = {
 SAMPLERS: dict[str, Any] = {
     "marching": "nerfpipe.nerf.samplers.configs:MarchingConfig",  # an occupancy grid marched (Instant-NGP)
     "hierarchical": "nerfpipe.nerf.samplers.configs:HierarchicalConfig",  # Section 5.2: N_c stratified + N_f importance
+}
+
+SPACES: dict[str, Any] = {  # by the kind a model.json names its ray space with
+    "box": "nerfpipe.nerf.spaces.ray_space:BoxSpace",  # world rays, clipped to the scene box when there is one
+    "ndc": "nerfpipe.nerf.spaces.ray_space:NdcSpace",  # forward-facing: NDC of the mean camera
+    "contracted": "nerfpipe.nerf.spaces.ray_space:ContractedSpace",  # the world beyond the box contracted
 }
 
 

@@ -113,3 +113,18 @@ def test_a_checkpoint_write_that_fails_leaves_no_temporary_file(tmp_path, monkey
     assert list((tmp_path / "ck").iterdir()) == []
     monkeypatch.setattr(checkpoints.torch, "save", real_save)
     assert checkpoints.save_checkpoint(tmp_path / "ck", 5, 1.0, model, optimizer, keep=3).name == "step_0000005.pt"
+
+
+def test_a_model_json_of_an_older_nerfpipe_is_one_line_naming_it(tmp_path) -> None:
+    import json
+
+    from nerfpipe.nerf.model import RadianceModel
+    from nerfpipe.pipeline.errors import InputError
+
+    older = {"field": {"kind": "grid", "field": {"levels": 2}, "field_box": [[-1] * 3, [1] * 3]},
+             "sampler": {"kind": "marching", "occupancy": {}}, "ray_space": {"kind": "box", "box": None},
+             "fine_network": False, "background": None}
+    (tmp_path / "model.json").write_text(json.dumps(older))
+    with pytest.raises(InputError, match="model.json: is not a model this nerfpipe can build") as err:
+        RadianceModel.load(tmp_path)
+    assert "--force train" in str(err.value)

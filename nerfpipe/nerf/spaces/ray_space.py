@@ -322,22 +322,14 @@ class ContractedSpace:
         return cls(_box(doc["box"]))
 
 
-SPACES: dict[str, type] = {cls.kind: cls for cls in (BoxSpace, NdcSpace, ContractedSpace)}
-
-
 def _box(value: Any) -> Box | None:
     return None if value is None else (tuple(float(v) for v in value[0]), tuple(float(v) for v in value[1]))
 
 
 def space_from_json(doc: dict[str, Any]) -> RaySpace:
-    """The ray space a model.json holds; also the flag form models were saved in before spaces were classes."""
-    if "kind" not in doc:  # {"ndc", "ndc_c2w", "ndc_focal", "ndc_size", "ndc_near", "box", "contraction"}
-        if doc.get("contraction") is not None:
-            return ContractedSpace(_box(doc["contraction"]))
-        if doc.get("ndc"):
-            return NdcSpace(tuple(tuple(r) for r in doc["ndc_c2w"]), doc["ndc_focal"], tuple(doc["ndc_size"]),
-                            doc["ndc_near"])
-        return BoxSpace(_box(doc.get("box")))
-    if doc["kind"] not in SPACES:
-        raise ValueError(f"unknown ray space {doc['kind']!r}; known: {', '.join(SPACES)}")
-    return SPACES[doc["kind"]].from_json(doc)
+    """The ray space a model.json holds: the class its ``kind`` names (``nerfpipe.nerf.registry.SPACES``)."""
+    from nerfpipe.nerf.registry import SPACES, load
+
+    if doc.get("kind") not in SPACES:
+        raise ValueError(f"unknown ray space {doc.get('kind')!r}; known: {', '.join(SPACES)}")
+    return load(SPACES[doc["kind"]]).from_json(doc)
