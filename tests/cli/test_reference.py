@@ -22,6 +22,9 @@ def test_every_parameter_has_a_row_with_its_help():
         for spec in param_specs(stage.Params):
             assert f"| `{stage.name}.{spec.name}` |" in text
             assert spec.help, f"{stage.name}.{spec.name} has no help string"
-    assert "| `train.field.max_resolution` | int | `128` | [1, 8192] | grid: cells a side of the finest level |" in text
+    assert ("| `train.field.max_resolution` | int | `128` | [1, 8192] | (grid, hash, planes) cells a side of the "
+            "finest level |") in text
+    assert ("| `train.chunk` | int | `4096` | [1, 1_048_576] | rays per chunk when rendering whole views; changing it "
+            "reruns nothing |") in text
     assert "- `draft`: `steps=500`, `field.levels=1`" in text
     assert {s.name for s in param_specs(TrainParams)} >= {"field.kind", "sampler.kind", "optim.lr", "per_image.appearance"}
