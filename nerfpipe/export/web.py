@@ -176,7 +176,7 @@ def serve(scene: WebScene, host: str = "127.0.0.1", port: int = 8080, share: boo
             client.camera.position = (1 + START_BACK) * spin @ first.c2w[:3, 3]
             client.camera.look_at = np.zeros(3)
         if scene.model is not None:
-            threading.Thread(target=_live_render, args=(viewer, client), daemon=True).start()
+            threading.Thread(target=live_render, args=(viewer, client), daemon=True).start()
 
     server.on_client_connect(on_connect)
     if scene.model is not None and scene.run_dir is not None:
@@ -186,7 +186,7 @@ def serve(scene: WebScene, host: str = "127.0.0.1", port: int = 8080, share: boo
     return viewer
 
 
-def _live_render(viewer: WebViewer, client: Any) -> None:
+def live_render(viewer: WebViewer, client: Any) -> None:
     """Render the client's view whenever it changes: fast at once, sharp once it has rested (``render_due``)."""
     shown: tuple | None = None
     while not viewer._stop.is_set() and client.client_id in viewer.server.get_clients():

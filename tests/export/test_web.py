@@ -79,7 +79,7 @@ def test_the_live_render_thread_stops_when_the_viewer_does() -> None:
     viewer = WebViewer(SimpleNamespace(get_clients=lambda: {client.client_id: client}), WebScene([], model=model),
                        Gate(0))
     viewer._stop.set()  # stopped before it looked: it renders nothing and returns
-    web._live_render(viewer, client)
+    web.live_render(viewer, client)
     assert model.widths == []
 
 
