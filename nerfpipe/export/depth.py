@@ -1,7 +1,7 @@
 """Depth maps of a radiance field, and the files other tools read them from.
 
 Per view: expected depth along the camera axis (sum_i w_i z_i / sum_i w_i, see
-``nerf.rendering.interval_stop_depths``), accumulated opacity and disparity as float32 ``.npy``; depth as
+``nerf.render.volume.interval_stop_depths``), accumulated opacity and disparity as float32 ``.npy``; depth as
 a 16-bit PNG whose sidecar JSON gives the scale (depth = value / scale, 0 = nothing hit); a colour-mapped
 preview. Units are those of the normalized scene; ``to_sfm`` (4x4, a similarity) maps them back to the
 frame structure from motion worked in.

@@ -1,4 +1,4 @@
-"""Small inputs of the NeRF assembly for the tests: scene decisions, bounds, and image folders with a loader."""
+"""Small inputs of the NeRF policy for the tests: scene decisions, bounds, and image folders with a loader."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from nerfpipe.nerf.train.images import ImageLoader
 
 def scene_of(layout: str, background: str = "none", color=None, photometric: str = "srgb",
              tolerance: float | None = None, stops: dict[str, float] | None = None) -> SceneDecisions:
-    """Scene decisions with the values the assembly reads; the rest as a plain capture's. ``tolerance``: the
+    """Scene decisions with the values the policy reads; the rest as a plain capture's. ``tolerance``: the
     backdrop tolerance the scene analysis measured with (none recorded when None); ``stops``: each photo's
     exposure, which then varies."""
     box = ([-1.0] * 3, [1.0] * 3)

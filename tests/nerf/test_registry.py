@@ -1,6 +1,6 @@
 """A new field or sampler is one class and one registry line: a toy field (a learned colour and density that
 depend on x linearly) and a toy sampler (evenly spaced samples, no importance sampling) are registered,
-built from parameters by the same assembly as the real ones, trained, saved and loaded back."""
+built from parameters by the same policy as the real ones, trained, saved and loaded back."""
 
 from __future__ import annotations
 
