@@ -47,7 +47,7 @@ from nerfpipe.pipeline.plan import (
 from nerfpipe.pipeline.run_config import RunConfig, run_command
 from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress
 from nerfpipe.pipeline.store import ArtifactStore, Committed, Damage
-from nerfpipe.pipeline.summary import Summary
+from nerfpipe.pipeline.summary import as_json
 
 log = logging.getLogger("nerfpipe")
 
@@ -285,11 +285,9 @@ class Pipeline:
         if hit is None or upstream_problem(hit, current) is not None:
             return None
         if self.store.latest_key(name) == planned.key:
-            same = same_outputs(hit, current)
-            if same:  # early cutoff: what it was built on came out the same
-                log.info("%s: %s computed again to the same outputs; its result stands", name, " and ".join(same))
-            else:
-                log.info("%s: up to date, reusing its result", name)
+            same = same_outputs(hit, current)  # early cutoff: what it was built on came out the same
+            log.info("%s: %s", name, f"{' and '.join(same)} computed again to the same outputs; its result stands"
+                     if same else "up to date, reusing its result")
             return StageOutcome(name, "cached", planned.key, hit.path, 0.0)
         self.store.set_latest(name, planned.key)
         log.info("%s: reusing the result of an earlier run with these settings", name)
@@ -325,7 +323,6 @@ class Pipeline:
         restored = None if forced else self._restore(planned)
         if restored is not None:
             return restored
-
         upstream = self._upstream_results(name)
         inputs = self._inputs(name, upstream)
         for up in upstream:
@@ -340,8 +337,7 @@ class Pipeline:
         ctx = StageContext(log=logging.getLogger(f"nerfpipe.stages.{name}"), progress=self.progress, debug=self.debug,
                            extra=self.extra, allotment=self._allotment(planned))
         try:
-            returned = planned.stage.run(inputs, work, planned.params, ctx)
-            summary = returned.to_json() if isinstance(returned, Summary) else dict(returned or {})
+            summary = as_json(planned.stage.run(inputs, work, planned.params, ctx))
             missing = [rel for rel in planned.stage.provides.values() if not (work / rel).exists()]
             if missing:
                 raise RuntimeError(f"stage {name} did not write its declared artifacts {missing}")

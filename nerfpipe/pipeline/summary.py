@@ -47,3 +47,8 @@ class Summary:
             elif f.name in doc:
                 values[f.name] = doc[f.name]
         return cls(**values)
+
+
+def as_json(summary: Summary | Mapping[str, Any] | None) -> dict[str, Any]:
+    """What a stage's ``run`` returned, as the manifest keeps it: a ``Summary``'s JSON (or a plain mapping's)."""
+    return summary.to_json() if isinstance(summary, Summary) else dict(summary or {})

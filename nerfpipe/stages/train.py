@@ -19,7 +19,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar, Literal
@@ -167,8 +166,7 @@ PRESETS = {
 
 @dataclass(frozen=True)
 class Throughput(Summary):
-    """What training drew: field evaluations and rays a second, samples a ray, and how often each training
-    pixel was drawn on average."""
+    """What training drew: evaluations and rays a second, samples a ray, draws of each training pixel."""
 
     samples_per_s: float = 0.0
     samples_per_ray: float = 0.0
@@ -287,6 +285,7 @@ class TrainStage(Stage):
 
     def _run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext, device) -> TrainSummary:
         started = time.monotonic()
+        from nerfpipe.export.web import watching
         from nerfpipe.nerf.policy import build_model, density_noise
         from nerfpipe.nerf.train.evaluation import evaluate, evaluation_scale, scaled_size
         from nerfpipe.nerf.train.images import ImageLoader, describe_masks, split_views, trained_cameras
@@ -326,7 +325,8 @@ class TrainStage(Stage):
             ctx.log.info("train: %s", f"{params.steps} steps" if params.steps > 0 else
                          f"{params.seconds:g} s of training (train.seconds; as many steps as fit, the learning rate "
                          "decaying over the time)")
-        with _watching(ctx, loader, model):
+        with watching(model, loader.world, loader.images, loader.bounds, ctx.extra.get("watch_port"),
+                      ctx.extra.get("watch_host", "127.0.0.1"), ctx.log):
             with ctx.progress(trainer.total - trainer.done_units(), "train") as advance:
                 trainer.run(advance)
             ctx.log.info("train: %d steps drew %s rays, %.0f a second, %.3g per training pixel, at %.1f samples a ray",
@@ -398,30 +398,3 @@ def training_seconds(allotted: float, eval_budget: float) -> float:
     """Seconds of training that, with the evaluation after it (at most ``eval_budget`` of the training time)
     and saving, fit in ``allotted`` seconds; at least ``MIN_TRAIN_SECONDS``, whole seconds."""
     return float(max(MIN_TRAIN_SECONDS, int((allotted - SAVE_RESERVE_SECONDS) / (1.0 + eval_budget))))
-
-
-# While training, the web viewer renders the view at rest every this many seconds, this many pixels across: a
-# 160 x 120 frame of the demo's model renders in 0.2 s on a 2-core CPU, so watching costs training about 7%.
-WATCH_REFRESH_SECONDS, WATCH_WIDTH = 3.0, 160
-
-
-@contextlib.contextmanager
-def _watching(ctx: StageContext, loader: Any, model: Any) -> Iterator[None]:
-    """Serve the web viewer of the model being trained while the block runs, when the caller asked for one
-    (``ctx.extra["watch_port"]``, from ``nerfpipe run --view``)."""
-    port = ctx.extra.get("watch_port")
-    if port is None:
-        yield
-        return
-    from nerfpipe.export.web import WebScene, serve, web_frames
-
-    scene = WebScene(web_frames(loader.world, loader.images), model=model, near=loader.bounds.near,
-                     far=loader.bounds.far, sharp_width=WATCH_WIDTH, refresh_seconds=WATCH_REFRESH_SECONDS)
-    viewer = serve(scene, host=ctx.extra.get("watch_host", "127.0.0.1"), port=port)
-    ctx.log.info("train: watch the field learn at %s (the view at rest is rendered again every %.0f s)",
-                 viewer.url, WATCH_REFRESH_SECONDS)
-    try:
-        yield
-    finally:
-        viewer.stop()
-        ctx.log.info("train: the training viewer stopped; `nerfpipe view RUN_DIR --web` shows the finished run")

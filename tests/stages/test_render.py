@@ -131,7 +131,7 @@ def run_render(tmp_path: Path, layout: str, photometric: str = "srgb", allotment
     calls: list = []
     ctx = StageContext(log=logging.getLogger("test"), progress=count_progress(calls), allotment=allotment)
     summary = RenderStage().run(inputs, out, RenderParams(frames=4, short_side=0, scale=0.5, device="cpu", **params), ctx)
-    return out, summary, calls
+    return out, summary.to_json(), calls
 
 
 def check_outputs(out: Path, summary: dict, calls: list, expected_rgb: np.ndarray) -> None:

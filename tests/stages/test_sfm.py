@@ -80,7 +80,7 @@ def test_matcher_choice():
     assert choose_matcher(records(40), params)[0] == "exhaustive"
     assert choose_matcher(records(300, gps=True), params) == ("spatial", "300 of 300 photos carry GPS")
     assert choose_matcher(records(300, names="frame_{:05d}.png"), params)[0] == "exhaustive"  # step 3: not frames
-    video = [{"name": f"{i:04d}.jpg", "exif": {}} for i in range(300)]
+    video = [PhotoRecord(f"{i:04d}.jpg") for i in range(300)]
     assert choose_matcher(video, params) == ("sequential", "300 photos named as numbered frames")
     assert choose_matcher(records(40), SfmParams(matcher="sequential")) == ("sequential", "set by sfm.matcher")
     assert choose_matcher(records(300), SfmParams(exhaustive_max=500))[0] == "exhaustive"
@@ -181,7 +181,7 @@ def test_temple_par_file_gets_triangulated_points_and_its_tight_box(tmp_path):
     assert sfm["triangulation"]["status"] == "ok" and sfm["triangulation"]["matcher"] == "exhaustive"
     assert sfm["points"] == sfm["triangulation"]["points"] > 1000
     assert sfm["triangulation"]["max_pose_change"] < 1e-9  # the poses were held fixed
-    assert "triangulation_fallback" not in sfm
+    assert sfm["triangulation_fallback"] is None
     # COLMAP's database and log stay in a scratch folder: the result is the same on every run
     assert sorted(p.name for p in outcomes[1].path.iterdir()) == ["manifest.json", "model"]
     cameras = CameraSet.load(outcomes[1].path / "model")
@@ -204,7 +204,7 @@ def test_temple_par_file_gets_triangulated_points_and_its_tight_box(tmp_path):
     assert [o.action for o in to_bounds(TEMPLE, tmp_path / "run")] == ["cached"] * 4
     rig = to_bounds(TEMPLE, tmp_path / "run", sfm={"triangulate": "false"})
     assert rig[1].action == "ran" and any("sfm.triangulate auto -> false" in r for r in rig[1].reasons)
-    assert rig[1].summary["points_from"] == "none" and "triangulation" not in rig[1].summary
+    assert rig[1].summary["points_from"] == "none" and rig[1].summary["triangulation"] is None
     assert Bounds.load(rig[-1].path / "bounds.json").method == "rig"
 
 
@@ -316,7 +316,7 @@ def test_triangulation_matcher_choice():
         "exhaustive", "20 photos <= 2 x sfm.spatial_neighbors 10")
     assert choose_triangulation_matcher(records(77), params) == (
         "spatial", "77 known poses: each photo with its 10 nearest cameras")
-    video = [{"name": f"{i:04d}.jpg", "exif": {}} for i in range(300)]
+    video = [PhotoRecord(f"{i:04d}.jpg") for i in range(300)]
     assert choose_triangulation_matcher(video, params)[0] == "spatial"  # the poses say more than the frame order
     assert choose_triangulation_matcher(records(40), SfmParams(matcher="spatial", spatial_neighbors=5)) == (
         "spatial", "set by sfm.matcher: each photo with its 5 nearest cameras")
