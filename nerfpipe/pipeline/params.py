@@ -224,13 +224,15 @@ def _instantiate(params_cls: type, values: Mapping[str, Any]) -> Any:
     """``params_cls`` from typed dotted values, its groups built from theirs (a group's __post_init__ runs first)."""
     hints = typing.get_type_hints(params_cls)
     kwargs: dict[str, Any] = {}
-    for f in dataclasses.fields(params_cls):
+    fields = dataclasses.fields(params_cls)
+    for i, f in enumerate(fields):
         if union_members(f) is not None:
             head = f.name + "."
             inner = {name[len(head):]: v for name, v in values.items() if name.startswith(head)}
-            if inner or f.metadata.get("auto"):
+            if inner or f.metadata.get("auto"):  # an ``auto`` rule reads the groups before it, as built or default
+                built = {g.name: kwargs[g.name] if g.name in kwargs else _default(g) for g in fields[:i]}
                 try:
-                    kwargs[f.name] = _union_member(f, inner, kwargs)
+                    kwargs[f.name] = _union_member(f, inner, built)
                 except ValueError as err:
                     raise ValueError(f"{f.name}.{err}") from None
         elif is_group(hints[f.name]):

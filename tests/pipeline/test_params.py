@@ -154,3 +154,76 @@ def test_numbers_must_be_finite(text):
         build_params("s", Outer, {}, None, {"rate": text})
     with pytest.raises(ParamError, match="expected a finite number"):
         coerce(float(text), float, "s.rate")
+
+
+# -- tagged unions and settings kept out of the cache key ----------------------------------------------------
+@dataclass(frozen=True)
+class Dense:
+    kind: str = "dense"
+    cells: int = param(8, "cells a side", bounds=(1, 64))
+    shared: float = param(0.5, "a setting both kinds have")
+
+
+@dataclass(frozen=True)
+class Sparse:
+    kind: str = "sparse"
+    rows: int = param(100, "rows of its table", bounds=(1, 1000))
+    shared: float = param(0.5, "a setting both kinds have")
+
+
+@dataclass(frozen=True)
+class Walker:
+    kind: str = "walker"
+    steps: int = param(4, "steps")
+
+
+@dataclass(frozen=True)
+class Chooser:
+    kind: str = "chooser"
+
+
+def part_kinds() -> dict[str, type]:
+    return {"dense": Dense, "sparse": Sparse}
+
+
+@dataclass(frozen=True)
+class Job:
+    part: Dense = param(Dense(), "the part", union=part_kinds)
+    walk: Walker = param(Walker(), "how it walks", union=lambda: {"walker": Walker, "chooser": Chooser},
+                         auto=lambda built: "chooser" if built["part"].kind == "sparse" else "walker")
+    chunk: int = param(64, "rows at a time: cannot change a result", bounds=(1, 4096), keyed=False)
+
+
+def test_a_union_lists_each_kinds_settings_once_with_its_kinds() -> None:
+    specs = {s.name: s for s in param_specs(Job)}
+    assert list(specs) == ["part.kind", "part.cells", "part.shared", "part.rows", "walk.kind", "walk.steps", "chunk"]
+    assert specs["part.kind"].choices == ("dense", "sparse") and specs["part.kind"].default == "dense"
+    assert specs["part.shared"].kinds == ("dense", "sparse") and specs["part.rows"].kinds == ("sparse",)
+    assert specs["walk.kind"].choices == ("auto", "walker", "chooser") and specs["walk.kind"].default == "auto"
+    assert specs["chunk"].keyed is False and specs["part.cells"].keyed is True
+
+
+def test_the_kind_picks_the_class_and_another_kinds_setting_is_refused_by_name() -> None:
+    job = build_params("job", Job, {}, None, {"part.kind": "sparse", "part.rows": "7"})
+    assert job.part == Sparse(rows=7) and job.walk == Chooser()  # auto: the rule, from the part built before it
+    assert build_params("job", Job, {}, None, {}).walk == Walker()
+    assert build_params("job", Job, {}, None, {"walk.kind": "walker", "part.kind": "sparse"}).walk == Walker()
+    with pytest.raises(ParamError, match=r"^job: part.rows is a setting of the sparse part kind, and part.kind is "
+                                         r"dense: set part.kind too$"):
+        build_params("job", Job, {}, None, {"part.rows": "7"})
+    with pytest.raises(ParamError, match=r"job.part.rows: 5000 is outside its bounds \[1, 1000\]"):
+        build_params("job", Job, {}, None, {"part.kind": "sparse", "part.rows": "5000"})
+    with pytest.raises(ParamError, match=r"job.part.kind: 'tree' is not one of dense, sparse"):
+        build_params("job", Job, {}, None, {"part.kind": "tree"})
+    # override switches kinds from the new kind's own defaults
+    assert override(Job(), {"part.kind": "sparse", "part.shared": 0.25}).part == Sparse(shared=0.25)
+    assert override(Job(), {"part.cells": 16}).part == Dense(cells=16)
+
+
+def test_a_setting_declared_unkeyed_stays_out_of_the_cache_view() -> None:
+    from nerfpipe.pipeline.params import cache_view
+
+    job = build_params("job", Job, {}, None, {"chunk": "8"})
+    assert cache_view(job) == {"part": {"kind": "dense", "cells": 8, "shared": 0.5},
+                               "walk": {"kind": "walker", "steps": 4}}
+    assert cache_view(job) == cache_view(Job())
