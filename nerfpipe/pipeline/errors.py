@@ -109,3 +109,14 @@ def disk_full(err: BaseException, work: Path, run_dir: Path, stage: str) -> Disk
     except OSError:
         return None
     return DiskFullError(run_dir, stage=stage) if free < DISK_NEARLY_FULL else None
+
+
+def out_of_memory(err: BaseException, stage: str) -> StageError | None:
+    """``StageError`` if ``err`` is a stage running out of memory: Python's ``MemoryError``, or the allocation
+    failure a native library raises as its own error (torch: ``can't allocate memory``), as one line."""
+    text = str(err)
+    if isinstance(err, MemoryError) or "can't allocate memory" in text or "out of memory" in text.lower():
+        detail = text.strip().splitlines()[-1][:160] if text.strip() else type(err).__name__
+        return StageError(f"{stage}: ran out of memory ({detail}); lower the sizes it works at (`nerfpipe stages "
+                          f"{stage}` lists them), or run it where more memory is free")
+    return None

@@ -17,16 +17,8 @@ from typing import Any, Callable, Iterator, Mapping, Sequence
 
 from nerfpipe.pipeline.budget import Allotment, JobBudget, check_least_seconds
 from nerfpipe.pipeline.dag import Dag
-from nerfpipe.pipeline.errors import (
-    DiskFullError,
-    InputError,
-    NerfpipeError,
-    ParamError,
-    StageError,
-    UpstreamNotReadyError,
-    disk_full,
-    os_error_to_user_error,
-)
+from nerfpipe.pipeline.errors import (DiskFullError, InputError, NerfpipeError, ParamError, StageError,
+                                      UpstreamNotReadyError, disk_full, os_error_to_user_error, out_of_memory)
 from nerfpipe.pipeline.lock import RunLock, StageLock
 from nerfpipe.pipeline.fingerprint import FingerprintCache
 from nerfpipe.pipeline.logfile import log_to_file
@@ -349,7 +341,7 @@ class Pipeline:
                 self.store.abandon(work)
             raise
         except BaseException as err:
-            full = disk_full(err, work, self.run_dir, name)
+            full = disk_full(err, work, self.run_dir, name) or out_of_memory(err, name)
             if not planned.stage.resumable:
                 self.store.abandon(work)
             if full is not None:

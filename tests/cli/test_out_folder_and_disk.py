@@ -132,3 +132,26 @@ def test_a_failure_on_a_disk_with_no_space_left_is_the_disk_full_error(tmp_path,
 @pytest.mark.parametrize("n, text", [(512, "512 bytes"), (1536, "1.5 KB"), (2_900_000, "2.9 MB"), (12 * 10**12, "12000.0 GB")])
 def test_format_bytes(n, text):
     assert format_bytes(n) == text
+
+
+@pytest.mark.parametrize("failure", [MemoryError(), RuntimeError(
+    "[enforce fail at alloc_cpu.cpp:117] data. DefaultCPUAllocator: can't allocate memory: you tried to allocate "
+    "5554176 bytes. Error code 12 (Cannot allocate memory)")])
+def test_a_stage_out_of_memory_is_one_line_naming_it_and_leaves_no_result(tmp_path, monkeypatch, failure):
+    """Python's MemoryError, or the allocation failure torch raises as its own error (a process at its memory
+    limit, as the parameter sweep's runs are), is one line naming the stage and what to do."""
+    from nerfpipe.pipeline import StageError
+    import nerfpipe.stages.ingest as ingest_module
+
+    def exhausted(path, pixels):
+        raise failure
+
+    monkeypatch.setattr(ingest_module, "write_png", exhausted)
+    capture = tmp_path / "photos"
+    capture.mkdir()
+    shutil.copy(TEMPLE / "templeSR0001.png", capture)
+    pipe = Pipeline(two_stages(), capture, tmp_path / "run")
+    with pytest.raises(StageError, match=r"^ingest: ran out of memory \(.*\); lower the sizes it works at "
+                                         r"\(`nerfpipe stages ingest` lists them\), or run it where more memory is free$"):
+        pipe.run()
+    assert pipe.result("ingest") is None
