@@ -110,8 +110,7 @@ def is_group(tp: Any) -> bool:
 
 def union_members(f: dataclasses.Field) -> dict[str, type] | None:
     """The parameter dataclasses a tagged-union group chooses from, by kind; None for any other field."""
-    union = f.metadata.get("union")
-    return None if union is None else dict(union())
+    return None if f.metadata.get("union") is None else dict(f.metadata["union"]())
 
 
 def kind_of(cls: type) -> str:
@@ -215,9 +214,7 @@ def _union_member(f: dataclasses.Field, inner: dict[str, Any], built: Mapping[st
             owners = [k for k, c in members.items() if name in {g.name for g in dataclasses.fields(c)}]
             raise ValueError(f"{name} is a setting of the {' and '.join(owners)} {f.name} kind, and {f.name}.kind "
                              f"is {kind}: set {f.name}.kind too")
-    if not inner and isinstance(default, cls):
-        return default
-    return cls(**inner)
+    return default if not inner and isinstance(default, cls) else cls(**inner)
 
 
 def _instantiate(params_cls: type, values: Mapping[str, Any]) -> Any:
