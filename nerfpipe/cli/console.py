@@ -38,9 +38,11 @@ class ConsoleHandler(logging.Handler):
         err_console.print(prefix + escape(self.format(record)), highlight=False, soft_wrap=True)
 
 
-def setup_logging(debug: bool) -> None:
+def setup_logging(debug: bool, quiet: bool = False) -> None:
+    """nerfpipe's log on the terminal: info lines, or only warnings and errors (``quiet``), or everything
+    (``debug``, which wins). Open3D's own log follows it (``nerfpipe.export.o3d``)."""
     handler = ConsoleHandler()
-    handler.setLevel(logging.DEBUG if debug else logging.INFO)
+    handler.setLevel(logging.DEBUG if debug else logging.WARNING if quiet else logging.INFO)
     handler.setFormatter(logging.Formatter("%(message)s"))
     root = logging.getLogger("nerfpipe")
     root.handlers[:] = [handler]
@@ -69,7 +71,7 @@ def user_errors(debug: bool) -> Iterator[None]:
         raise typer.Exit(130) from None
 
 
-def progress_factory() -> Callable:
+def progress_factory(quiet: bool = False) -> Callable:
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -81,7 +83,7 @@ def progress_factory() -> Callable:
 
     @contextlib.contextmanager
     def progress(total: int, description: str) -> Iterator[Callable[..., None]]:
-        if not err_console.is_terminal:
+        if quiet or not err_console.is_terminal:
             yield lambda n=1, info=None: None
             return
         columns = (
@@ -170,20 +172,31 @@ def serve_web(pipe: Pipeline, host: str, port: int, share: bool = False) -> None
         out_console.print("web viewer stopped", highlight=False)
 
 
-def print_outcomes(run_dir, outcomes, view: bool) -> None:
-    """`run`'s table of what each stage did, the warnings of a run that finished without some exports, and
-    what --view could not show."""
-    table = Table(title=f"nerfpipe run -> {escape(str(run_dir))}", title_justify="left")
-    for column in ("stage", "result", "time"):
-        table.add_column(column)
-    table.add_column("output", overflow="fold")
-    for o in outcomes:
-        made = escape(o.reasons[0] if o.action in ("failed", "skipped") else str(o.path))
-        table.add_row(o.name, o.action, f"{o.seconds:.1f} s", made)
-    out_console.print(table)
+def short_path(run_dir: Path, path: Path) -> str:
+    """A stage's result folder as the table shows it: inside the run directory, its 64-hex key cut to 12
+    characters (as ``status`` shows keys), so that a row fits an 80-column terminal."""
+    try:
+        parts = Path(path).relative_to(run_dir).parts
+    except ValueError:
+        return str(path)
+    return "/".join(f"{p[:12]}…" if len(p) == 64 and all(c in "0123456789abcdef" for c in p) else p for p in parts)
+
+
+def print_outcomes(run_dir, outcomes, view: bool, quiet: bool = False) -> None:
+    """`run`'s table of what each stage did (not when ``quiet``), the warnings of a run that finished without
+    some exports, and what --view could not show."""
+    if not quiet:
+        table = Table(title=f"nerfpipe run -> {escape(str(run_dir))}", title_justify="left")
+        for column in ("stage", "result", "time"):
+            table.add_column(column)
+        table.add_column("output", overflow="fold")
+        for o in outcomes:
+            made = escape(o.reasons[0] if o.action in ("failed", "skipped") else short_path(run_dir, o.path))
+            table.add_row(o.name, o.action, f"{o.seconds:.1f} s", made)
+        out_console.print(table)
     trouble = [o for o in outcomes if o.action in ("failed", "skipped")]
     if trouble:
-        out_console.print("finished with warnings: " + "; ".join(f"{o.name} {o.action} ({escape(o.reasons[0])})"
+        err_console.print("[yellow]warning:[/] finished with warnings: " + "; ".join(f"{o.name} {o.action} ({escape(o.reasons[0])})"
                                                                  for o in trouble), highlight=False, soft_wrap=True)
     if view and not any(o.name == "train" and o.action == "ran" for o in outcomes):
         out_console.print(f"--view: no training ran to watch; `nerfpipe view {escape(str(run_dir))} --web` shows the "
@@ -208,3 +221,16 @@ def print_batch(states: list, out: Path, executor: str) -> list:
     out_console.print(f"{len(states) - len(failed)} of {len(states)} captures done, {len(failed)} failed; "
                       f"summary: {escape(str(out / SUMMARY))}", highlight=False, soft_wrap=True)
     return failed
+
+
+def status_json(pipe: Pipeline, statuses: list, moved: list) -> dict:
+    """``status --json``: the run, its photos, and per stage its state, reasons, key, result folder (the
+    current one when fresh, else the latest, or none) and the lines its summary gives."""
+    aside = {s.name: str(path) for s, path in moved}
+    return {
+        "run_dir": str(pipe.run_dir), "photos": str(pipe.source),
+        "stages": [{"name": s.name, "state": s.state, "reasons": list(s.reasons), "key": s.key,
+                    "path": str(s.result.path) if s.result is not None else None,
+                    "damage": str(s.damage) if s.damage is not None else None,
+                    "moved_to": aside.get(s.name), "summary": list(pipe.describe(s))} for s in statuses],
+    }

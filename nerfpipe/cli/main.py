@@ -2,30 +2,38 @@
 
 from __future__ import annotations
 
-import logging
+import json
 from pathlib import Path
 from typing import List, Optional
 
 import typer
 from rich.table import Table
 
+from nerfpipe.cli import tools
 from nerfpipe.cli.config import one_preset
 from nerfpipe.cli.console import (
     STATE_STYLE,
-    batch_progress,
-    bench_line,
     escape,
     out_console,
-    print_batch,
     print_outcomes,
     progress_factory,
     serve_web,
     setup_logging,
+    status_json,
     user_errors,
+)
+from nerfpipe.cli.options import (
+    DebugOption,
+    ForceOption,
+    HostOption,
+    OnlyOption,
+    PresetOption,
+    SetOption,
+    UntilOption,
+    examples,
 )
 from nerfpipe.pipeline import ParamError, Pipeline, parse_assignments
 from nerfpipe.pipeline.budget import parse_duration
-from nerfpipe.pipeline.lock import RunLock
 from nerfpipe.pipeline.plan import check_run_dir
 from nerfpipe.stages import auto_budget, default_stages
 
@@ -53,23 +61,20 @@ def _main(
     """Photos in, a Neural Radiance Field and its exports out. Each stage is cached in the run directory."""
 
 
-DebugOption = typer.Option(False, "--debug", help="Show tracebacks and debug logs.")
-PresetOption = typer.Option([], "--preset", "-p", help="Named preset applied to every stage that has it (one: presets do "
-                            "not combine; use --set on top).")
-SetOption = typer.Option([], "--set", "-s", help="Override one parameter: STAGE.PARAM=VALUE (repeatable).")
-HostOption = typer.Option("127.0.0.1", "--host", show_default=True, help="The web viewer's address: this machine only by default; "
-                          "0.0.0.0 shows the run's photos to anyone on the network who has the printed URL (its token).")
-
-
-@app.command()
+@app.command(epilog=examples(
+    "every stage, into runs/photos: nerfpipe run photos/",
+    "a video, the whole job in 10 minutes: nerfpipe run clip.mp4 --out runs/clip --budget 10m",
+    "stop after structure from motion: nerfpipe run photos/ --until sfm",
+    "a preset, and one setting on top: nerfpipe run photos/ --preset hash --set train.seconds=600",
+    "the mesh again, printing only warnings: nerfpipe run photos/ --force export_mesh --quiet"))
 def run(
     photos_dir: Path = typer.Argument(..., help="Folder of photos (or a capture folder with images/), or a video."),
     out: Optional[str] = typer.Option(None, "--out", "-o", help="Run directory \\[default: runs/<photos folder name>]."),
     presets: List[str] = PresetOption,
     set_: List[str] = SetOption,
-    until: Optional[str] = typer.Option(None, "--until", help="Run the stages up to and including this one."),
-    only: Optional[str] = typer.Option(None, "--only", help="Run only this stage; its upstream must be fresh."),
-    force: List[str] = typer.Option([], "--force", help="Rerun this stage even if cached; its downstream reruns only if its outputs change."),
+    until: Optional[str] = UntilOption,
+    only: Optional[str] = OnlyOption,
+    force: List[str] = ForceOption,
     skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip unreadable or duplicate photos with a warning."),
     view: bool = typer.Option(False, "--view", help="Serve the web viewer while the field trains, to watch it learn "
                               "(stops when training ends)."),
@@ -82,10 +87,11 @@ def run(
                                          "what the other stages leave, the exports size themselves to their shares. "
                                          "auto sizes it from the photos; off: train.seconds and every size as set "
                                          "\\[default: auto]."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only warnings and errors: no progress, no table."),
     debug: bool = DebugOption,
 ) -> None:
     """Run the pipeline on a folder of photos or a video, recomputing only what changed."""
-    setup_logging(debug)
+    setup_logging(debug, quiet)
     from nerfpipe.cli.config import merge, read_config, write_config
 
     with user_errors(debug):
@@ -109,7 +115,7 @@ def run(
             from nerfpipe.export.web import check_address
 
             check_address(host, port)
-        pipe = Pipeline(default_stages(), photos_dir, run_dir, preset, overrides, progress=progress_factory(), debug=debug,
+        pipe = Pipeline(default_stages(), photos_dir, run_dir, preset, overrides, progress=progress_factory(quiet), debug=debug,
                         extra={"watch_port": port, "watch_host": host} if view else None, budget=job_budget,
                         budget_rule=auto_budget)
         try:
@@ -117,27 +123,33 @@ def run(
         finally:
             if (run_dir / "run.json").is_file():  # the run got as far as recording its settings
                 write_config(run_dir, pipe.plan(), job_budget)
-    print_outcomes(run_dir, outcomes, view)
+    print_outcomes(run_dir, outcomes, view, quiet)
     with user_errors(debug):
         from nerfpipe.cli.exports import refresh_exports
 
         exported = refresh_exports(pipe)
-    out_console.print(f"exports: {escape(str(exported.folder))} ({', '.join(exported.names) or 'nothing yet'})",
-                      highlight=False, soft_wrap=True)
     with user_errors(debug):
         from nerfpipe.report import write_report
 
         page = write_report(run_dir)
-    out_console.print(f"report: {escape(str(page))}", highlight=False, soft_wrap=True)
+    if not quiet:
+        out_console.print(f"exports: {escape(str(exported.folder))} ({', '.join(exported.names) or 'nothing yet'})"
+                          f"\nreport: {escape(str(page))}", highlight=False, soft_wrap=True)
 
 
-@app.command()
+@app.command(epilog=examples(
+    "what is fresh, and why not: nerfpipe status runs/photos",
+    "what would rerun if ...?: nerfpipe status runs/photos --set train.seconds=600",
+    "hash every output, and move damaged ones aside: nerfpipe status runs/photos --verify",
+    "for scripts: nerfpipe status runs/photos --json"))
 def status(
     run_dir: Path = typer.Argument(..., help="Run directory of an earlier `nerfpipe run`."),
     presets: List[str] = PresetOption,
     set_: List[str] = SetOption,
     verify: bool = typer.Option(False, "--verify", help="Hash every output (sha256) instead of checking sizes and "
                                 "times; move damaged results aside, for the next run to compute again."),
+    as_json: bool = typer.Option(False, "--json", help="Machine-readable: one JSON object, the photos and each stage's "
+                                 "state, reasons, key, folder and summary."),
     debug: bool = DebugOption,
 ) -> None:
     """Each stage fresh / stale / broken / missing, with the reason. --preset/--set ask "what if"."""
@@ -146,6 +158,9 @@ def status(
         pipe = Pipeline.from_run_dir(default_stages(), run_dir, one_preset(presets), parse_assignments(set_))
         moved = pipe.verify() if verify else []
         statuses = pipe.status()
+    if as_json:
+        print(json.dumps(status_json(pipe, statuses, moved), indent=1))
+        return
     table = Table(title=f"{escape(str(run_dir))} (photos: {escape(str(pipe.source))})", title_justify="left")
     for column in ("stage", "state", "reason", "key"):
         table.add_column(column)
@@ -169,7 +184,11 @@ def status(
 VIEW_KINDS = ("mesh", "points", "cameras")
 
 
-@app.command()
+@app.command(epilog=examples(
+    "the mesh and cameras (a screenshot without a display): nerfpipe view runs/photos",
+    "the point cloud: nerfpipe view runs/photos points",
+    "in the browser, with a live render of the field: nerfpipe view runs/photos --web",
+    "with viser's share button (a public URL, photos included): nerfpipe view runs/photos --web --share"))
 def view(
     run_dir: Path = typer.Argument(..., help="Run directory of an earlier `nerfpipe run`."),
     kind: str = typer.Argument(
@@ -213,12 +232,12 @@ def view(
         else:
             points = shot.sparse_points(sfm)
         path = shot.show(mesh, points, cameras_of(sfm), screenshot_path=run_dir / f"view_{kind}.png",
-                         title=f"nerfpipe {kind}: {run_dir}")
+                         title=f"nerfpipe {kind}: {run_dir}", frame_cameras=kind == "cameras")
     if path is not None:
         out_console.print(f"no display: wrote a screenshot to {escape(str(path))}", highlight=False, soft_wrap=True)
 
 
-@app.command()
+@app.command(epilog=examples("then open runs/photos/report/index.html: nerfpipe report runs/photos"))
 def report(
     run_dir: Path = typer.Argument(..., help="Run directory of an earlier `nerfpipe run`."),
     debug: bool = DebugOption,
@@ -232,161 +251,16 @@ def report(
     out_console.print(f"report: {escape(str(page))}", highlight=False, soft_wrap=True)
 
 
-@app.command()
-def bench(
-    capture: Path = typer.Argument(..., help="Capture with held-out views (a val/test split, else every 8th image)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Run directory; the results go to OUT/bench/."),
-    configs: List[str] = typer.Option(["presets"], "--config", "-c",
-                                      help="A configuration, or a group: presets, ablations, all (repeatable)."),
-    budget: float = typer.Option(300.0, "--budget", help="Seconds of training per configuration, at most."),
-    size: Optional[int] = typer.Option(None, "--size", help="Longest image side (sets ingest.max_size)."),
-    eval_views: int = typer.Option(0, "--eval-views", help="Evaluate this many held-out views, evenly spaced (0: all)."),
-    checkpoints: str = typer.Option("30,60,120,180,300,600", "--checkpoints",
-                                    help="Training times in seconds at which to evaluate, comma-separated."),
-    seeds: int = typer.Option(1, "--seeds", help="Train each configuration this many times, seeds counting up; "
-                              "the tables give mean ± standard deviation."),
-    set_: List[str] = SetOption,
-    debug: bool = DebugOption,
-) -> None:
-    """Train each configuration for a time budget; held-out PSNR/SSIM at 30 s, 1, 2, 3, 5, 10 min, speed, memory."""
-    setup_logging(debug)
-    from nerfpipe.bench.configs import CONFIGS, GROUPS, select
-    from nerfpipe.bench.run import run_bench
-
-    with user_errors(debug):
-        try:
-            chosen = select(configs)
-        except KeyError as err:
-            raise typer.BadParameter(f"unknown configuration {err.args[0]!r}; choose from {', '.join([*GROUPS, 'all', *CONFIGS])}",
-                                     param_hint="--config") from None
-        if budget <= 0:
-            raise typer.BadParameter(f"must be > 0, got {budget}", param_hint="--budget")
-        try:
-            marks = tuple(sorted(float(m) for m in checkpoints.split(",") if m.strip()))
-        except ValueError:
-            raise typer.BadParameter(f"expected seconds separated by commas, got {checkpoints!r}", param_hint="--checkpoints") from None
-        if not marks or marks[0] <= 0:
-            raise typer.BadParameter(f"expected positive seconds, got {checkpoints!r}", param_hint="--checkpoints")
-        if seeds < 1:
-            raise typer.BadParameter(f"must be at least 1, got {seeds}", param_hint="--seeds")
-        overrides = parse_assignments(set_)
-        if size is not None:
-            overrides.setdefault("ingest", {})["max_size"] = str(size)
-        overrides.setdefault("train", {}).setdefault("eval_stride", "4")
-        folder = run_bench(capture, out, chosen, budget, overrides, eval_views, marks, seeds,
-                           on_result=lambda r: out_console.print(bench_line(r, seeds > 1), highlight=False))
-        from nerfpipe.report import write_report
-
-        page = write_report(out)
-    out_console.print((folder / "bench.md").read_text(), highlight=False, soft_wrap=True)
-    out_console.print(f"bench: {escape(str(folder))}\nreport: {escape(str(page))}", highlight=False, soft_wrap=True)
-
-
-@app.command()
-def batch(
-    captures_root: Path = typer.Argument(..., help="Folder with one folder of photos per capture."),
-    out: Path = typer.Option(..., "--out", "-o", help="Runs root: one run directory per capture, OUT/<capture>."),
-    executor: str = typer.Option("local", "--executor", "-e", help="local (this machine) or ray (a Ray cluster)."),
-    address: Optional[str] = typer.Option(None, "--address", help="Ray cluster address, e.g. 10.0.0.1:6379 or auto "
-                                          "\\[default: start Ray on this machine]."),
-    max_parallel: int = typer.Option(0, "--max-parallel", "-j", help="Captures in progress at once \\[default: local 1, "
-                                     "ray as many as the cluster's resources run]."),
-    max_retries: int = typer.Option(2, "--max-retries", help="Restarts of a stage whose worker or node died."),
-    presets: List[str] = PresetOption,
-    set_: List[str] = SetOption,
-    until: Optional[str] = typer.Option(None, "--until", help="Run the stages up to and including this one."),
-    debug: bool = DebugOption,
-) -> None:
-    """Run every capture folder inside CAPTURES_ROOT, each stage a task of the executor; same cache as `run`."""
-    setup_logging(debug)
-    if not debug:
-        logging.getLogger("nerfpipe").handlers[0].setLevel(logging.ERROR)  # each capture's log file has the rest
-    from nerfpipe.pipeline.batch import Batch, BatchSettings, find_captures
-    from nerfpipe.pipeline import InputError
-    from nerfpipe.pipeline.executors import LocalExecutor, RayExecutor
-
-    with user_errors(debug):
-        if executor not in ("local", "ray"):
-            raise typer.BadParameter(f"expected local or ray, got {executor!r}", param_hint="--executor")
-        if max_parallel < 0:
-            raise typer.BadParameter(f"must be 0 or more, got {max_parallel}", param_hint="--max-parallel")
-        if address is not None and executor != "ray":
-            raise typer.BadParameter("only with --executor ray", param_hint="--address")
-        if out.exists() and not out.is_dir():
-            raise InputError(out, "is a file, not a folder", "pass --out a folder for the run directories")
-        root, runs = captures_root.resolve(), out.resolve()
-        if runs == root or root in runs.parents:
-            raise typer.BadParameter(f"{out} lies inside the captures folder {captures_root}, whose every folder is "
-                                     "taken for a capture; choose a folder outside it", param_hint="--out")
-        sources = find_captures(captures_root)
-        settings = BatchSettings(preset=one_preset(presets), overrides=parse_assignments(set_), until=until, max_parallel=max_parallel)
-        runner = LocalExecutor(max_parallel or 1, max_retries) if executor == "local" else RayExecutor(address, max_retries)
-        with runner, batch_progress(len(sources)) as on_change:
-            states = Batch(sources, out, runner, settings, on_change).run()
-    failed = print_batch(states, out, executor)
-    if failed:
-        raise typer.Exit(1)
-
-
-@app.command()
-def stages(
-    names: List[str] = typer.Argument(None, metavar="[STAGE]...", help="Only these stages (default: all)."),
-    as_json: bool = typer.Option(False, "--json", help="Machine-readable: one JSON object, stage name -> its "
-                                 "version, summary, inputs, outputs, parameters and presets."),
-) -> None:
-    """The stage graph, with each stage's parameters, defaults and presets."""
-    import json
-
-    from nerfpipe.cli.reference import print_reference, stage_reference
-    from nerfpipe.pipeline import Dag, ParamError
-
-    dag = Dag(default_stages())
-    with user_errors(False):
-        for name in names or []:
-            if name not in dag.stages:
-                raise ParamError(f"unknown stage {name!r}; stages are: {', '.join(dag.order)}")
-    chosen = [n for n in dag.order if not names or n in names]
-    reference = stage_reference(dag, chosen)
-    if as_json:
-        print(json.dumps(reference, indent=1))
-        return
-    print_reference(reference, dag.order if not names else None)
-
-
-@app.command()
-def export(
-    run_dir: Path = typer.Argument(..., help="Run directory of an earlier `nerfpipe run`."),
-    to: Path = typer.Option(..., "--to", help="Folder to copy the exports into (made if missing)."),
-    debug: bool = DebugOption,
-) -> None:
-    """Copy a run's exports (mesh, points, videos, depth maps, transforms.json, COLMAP cameras) to a folder."""
-    setup_logging(debug)
-    from nerfpipe.cli.exports import refresh_exports
-    from nerfpipe.export.bundle import copy_exports
-
-    with user_errors(debug):
-        exported = refresh_exports(Pipeline.from_run_dir(default_stages(), run_dir))
-        copied = copy_exports(exported.folder, to, run_dir)
-    out_console.print(f"copied {', '.join(exported.names)} ({copied / 1e6:.1f} MB) to {escape(str(to))}"
-                      + (f"; not made by this run: {', '.join(exported.missing)}" if exported.missing else ""),
-                      highlight=False, soft_wrap=True)
-
-
-@app.command()
-def clean(
-    run_dir: Path = typer.Argument(..., help="Run directory to prune."),
-    debug: bool = DebugOption,
-) -> None:
-    """Delete cached results other than each stage's latest, and unfinished work folders."""
-    setup_logging(debug)
-    from nerfpipe.pipeline import ArtifactStore, InputError
-
-    with user_errors(debug):
-        if not (run_dir / "run.json").is_file():
-            raise InputError(run_dir, "is not a nerfpipe run directory (no run.json)", "pass the --out folder of a run")
-        with RunLock(run_dir):
-            removed, freed = ArtifactStore(run_dir).clean()
-    out_console.print(f"removed {removed} folders, freed {freed / 1e6:.1f} MB")
+app.command(epilog=examples(
+    "the presets, 5 minutes of training each: nerfpipe bench photos/ --out runs/bench",
+    "two configurations, 2 minutes each: nerfpipe bench photos/ --out runs/bench -c grid -c hash --budget 120",
+))(tools.bench)
+app.command(epilog=examples(
+    "one capture after another, here: nerfpipe batch captures/ --out runs/",
+    "on a Ray cluster: nerfpipe batch captures/ --out runs/ -e ray --address auto"))(tools.batch)
+app.command(epilog=examples("every stage: nerfpipe stages", "for scripts: nerfpipe stages train --json"))(tools.stages)
+app.command(epilog=examples("nerfpipe export runs/photos --to ~/photos-3d"))(tools.export)
+app.command(epilog=examples("keep each stage's latest result only: nerfpipe clean runs/photos"))(tools.clean)
 
 
 def main() -> None:

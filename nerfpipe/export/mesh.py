@@ -11,6 +11,7 @@ from typing import Any, Callable, Iterator, Sequence
 import numpy as np
 
 from nerfpipe.geometry.normalize import Similarity
+from nerfpipe.export.o3d import open3d
 
 # (M, 3) float32 tensor of field coordinates -> (M,) density
 DensityFn = Callable[[Any], Any]
@@ -83,7 +84,7 @@ def marching_cubes(density: DensityFn, grid: Grid, threshold: float, block: int 
     block faces come out identical in both blocks and are merged. Triangles face outward (away from
     high density).
     """
-    import open3d as o3d
+    o3d = open3d()
 
     vertices, triangles, offset = [], [], 0
     for start, count in grid.blocks(block):
@@ -127,7 +128,7 @@ def vertex_normals(mesh: Mesh) -> np.ndarray:
 
 
 def to_open3d(mesh: Mesh) -> Any:
-    import open3d as o3d
+    o3d = open3d()
 
     out = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(mesh.vertices.astype(np.float64)),
                                     o3d.utility.Vector3iVector(mesh.triangles.astype(np.int32)))
@@ -153,7 +154,7 @@ def tsdf_fusion(views: Sequence[tuple[dict[str, np.ndarray], np.ndarray, np.ndar
         views: (rendered {depth, acc (H, W), rgb (H, W, 3) in [0, 1]}, K (3, 3), c2w (4, 4)) per view;
             pixels below ``acc_threshold`` carry no depth.
     """
-    import open3d as o3d
+    o3d = open3d()
 
     lo, hi = np.asarray(box[0], dtype=np.float64), np.asarray(box[1], dtype=np.float64)
     length = float((hi - lo).max())
@@ -180,7 +181,7 @@ def poisson(points: Any, depth: int = 8, density_quantile: float = 0.15,
     outside ``box`` are dropped, as the method closes surfaces the points never showed. On beer's scene cloud
     the lowest 15 % rather than 5 % clears most of the flaps that close the floor over the can (held-out
     pixels covered 32 % -> 28 %, PSNR over them 17.9 -> 18.8 dB; 30 %: 25 %, 19.2 dB, and holes in the floor)."""
-    import open3d as o3d
+    o3d = open3d()
 
     mesh, support = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(points, depth=depth)
     support = np.asarray(support)
@@ -235,7 +236,7 @@ def transformed(mesh: Mesh, similarity: Sequence[Sequence[float]]) -> Mesh:
 def write_mesh(mesh: Mesh, path: Path) -> None:
     """PLY (binary) or OBJ through Open3D, with vertex colours and normals; GLB with ``write_glb`` (in the
     mesh's coordinates: give it ``gltf_frame``'s)."""
-    import open3d as o3d
+    o3d = open3d()
 
     if path.suffix.lower() == ".glb":
         write_glb(path, mesh)
@@ -248,7 +249,7 @@ def write_mesh(mesh: Mesh, path: Path) -> None:
 
 
 def read_mesh(path: Path) -> Mesh:
-    import open3d as o3d
+    o3d = open3d()
 
     if path.suffix.lower() == ".glb":
         return read_glb(path)

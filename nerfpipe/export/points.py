@@ -8,6 +8,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from nerfpipe.geometry.normalize import Similarity
+from nerfpipe.export.o3d import open3d
 
 
 @dataclass
@@ -130,7 +131,7 @@ def views_to_points(views: Sequence[View], acc_threshold: float, box: tuple[Sequ
 
 
 def to_open3d(cloud: Cloud) -> Any:
-    import open3d as o3d
+    o3d = open3d()
 
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(cloud.xyz, dtype=np.float64)))
     pcd.colors = o3d.utility.Vector3dVector(np.clip(np.asarray(cloud.rgb, dtype=np.float64), 0.0, 1.0))
@@ -164,7 +165,7 @@ def clean_cloud(cloud: Cloud, voxel: float, target_points: int, outlier_neighbor
     Args:
         voxel: the smallest voxel edge; 0 skips down-sampling unless the target asks for it.
     """
-    import open3d as o3d
+    o3d = open3d()
 
     pcd = to_open3d(cloud)
     raw = len(pcd.points)
@@ -197,14 +198,14 @@ def clean_cloud(cloud: Cloud, voxel: float, target_points: int, outlier_neighbor
 
 def write_ply(path, cloud: Cloud) -> None:
     """A binary PLY with colours (and normals when present), through Open3D."""
-    import open3d as o3d
+    o3d = open3d()
 
     if not o3d.io.write_point_cloud(str(path), to_open3d(cloud), write_ascii=False):
         raise OSError(f"open3d could not write {path}")
 
 
 def read_ply(path) -> Cloud:
-    import open3d as o3d
+    o3d = open3d()
 
     return from_open3d(o3d.io.read_point_cloud(str(path)))
 

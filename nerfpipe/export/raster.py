@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from nerfpipe.export.views import ViewCamera
+from nerfpipe.export.o3d import open3d
 
 MESH_GREY = 0.72  # meshes without colours
 
@@ -18,7 +19,7 @@ def render_mesh(mesh: Any, view: ViewCamera) -> tuple[np.ndarray, np.ndarray]:
     Returns:
         depth: (H, W) camera z of the first hit, inf where no triangle is hit; rgb: (H, W, 3) in [0, 1].
     """
-    import open3d as o3d
+    o3d = open3d()
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
     origins, directions = view.pixel_rays()

@@ -28,11 +28,12 @@ from nerfpipe.export.views import (
     FRUSTUM_LINES,
     FRUSTUM_POINTS,
     ViewCamera,
-    auto_view,
     default_frustum_size,
     frusta_segments,
     frustum_points,
+    subject_view,
 )
+from nerfpipe.export.o3d import open3d
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.pipeline.errors import InputError, NerfpipeError
 
@@ -46,10 +47,9 @@ FRUSTUM_RGB = (255, 100, 0)  # orange: stands out on white, black, grey meshes a
 
 def _open3d() -> Any:
     try:
-        import open3d
+        return open3d()
     except ImportError:
         raise NerfpipeError("showing meshes and point clouds needs Open3D; install it with `pip install open3d`") from None
-    return open3d
 
 
 def frusta_lineset(cameras: Sequence[ViewCamera], size: float) -> o3d.geometry.LineSet:
@@ -98,6 +98,7 @@ def screenshot(
     *,
     frustum_size: float | None = None,
     point_radius: int = 2,
+    frame_cameras: bool = False,
 ) -> np.ndarray:
     """Render a mesh, a point cloud and camera frusta on the CPU, with no display and no GPU.
 
@@ -107,7 +108,8 @@ def screenshot(
 
     Args:
         width, height: the image size of the automatic view; a given ``view`` brings its own size.
-        view: the camera to render from; by default ``auto_view`` of everything given (frusta included).
+        view: the camera to render from; by default ``subject_view`` of the mesh and points (the frusta too
+            with ``frame_cameras``, or when there is nothing else), the frusta drawn where they fall.
         background: RGB in [0, 1].
         frustum_size: depth of the frusta's image plane; by default ``default_frustum_size``.
     Returns:
@@ -120,10 +122,14 @@ def screenshot(
         frustum_size = default_frustum_size(cameras, _bounds(mesh, points, np.zeros((0, 3))))
     segments = frusta_segments(cameras, frustum_size)
     if view is None:
-        bounds = _bounds(mesh, points, segments.reshape(-1, 3))
-        if bounds is None:
+        subject = [np.asarray(mesh.vertices)] if mesh is not None else []
+        subject += [np.asarray(points.points)] if points is not None and points.has_points() else []
+        if frame_cameras or not subject:
+            subject.append(segments.reshape(-1, 3))
+        xyz = np.concatenate([s.reshape(-1, 3) for s in subject])
+        if not len(xyz):
             raise ValueError("nothing to draw: give a mesh, points or cameras, or a view")
-        view = auto_view(bounds[0], bounds[1], cameras, width, height)
+        view = subject_view(xyz, cameras, width, height)
 
     H, W = view.height, view.width
     depth = np.full((H, W), np.inf)
@@ -217,6 +223,7 @@ def show(
     width: int = 800,
     height: int = 600,
     frustum_size: float | None = None,
+    frame_cameras: bool = False,
 ) -> Path | None:
     """Open Open3D's interactive viewer when there is a display (``has_display``); otherwise, or when no
     window opens on it, write ``screenshot(...)`` to ``screenshot_path`` as a PNG.
@@ -249,7 +256,7 @@ def show(
 
     import cv2
 
-    image = screenshot(mesh, points, cameras, width, height, frustum_size=frustum_size)
+    image = screenshot(mesh, points, cameras, width, height, frustum_size=frustum_size, frame_cameras=frame_cameras)
     screenshot_path = Path(screenshot_path)
     screenshot_path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(screenshot_path), np.ascontiguousarray(image[..., ::-1])):

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from nerfpipe.export.mesh import DensityFn, Grid, Mesh, evaluate_density
+from nerfpipe.export.o3d import open3d
 
 
 def occupancy(density: DensityFn, grid: Grid, threshold: float, block: int = 64, device: object = "cpu") -> np.ndarray:
@@ -33,7 +34,7 @@ def solid_surface(solid: np.ndarray, origin: np.ndarray, voxel: float, close: in
     """The closed surface of the occupied grid points ``solid`` (a lattice from ``origin`` with spacing
     ``voxel``), its tunnels up to about ``2 * close`` voxels wide closed and its largest piece kept.
     Triangles face outward. An empty ``solid`` gives an empty mesh."""
-    import open3d as o3d
+    o3d = open3d()
     from scipy import ndimage
 
     pad = close + 3

@@ -20,6 +20,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from nerfpipe.export.mesh import Mesh
+from nerfpipe.export.o3d import open3d
 
 SMALLEST_PIECE = 20  # triangles: smaller pieces are dropped before charting
 # the least share of the photos' blend (of 255) a texel is coloured from: below it, 8-bit rounding of the
@@ -59,7 +60,7 @@ class UnchartableMeshError(Exception):
 
 def bake(mesh: Mesh, photos: Sequence[Photo], faces: int, size: int) -> TexturedMesh:
     """The mesh, simplified to at most ``faces`` triangles, with a ``size`` x ``size`` texture from ``photos``."""
-    import open3d as o3d
+    o3d = open3d()
 
     legacy = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(mesh.vertices),
                                        o3d.utility.Vector3iVector(mesh.triangles))
@@ -137,7 +138,7 @@ def render(mesh: TexturedMesh, K: np.ndarray, c2w: np.ndarray, width: int, heigh
            background: Sequence[float] = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
     """(H, W, 3) float colours in [0, 1] (sRGB, as the texture holds them) and the (H, W) bool mask of pixels
     that hit the mesh, seen by the pinhole camera ``K`` at ``c2w`` (OpenCV axes)."""
-    import open3d as o3d
+    o3d = open3d()
 
     scene = _scene(mesh)
     u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
@@ -154,7 +155,7 @@ def render(mesh: TexturedMesh, K: np.ndarray, c2w: np.ndarray, width: int, heigh
 
 
 def _scene(mesh: TexturedMesh):
-    import open3d as o3d
+    o3d = open3d()
 
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
@@ -173,7 +174,7 @@ def _texture_at(mesh: TexturedMesh, triangle: np.ndarray, barycentric: np.ndarra
 def colours_at(mesh: TexturedMesh, points: np.ndarray) -> np.ndarray:
     """(N, 3) colours in [0, 1]: the texture at the point of ``mesh`` closest to each of ``points`` (N, 3),
     e.g. the vertices of the full mesh the textured one was simplified from."""
-    import open3d as o3d
+    o3d = open3d()
 
     closest = _scene(mesh).compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
     return _texture_at(mesh, closest["primitive_ids"].numpy().astype(np.int64), closest["primitive_uvs"].numpy())

@@ -222,6 +222,33 @@ def framing(target: np.ndarray, radius: float, direction: np.ndarray, up: np.nda
     return ViewCamera((fy, fy, width / 2, height / 2), c2w, width, height)
 
 
+def subject_view(xyz: np.ndarray, cameras: Sequence[ViewCamera] = (), width: int = 800, height: int = 600,
+                 keep: float = 0.99) -> ViewCamera:
+    """``auto_view``'s direction onto the points ``xyz`` (N, 3), then moved so that they fill the picture:
+    centred on their projections' extent and as close as puts every one inside it with a 5% margin. Only
+    the middle ``keep`` of the points along each axis count, so that a few stray ones far off (a mesh's
+    floaters, a lone SfM point) do not shrink the subject to a speck."""
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    xyz = xyz[np.all(np.isfinite(xyz), axis=-1)]
+    if not len(xyz):
+        raise ValueError("nothing to frame")
+    lo, hi = np.quantile(xyz, [(1 - keep) / 2, (1 + keep) / 2], axis=0)
+    xyz = xyz[np.all((xyz >= lo) & (xyz <= hi), axis=-1)]
+    base = auto_view(lo, hi, cameras, width, height)
+    axes = base.c2w[:3, :3]  # columns: right, down, forward (OpenCV)
+    x, y, z = (xyz @ axes).T
+    fx, fy, _, _ = base.intrinsics
+    tan_x, tan_y = (width / 2) / fx / 1.05, (height / 2) / fy / 1.05
+    cx, cy = (x.min() + x.max()) / 2, (y.min() + y.max()) / 2
+    # a point at (x, y, z) in the view's axes lies inside when |x - cx| <= tan_x (z - cz), and so for y
+    cz = float(np.min(np.minimum(z - np.abs(x - cx) / tan_x, z - np.abs(y - cy) / tan_y)))
+    if np.ptp(x) == 0 and np.ptp(y) == 0:  # one point: keep auto_view's distance
+        cz = float(z[0]) - float(np.linalg.norm(base.center - xyz[0]))
+    c2w = base.c2w.copy()
+    c2w[:3, 3] = axes @ np.array([cx, cy, cz])
+    return ViewCamera(base.intrinsics, c2w, width, height)
+
+
 def photo_view(bounds_min: np.ndarray, bounds_max: np.ndarray, camera: ViewCamera, width: int = 800,
                height: int = 600) -> ViewCamera:
     """A camera that frames an axis-aligned box as a capture camera saw it: from that camera's side of the box

@@ -32,6 +32,7 @@ from nerfpipe.export.views import (
     default_frustum_size,
     frustum_points,
     photo_view,
+    subject_view,
 )
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame, Points
 from nerfpipe.pipeline import InputError
@@ -408,7 +409,7 @@ def test_the_view_command_pieces_end_to_end(o3d, monkeypatch, tmp_path):
     points = sparse_points(camera_set)
     assert np.allclose(np.asarray(points.colors)[0], [0.0, 160 / 255, 1.0])
 
-    path = show(points=points, cameras=cameras, screenshot_path=tmp_path / "view_cameras.png")
+    path = show(points=points, cameras=cameras, screenshot_path=tmp_path / "view_cameras.png", frame_cameras=True)
     image = cv2.imread(str(path))[..., ::-1]
     assert image.shape == (600, 800, 3)
     assert np.any(np.all(image == [0, 160, 255], axis=-1))  # the sparse points
@@ -426,3 +427,29 @@ def test_the_view_command_pieces_end_to_end(o3d, monkeypatch, tmp_path):
     with pytest.raises(InputError, match="does not exist"):
         load_points(tmp_path / "nope.ply")
     assert sparse_points(CameraSet(camera_set.cameras, frames)) is None
+
+
+def test_the_subject_fills_the_picture_whatever_the_cameras_and_stray_points():
+    # `nerfpipe view` without a display framed a scene's subject at 35x50 px in 800x600: the cameras far around
+    # it and a few far-off points set the framing. Now the subject's points do, but for the outermost 1 %.
+    rng = np.random.default_rng(0)
+    subject = rng.uniform(-0.2, 0.2, size=(5000, 3)) + [1.0, 2.0, 0.5]
+    strays = rng.uniform(-30.0, 30.0, size=(20, 3))
+    cameras = ring(n=12, radius=8.0, height=3.0)
+    view = subject_view(np.concatenate([subject, strays]), cameras, 800, 600)
+    u, v, z = project(view, subject)
+    assert np.all(z > 0)
+    assert 0 <= u.min() and u.max() <= 800 and 0 <= v.min() and v.max() <= 600  # all of it inside
+    extent = max((u.max() - u.min()) / 800, (v.max() - v.min()) / 600)
+    assert extent > 0.85  # and filling the frame (5 % margins on each side)
+    assert abs((u.max() + u.min()) / 2 - 400) < 40 and abs((v.max() + v.min()) / 2 - 300) < 40
+    # seen from the cameras' side, as auto_view chooses
+    centre = subject.mean(axis=0)
+    assert (view.center - centre) @ (cameras[0].center - centre) > 0
+
+
+def project(view, xyz):
+    """Pixel coordinates and depth of world points in a ViewCamera (OpenCV axes)."""
+    fx, fy, cx, cy = view.intrinsics
+    local = (xyz - view.c2w[:3, 3]) @ view.c2w[:3, :3]
+    return fx * local[:, 0] / local[:, 2] + cx, fy * local[:, 1] / local[:, 2] + cy, local[:, 2]
