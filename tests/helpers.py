@@ -219,3 +219,15 @@ def read_mp4(path: Path) -> list[np.ndarray]:
         frames.append(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
     capture.release()
     return frames
+
+
+def count_progress(calls: list) -> object:
+    """A progress factory that records (total, description) and every advance."""
+    import contextlib
+
+    @contextlib.contextmanager
+    def progress(total: int, description: str):
+        calls.append((total, description))
+        yield lambda n=1, info=None: calls.append(n)
+
+    return progress

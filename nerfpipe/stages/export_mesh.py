@@ -140,11 +140,13 @@ class ExportMeshStage(Stage):
     def run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext) -> ExportMeshSummary:
         from nerfpipe.nerf.device import rendering_device
 
-        with rendering_device(params.device, "export_mesh.device") as device:
-            return self._run(inputs, out, params, ctx, device)
+        # the bar: the surface, cleaned, coloured (textured and scored), written, and the optional meshes
+        steps = 4 + bool(params.watertight) + bool(params.poisson_too)
+        with rendering_device(params.device, "export_mesh.device") as device, ctx.progress(steps, "export mesh") as advance:
+            return self._run(inputs, out, params, ctx, device, advance)
 
     def _run(self, inputs: StageInputs, out: Path, params: ExportMeshParams, ctx: StageContext,
-             device) -> ExportMeshSummary:
+             device, advance) -> ExportMeshSummary:
         import torch
 
         from nerfpipe.export import points as point_clouds
@@ -200,7 +202,9 @@ class ExportMeshStage(Stage):
             mesh = tsdf_fusion(views, (lo, hi), voxel, params.truncation * voxel, params.acc_threshold, far)
         if mesh.faces == 0:
             raise StageError(f"export_mesh: {method} found no surface; " + NO_SURFACE[method] + " or train longer")
+        advance(1, f"{method.replace('_', ' ')}: {mesh.faces:,} triangles")
         mesh, report = clean(mesh, params.min_component, params.target_faces)
+        advance(1, f"cleaned: {mesh.faces:,} triangles")
         textured, scores = None, {}
         if params.texture:
             try:
@@ -218,6 +222,7 @@ class ExportMeshStage(Stage):
             rest = [surface_colors(model, mesh.vertices[probe.stop:], normals[probe.stop:], 2 * voxel)] \
                 if probe.stop < len(mesh.vertices) else []
             mesh.colors = np.concatenate([first, *rest])
+        advance(1, "textured" if textured is not None else "coloured")
         in_sfm = transformed(mesh, bounds.to_sfm)
         to_gltf = gltf_frame(bounds.to_world) @ np.asarray(bounds.to_sfm)  # from the world the mesh is in
         for suffix in FORMATS:
@@ -225,6 +230,7 @@ class ExportMeshStage(Stage):
                 write_textured_glb(out / "mesh.glb", textured, to_gltf, GLB_UNITS)
             else:
                 write_mesh(in_sfm if suffix != ".glb" else transformed(mesh, to_gltf), out / f"mesh{suffix}")
+        advance(1, "written")
         summary: dict[str, Any] = {
             "method": method, "faces": mesh.faces, "vertices": len(mesh.vertices), "voxel": voxel,
             "components": report.components, "components_kept": report.components_kept,
@@ -236,6 +242,7 @@ class ExportMeshStage(Stage):
             ctx.log.info("export_mesh: a watertight remesh of %(faces)d triangles, Euler number %(euler)d, watertight "
                          "%(watertight)s, edge-manifold %(edge_manifold)s -> mesh_watertight.ply, .glb",
                          summary["watertight"])
+            advance(1, "watertight remesh")
         if params.poisson_too and method != "poisson":
             surface = poisson(point_clouds.to_open3d(agreed_points(inputs, bounds)), params.poisson_depth, box=(lo, hi))
             surface, _ = clean(surface, params.min_component, params.target_faces)
@@ -244,6 +251,7 @@ class ExportMeshStage(Stage):
                 write_mesh(surface if suffix != ".glb" else transformed(surface, gltf_frame(bounds.to_world)),
                            out / f"mesh_poisson{suffix}")
             summary["poisson_faces"] = surface.faces
+            advance(1, "Poisson surface")
         summary["seconds"] = round(time.perf_counter() - started, 2)
         ctx.log.info("export_mesh: %d triangles, %d vertices -> mesh.ply, mesh.obj (SfM frame), mesh.glb (+Y up)", mesh.faces,
                      len(mesh.vertices))

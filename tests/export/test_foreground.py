@@ -3,6 +3,7 @@ whose exports after a short training lie on the temple and whose black backdrop 
 
 from __future__ import annotations
 
+import itertools
 import json
 
 import cv2
@@ -16,7 +17,7 @@ from nerfpipe.export.foreground import ForegroundShare, MaskedView, foreground_s
 from nerfpipe.export.mesh import read_mesh
 from nerfpipe.export.points import read_ply
 from nerfpipe.nerf.train.images import ImageLoader
-from tests.helpers import TEMPLE
+from tests.helpers import TEMPLE, count_progress
 
 # a 4x4 image, f = 10, principal point at its centre (2, 2); the camera at the origin looking along +z
 K = np.array([[10.0, 0.0, 2.0], [0.0, 10.0, 2.0], [0.0, 0.0, 1.0]])
@@ -93,8 +94,13 @@ TEMPLE_SHORT = {
 
 @pytest.mark.slow
 def test_temple_exports_hold_the_temple_and_its_backdrop_renders_empty(tmp_path) -> None:
-    pipe = Pipeline(default_stages(), TEMPLE, tmp_path / "temple", "draft", TEMPLE_SHORT)
+    calls: list = []
+    pipe = Pipeline(default_stages(), TEMPLE, tmp_path / "temple", "draft", TEMPLE_SHORT, progress=count_progress(calls))
     pipe.run(until="export_mesh")
+    # export_mesh shows its progress: a bar whose steps all come
+    total = next(c[0] for c in calls if isinstance(c, tuple) and c[1] == "export mesh")
+    bar = calls.index((total, "export mesh"))
+    assert total >= 4 and sum(itertools.takewhile(lambda c: isinstance(c, int), calls[bar + 1:])) == total
     train = pipe.result("train")
     metrics = json.loads((train.path / "metrics.json").read_text())
     assert any(d.startswith("backdrop masks: ") for d in metrics["decisions"])

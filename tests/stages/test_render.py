@@ -32,7 +32,7 @@ from nerfpipe.pipeline.errors import ParamError, StageError
 from nerfpipe.pipeline.params import build_params
 from nerfpipe.pipeline.stage import StageContext, StageInputs
 from nerfpipe.stages.render import RenderParams, RenderStage, render_size
-from tests.helpers import VideoInfo, look_at, read_mp4, video_info
+from tests.helpers import VideoInfo, count_progress, look_at, read_mp4, video_info
 
 COLOUR = np.array([0.8, 0.3, 0.1])
 CAMERA = Camera.pinhole(60.0, 60.0, 32.0, 24.0, 64, 48)
@@ -109,18 +109,6 @@ def write_scene(folder: Path, layout: str, photometric: str = "srgb") -> StageIn
     artifacts = {"model": folder / "train" / "model.pt", "model_json": folder / "train" / "model.json",
                  "cameras": folder / "world", "bounds": folder / "bounds.json", "scene": folder / "scene.json"}
     return StageInputs(artifacts, source=folder)
-
-
-def count_progress(calls: list) -> object:
-    """A progress factory that records (total, description) and every advance."""
-    import contextlib
-
-    @contextlib.contextmanager
-    def progress(total: int, description: str):
-        calls.append((total, description))
-        yield lambda n=1, info=None: calls.append(n)
-
-    return progress
 
 
 def run_render(tmp_path: Path, layout: str, photometric: str = "srgb", allotment: Allotment | None = None,

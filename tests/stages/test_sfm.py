@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import shutil
 from fractions import Fraction
@@ -18,7 +19,7 @@ from nerfpipe.geometry.cameras import CameraSet, invert_pose
 from nerfpipe.poses.colmap.matching import choose_matcher
 from nerfpipe.stages import IngestStage, SfmStage
 from nerfpipe.stages.sfm import SfmParams
-from tests.helpers import TEMPLE, run_cli, shared
+from tests.helpers import TEMPLE, count_progress, run_cli, shared
 from tests.imaging import photos
 
 
@@ -35,9 +36,10 @@ def read_par(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return cameras
 
 
-def sfm_pipeline(capture: Path, run_dir: Path, **sfm) -> Pipeline:
+def sfm_pipeline(capture: Path, run_dir: Path, progress=None, **sfm) -> Pipeline:
     overrides = {"sfm": {"poses": "sfm", **sfm}}
-    return Pipeline([IngestStage(), SfmStage()], capture, run_dir, overrides=overrides)
+    return Pipeline([IngestStage(), SfmStage()], capture, run_dir, overrides=overrides,
+                    **({"progress": progress} if progress else {}))
 
 
 @pytest.mark.slow
@@ -45,8 +47,17 @@ def sfm_pipeline(capture: Path, run_dir: Path, **sfm) -> Pipeline:
 def test_temple_registers_all_16_and_matches_the_calibration(tmp_path, mapper):
     """Acceptance: images only (poses ignored); after a similarity alignment to templeSR_par.txt the median
     rotation error is <= 1 degree and the median position error <= 2 % of the ring's diameter."""
-    outcome = sfm_pipeline(TEMPLE, tmp_path / "run", mapper=mapper).run(until="sfm")[-1]
+    calls: list = []
+    outcome = sfm_pipeline(TEMPLE, tmp_path / "run", count_progress(calls), mapper=mapper).run(until="sfm")[-1]
     assert outcome.summary["method"] == f"colmap {mapper}"
+    # progress: features, matches, and (incremental mapping) each photo as it is registered
+    # (a relaxed retry, when the first mapping left a photo out, gets a bar of its own)
+    bar = calls.index((18, "sfm"))
+    steps = list(itertools.takewhile(lambda c: isinstance(c, int), calls[bar + 1:]))
+    if mapper == "incremental":
+        assert 2 + 10 <= sum(steps) <= 18, calls
+    else:
+        assert sum(steps) == 2, calls
     assert outcome.summary["registered"] == 16 and outcome.summary["total"] == 16
     cameras = CameraSet.load(outcome.path / "model")
     truth = read_par(TEMPLE / "templeSR_par.txt")

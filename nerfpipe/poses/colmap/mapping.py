@@ -43,22 +43,26 @@ def run_sfm(
     mode = pycolmap.CameraMode.SINGLE if single else pycolmap.CameraMode.PER_IMAGE
     ctx.log.info("sfm: extracting SIFT features from %d photos (%s)", len(names),
                  "one shared camera" if single else "one camera per photo")
-    with colmap_log(log_path):
-        pycolmap.extract_features(database, image_dir, names, mode, reader, extraction, device=pycolmap.Device.auto)
-    priors = write_priors(database, records, single)
+    # the bar: features, matches, then one step per photo the mapper registers
+    with ctx.progress(len(names) + 2, "sfm") as advance:
+        with colmap_log(log_path):
+            pycolmap.extract_features(database, image_dir, names, mode, reader, extraction, device=pycolmap.Device.auto)
+        priors = write_priors(database, records, single)
+        advance(1, "features extracted")
 
-    matcher, why = choose_matcher(records, params)
-    ctx.log.info("sfm: %s matching (%s)", matcher, why)
-    with colmap_log(log_path):
-        match_features(database, matcher, params)
-        best = map_images(database, image_dir, colmap_dir / "default", params,
-                    mapper_options(params, relaxed=False))
+        matcher, why = choose_matcher(records, params)
+        ctx.log.info("sfm: %s matching (%s)", matcher, why)
+        with colmap_log(log_path):
+            match_features(database, matcher, params)
+            advance(1, "matched")
+            best = map_images(database, image_dir, colmap_dir / "default", params,
+                              mapper_options(params, relaxed=False), Registered(advance, len(names)))
     relaxed_used = False
     if params.relaxed_retry and registered_count(best) < len(names):
         ctx.log.info("sfm: %d of %d photos registered; retrying mapping with relaxed options", registered_count(best), len(names))
-        with colmap_log(log_path):
+        with colmap_log(log_path), ctx.progress(len(names), "sfm, relaxed") as advance:
             retry = map_images(database, image_dir, colmap_dir / "relaxed", params,
-                         mapper_options(params, relaxed=True))
+                               mapper_options(params, relaxed=True), Registered(advance, len(names)))
         if registered_count(retry) > registered_count(best):
             best, relaxed_used = retry, True
 
@@ -155,13 +159,38 @@ def mapper_options(params: Any, relaxed: bool) -> Any:
     return options
 
 
-def map_images(database: Path, image_dir: Path, output: Path, params: Any, options: Any) -> Any:
-    """Run the mapper; returns the reconstruction with the most registered images (or None)."""
+class Registered:
+    """The incremental mapper's callbacks as steps of a progress bar of ``photos`` steps: two for the initial
+    pair, one for each photo it adds after. COLMAP calls back on every registration, those of a model it later
+    drops and of photos registered again included (35 calls for the temple's 16), so the bar stops at its end."""
+
+    def __init__(self, advance: Any, photos: int) -> None:
+        self.advance, self.left, self.calls = advance, photos, 0
+
+    def _step(self, n: int) -> None:
+        self.calls += n
+        taken = min(n, self.left)
+        self.left -= taken
+        self.advance(taken, f"mapping: {self.calls} registrations")
+
+    def initial_pair(self) -> None:
+        self._step(2)
+
+    def next_image(self) -> None:
+        self._step(1)
+
+
+def map_images(database: Path, image_dir: Path, output: Path, params: Any, options: Any,
+               registered: Registered | None = None) -> Any:
+    """Run the mapper; returns the reconstruction with the most registered images (or None). The incremental
+    mapper tells ``registered`` of each photo it adds (the global one of none)."""
     output.mkdir()
     if params.mapper == "global":
         models = pycolmap.global_mapping(database, image_dir, output, options)
     else:
-        models = pycolmap.incremental_mapping(database, image_dir, output, options)
+        callbacks = {} if registered is None else {"initial_image_pair_callback": registered.initial_pair,
+                                                   "next_image_callback": registered.next_image}
+        models = pycolmap.incremental_mapping(database, image_dir, output, options, **callbacks)
     return max(models.values(), key=lambda m: m.num_reg_images(), default=None)
 
 
