@@ -1,6 +1,12 @@
 """nerfpipe: a folder of photos in, a Neural Radiance Field and its exports out.
 
-Python API::
+Python API: a finished run (``nerfpipe.api``)::
+
+    import nerfpipe
+    run = nerfpipe.open("runs/temple")
+    view = run.render(run.heldout[0], size=320)   # rgb, depth (SfM units), opacity as arrays
+
+and the pipeline itself::
 
     from nerfpipe import Pipeline, default_stages
     pipe = Pipeline(default_stages(), "photos/", "runs/photos", overrides={"ingest": {"max_size": 800}})
@@ -17,9 +23,10 @@ import importlib
 from typing import Any
 
 __version__ = "0.1.0"
-__all__ = ["NerfpipeError", "Pipeline", "default_stages", "__version__"]
+__all__ = ["NerfpipeError", "Pipeline", "Run", "default_stages", "open", "__version__"]
 
-_LAZY = {"NerfpipeError": "nerfpipe.pipeline", "Pipeline": "nerfpipe.pipeline", "default_stages": "nerfpipe.stages"}
+_LAZY = {"NerfpipeError": "nerfpipe.pipeline", "Pipeline": "nerfpipe.pipeline", "default_stages": "nerfpipe.stages",
+         "open": "nerfpipe.api", "Run": "nerfpipe.api"}
 
 
 def __getattr__(name: str) -> Any:

@@ -1,15 +1,20 @@
 """``RUN_DIR/exports/``: what a user takes away from a run, in one place with stable names, rather than in
-the stages' hashed result folders.
+the stages' hashed result folders, written as the tools that read them expect.
 
-- ``mesh.glb``, ``mesh.ply``, ``mesh.obj``: the export_mesh stage's mesh (and ``mesh_watertight.*``,
+- ``mesh.glb`` (textured, with normals), ``mesh.ply``, ``mesh.obj`` (with ``mesh.mtl`` and
+  ``mesh_texture.png`` where the mesh is textured): the export_mesh stage's mesh (and ``mesh_watertight.*``,
   ``mesh_poisson.*`` where it made them);
-- ``points.ply``: the export_points stage's point cloud;
-- ``render.mp4``, ``depth.mp4``: the render stage's videos;
-- ``depth/``: the export_depth stage's depth maps (``.npy``, 16-bit PNG, previews);
-- ``transforms.json`` and ``images/``: the cameras the field was trained with (refined where pose refinement
-  ran), in nerfstudio's and instant-ngp's conventions, with the photos they were trained on;
-- ``colmap/``: the same cameras as a COLMAP text model (``cameras.txt``, ``images.txt``, an empty
-  ``points3D.txt``).
+- ``points.ply``: the export_points stage's point cloud; ``sparse_pc.ply``: the SfM points;
+- ``render.mp4``, ``depth.mp4``, ``camera_path.json`` and ``camera_path.nerfstudio.json``: the render stage's
+  videos and the path they follow (ours, and nerfstudio's schema);
+- ``depth/``: the export_depth stage's depth maps, in the SfM frame's units (``depth/index.json`` lists the
+  views with their cameras in that frame);
+- ``transforms.json`` with ``images/`` (and ``masks/`` where the scene has a backdrop or alpha): the cameras
+  the field was trained with (refined where pose refinement ran), in nerfstudio's and instant-ngp's
+  conventions, with nerfstudio's optional fields: ``ply_file_path``, ``train_filenames``/``val_filenames``,
+  ``mask_path`` and ``depth_file_path`` per frame;
+- ``sparse/0/``: the same cameras and the SfM points as a COLMAP model (binary and text), written by pycolmap:
+  what 3D Gaussian splatting trainers start from.
 
 Everything is in the SfM frame, as the stages write it (the GLB alone is +Y up). The files are copies of the
 results, never links: editing or deleting one cannot reach the cache. ``collect`` writes the folder anew, so it
@@ -30,7 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from nerfpipe.geometry.cameras import OPENGL_TO_OPENCV, CameraSet
+from nerfpipe.export.depth import DepthIndex, depth_in_frame
+from nerfpipe.geometry.cameras import OPENGL_TO_OPENCV, CameraSet, Points
 from nerfpipe.pipeline.errors import InputError
 from nerfpipe.pipeline.hashing import sha256_file
 from nerfpipe.pipeline.store import RUN_MARKER, is_run_dir, require_run_dir, write_json_atomic
@@ -38,7 +44,10 @@ from nerfpipe.pipeline.store import RUN_MARKER, is_run_dir, require_run_dir, wri
 EXPORTS = "exports"
 # (artifact, name in exports/): the files and folders ``collect`` takes from the stages' results
 FILES = (("mesh_glb", "mesh.glb"), ("mesh", "mesh.ply"), ("mesh_obj", "mesh.obj"), ("points", "points.ply"),
-         ("video", "render.mp4"), ("depth_video", "depth.mp4"), ("depth", "depth"))
+         ("video", "render.mp4"), ("depth_video", "depth.mp4"), ("depth", "depth"), ("camera_path", "camera_path.json"),
+         ("camera_path_nerfstudio", "camera_path.nerfstudio.json"))
+CAMERA_FILES = ("transforms.json", "images", "sparse")  # written whenever the trained cameras are known
+SPARSE_PLY = "sparse_pc.ply"  # nerfstudio's name for the SfM points beside transforms.json
 
 
 @dataclass(frozen=True)
@@ -50,12 +59,32 @@ class Exported:
     missing: tuple[str, ...]
 
 
-def transforms_json(cameras: CameraSet, image_paths: dict[str, str]) -> dict[str, Any]:
+@dataclass(frozen=True)
+class CapturedViews:
+    """What the camera exports are made of, in the SfM frame: the trained ``cameras``, each frame's photo
+    (``images``: name -> file), the SfM ``points`` (or None), each frame's mask (``masks``: name -> (H, W)
+    bool, True where the subject is; None without masks), the held-out frames' names, and the depth maps'
+    index (in the normalized world: its ``to_sfm`` maps it into the SfM frame)."""
+
+    cameras: CameraSet
+    images: dict[str, Path]
+    points: Points | None = None
+    masks: dict[str, np.ndarray] | None = None
+    heldout: tuple[str, ...] = ()
+    depth: DepthIndex | None = None
+
+
+def transforms_json(cameras: CameraSet, image_paths: dict[str, str], **optional: Any) -> dict[str, Any]:
     """nerfstudio's / instant-ngp's ``transforms.json`` for ``cameras`` (pinhole, OpenCV c2w in any frame):
     ``transform_matrix`` is the OpenGL camera-to-world (x right, y up, z back), ``fl_x``, ``fl_y``, ``cx``,
     ``cy``, ``w``, ``h`` and zero distortion (the images are undistorted) at the top when every frame shares
-    one camera, per frame otherwise. ``image_paths``: frame name -> its ``file_path``."""
+    one camera, per frame otherwise. ``image_paths``: frame name -> its ``file_path``.
+
+    ``optional``, nerfstudio's optional fields where there are any: ``ply_file_path`` (str),
+    ``train_filenames`` and ``val_filenames`` (lists of file paths), ``mask_path`` and ``depth_file_path``
+    (frame name -> path), ``depth_unit_scale_factor`` (depth = PNG value x it, in the frame's units)."""
     shared = len({f.camera_id for f in cameras.frames}) == 1
+    per_frame = {key: optional.pop(key) or {} for key in ("mask_path", "depth_file_path") if key in optional}
 
     def intrinsics(camera_id: int) -> dict[str, Any]:
         camera = cameras.cameras[camera_id]
@@ -70,51 +99,78 @@ def transforms_json(cameras: CameraSet, image_paths: dict[str, str]) -> dict[str
                                  "transform_matrix": (np.asarray(frame.c2w) @ OPENGL_TO_OPENCV).tolist()}
         if not shared:
             entry.update(intrinsics(frame.camera_id))
+        entry.update({key: paths[frame.name] for key, paths in per_frame.items() if frame.name in paths})
         frames.append(entry)
     doc: dict[str, Any] = intrinsics(cameras.frames[0].camera_id) if shared and cameras.frames else {}
+    doc.update({key: value for key, value in optional.items() if value})
     doc["frames"] = frames
     return doc
 
 
-def colmap_text(cameras: CameraSet, folder: Path) -> None:
-    """``cameras`` (pinhole, OpenCV c2w) as a COLMAP text model in ``folder``: ``cameras.txt`` (PINHOLE),
-    ``images.txt`` (world-to-camera as quaternion and translation, no 2D points) and an empty
-    ``points3D.txt``, in COLMAP's documented format, as pycolmap and COLMAP read it."""
+def colmap_model(cameras: CameraSet, points: Points | None, folder: Path) -> None:
+    """``cameras`` (pinhole, OpenCV c2w) and ``points`` as a COLMAP model in ``folder``, written by pycolmap in
+    COLMAP's binary and text formats: PINHOLE cameras, each image's world-to-camera pose, and the points with
+    their colours (without tracks: the 2D observations are not kept)."""
+    import pycolmap
+
     from nerfpipe.geometry.cameras import invert_pose
 
-    folder.mkdir(parents=True, exist_ok=True)
-    lines = ["# Camera list with one line of data per camera:", "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
-             f"# Number of cameras: {len(cameras.cameras)}"]
+    model = pycolmap.Reconstruction()
     for camera_id, camera in sorted(cameras.cameras.items()):
-        lines.append(f"{camera_id} PINHOLE {camera.width} {camera.height} "
-                     f"{camera.fx!r} {camera.fy!r} {camera.cx!r} {camera.cy!r}")
-    (folder / "cameras.txt").write_text("\n".join(lines) + "\n")
-    lines = ["# Image list with two lines of data per image:",
-             "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME", "#   POINTS2D[] as (X, Y, POINT3D_ID)",
-             f"# Number of images: {len(cameras.frames)}, mean observations per image: 0"]
+        model.add_camera_with_trivial_rig(pycolmap.Camera(
+            camera_id=camera_id, model="PINHOLE", width=camera.width, height=camera.height,
+            params=[camera.fx, camera.fy, camera.cx, camera.cy]))
     for image_id, frame in enumerate(cameras.frames, start=1):
         w2c = invert_pose(np.asarray(frame.c2w))
-        qw, qx, qy, qz = quaternion(w2c[:3, :3])
-        tx, ty, tz = (float(v) for v in w2c[:3, 3])
-        lines += [f"{image_id} {qw!r} {qx!r} {qy!r} {qz!r} {tx!r} {ty!r} {tz!r} {frame.camera_id} {frame.name}", ""]
-    (folder / "images.txt").write_text("\n".join(lines) + "\n")
-    (folder / "points3D.txt").write_text("# 3D point list (none: the cameras only)\n")
+        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3])
+        model.add_image_with_trivial_frame(pycolmap.Image(name=frame.name, camera_id=frame.camera_id,
+                                                          image_id=image_id), pose)
+    if points is not None:
+        for xyz, rgb in zip(np.asarray(points.xyz, dtype=np.float64), np.asarray(points.rgb, dtype=np.uint8)):
+            model.add_point3D(xyz, pycolmap.Track(), rgb)
+    folder.mkdir(parents=True, exist_ok=True)
+    model.write_binary(str(folder))
+    model.write_text(str(folder))
 
 
-def quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
-    """(w, x, y, z) of a rotation matrix, w >= 0, as COLMAP writes them (scipy's, reordered)."""
-    from scipy.spatial.transform import Rotation
+def _camera_exports(views: CapturedViews, staging: Path, has_depth: bool) -> None:
+    """transforms.json with images/, masks/ and sparse_pc.ply where there are any, and sparse/0/."""
+    import cv2
 
-    x, y, z, w = Rotation.from_matrix(rotation).as_quat()
-    sign = 1.0 if w >= 0 else -1.0
-    return float(sign * w), float(sign * x), float(sign * y), float(sign * z)
+    from nerfpipe.export.points import Cloud, write_ply
+
+    paths, masks = {}, {}
+    for frame in views.cameras.frames:
+        _copy(views.images[frame.name], staging / "images" / frame.name)
+        paths[frame.name] = f"images/{frame.name}"
+        mask = (views.masks or {}).get(frame.name)
+        if mask is not None:  # nerfstudio's masks: 0 where the pixel is ignored
+            masks[frame.name] = f"masks/{Path(frame.name).stem}.png"
+            (staging / "masks").mkdir(exist_ok=True)
+            cv2.imwrite(str(staging / masks[frame.name]), np.where(mask, 255, 0).astype(np.uint8))
+    ply = None
+    if views.points is not None and len(views.points.xyz):
+        write_ply(staging / SPARSE_PLY, Cloud(views.points.xyz, views.points.rgb / 255.0))
+        ply = SPARSE_PLY
+    depth_paths, depth_scale = {}, None
+    if has_depth and views.depth is not None:
+        depth_paths = {v.name: f"depth/{v.stem}.depth.png" for v in views.depth.views}
+        depth_scale = depth_in_frame(staging / "depth", views.depth)
+    heldout = set(views.heldout)
+    names = [f.name for f in views.cameras.frames]
+    doc = transforms_json(views.cameras, paths, ply_file_path=ply,
+                          train_filenames=[paths[n] for n in names if n not in heldout],
+                          val_filenames=[paths[n] for n in names if n in heldout],
+                          mask_path=masks, depth_file_path=depth_paths, depth_unit_scale_factor=depth_scale)
+    write_json_atomic(staging / "transforms.json", doc)
+    colmap_model(views.cameras, views.points, staging / "sparse" / "0")
 
 
-def collect(run_dir: Path, artifacts: dict[str, Path | None], cameras: CameraSet | None,
-            images: dict[str, Path], extra: tuple[Path, ...] = ()) -> Exported:
-    """Write ``run_dir/exports`` anew from ``artifacts`` (name -> path, None where its stage made nothing)
-    and the trained ``cameras`` in the SfM frame with each frame's photo (``images``: name -> file); the
-    ``extra`` files (optional outputs such as the watertight mesh) under their own names."""
+def collect(run_dir: Path, artifacts: dict[str, Path | None], views: CapturedViews | None,
+            extra: tuple[Path, ...] = ()) -> Exported:
+    """Write ``run_dir/exports`` anew from ``artifacts`` (name -> path, None where its stage made nothing), the
+    camera exports of ``views`` (None before the cameras are known), and the ``extra`` files (optional outputs
+    such as the watertight mesh) under their own names."""
     require_run_dir(run_dir, "exports/")
     folder = run_dir / EXPORTS
     staging = run_dir / f".{EXPORTS}.new"
@@ -131,16 +187,11 @@ def collect(run_dir: Path, artifacts: dict[str, Path | None], cameras: CameraSet
     for source in extra:
         _copy(source, staging / source.name)
         names.append(source.name)
-    if cameras is not None and cameras.frames:
-        paths = {}
-        for frame in cameras.frames:
-            _copy(images[frame.name], staging / "images" / frame.name)
-            paths[frame.name] = f"images/{frame.name}"
-        write_json_atomic(staging / "transforms.json", transforms_json(cameras, paths))
-        colmap_text(cameras, staging / "colmap")
-        names += ["transforms.json", "images", "colmap"]
+    if views is not None and views.cameras.frames:
+        _camera_exports(views, staging, "depth" in names)
+        names += [*CAMERA_FILES, *(n for n in ("masks", SPARSE_PLY) if (staging / n).exists())]
     else:
-        missing += ["transforms.json", "images", "colmap"]
+        missing += CAMERA_FILES
     old = run_dir / f".{EXPORTS}.old"
     shutil.rmtree(old, ignore_errors=True)
     if folder.exists():

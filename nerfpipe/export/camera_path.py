@@ -8,7 +8,11 @@ positions and fields of view follow a cubic spline over the keyframes' indices, 
 camera-path editor moves. ``loop`` closes the path back to its first keyframe.
 
 The render stage's own ``camera_path.json`` (``frames`` with a ``c2w`` each) loads too, each frame a
-keyframe, so a rendered path renders again exactly.
+keyframe, so a rendered path renders again exactly; and so does nerfstudio's (``camera_path`` with a
+``camera_to_world`` and ``fov`` each, as its viewer records and ``ns-render camera-path`` reads), taken in the
+SfM frame of the run's exported ``transforms.json``: the render stage writes its path in that schema too
+(``camera_path.nerfstudio.json``, ``nerfstudio_path``). A path recorded in nerfstudio's viewer on a model
+trained from that ``transforms.json`` is in nerfstudio's own world (its ``dataparser_transforms.json``).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from nerfpipe.pipeline.errors import InputError
 from nerfpipe.poses.photos import checked_position, checked_rotation
 
 FORMAT = "nerfpipe camera path"
+NERFSTUDIO_FRAME = "the SfM frame of the run's exports/transforms.json; camera_to_world: OpenGL axes, row-major"
 MAX_FRAMES = 100_000
 FIX_ADVICE = "record it again in `nerfpipe view RUN --web` (Camera path), or fix the file"
 
@@ -43,6 +48,7 @@ class CameraPath:
     frames: int = 120
     fps: float = 24.0
     loop: bool = False
+    frame: str = "world"  # where the keyframes' c2w are: the run's normalized "world", or the "sfm" frame
 
     def __post_init__(self) -> None:
         if not self.keyframes:
@@ -78,7 +84,14 @@ class CameraPath:
             raise InputError(path, f"is not valid JSON ({err})", FIX_ADVICE) from None
         if not isinstance(doc, dict):
             raise InputError(path, "is not a camera path (a JSON object with keyframes)", FIX_ADVICE)
-        if isinstance(doc.get("keyframes"), list):
+        if isinstance(doc.get("camera_path"), list):  # nerfstudio's: every entry a frame, in the SfM frame
+            keyframes = [_keyframe(_from_nerfstudio(c, path, i), path, f"camera_path[{i}]", None)
+                         for i, c in enumerate(doc["camera_path"])]
+            seconds = doc.get("seconds")
+            fps = doc.get("fps") or (len(keyframes) / seconds if isinstance(seconds, (int, float)) and seconds else 24.0)
+            frames = len(keyframes)
+            return _checked(path, keyframes, frames, fps, False, "sfm")
+        elif isinstance(doc.get("keyframes"), list):
             keyframes = [_keyframe(k, path, f"keyframe {i}", None) for i, k in enumerate(doc["keyframes"])]
             frames, fps, loop = doc.get("frames", 120), doc.get("fps", 24.0), doc.get("loop", False)
         elif isinstance(doc.get("frames"), list) and isinstance(doc.get("camera"), dict):  # a render's own path
@@ -88,13 +101,7 @@ class CameraPath:
             frames, fps, loop = len(keyframes), doc.get("fps", 24.0), False
         else:
             raise InputError(path, "has no keyframes list", FIX_ADVICE)
-        if not keyframes:
-            raise InputError(path, "has no keyframes", "add at least one keyframe (Add keyframe, in the viewer)")
-        if not (isinstance(frames, int) and not isinstance(frames, bool) and 1 <= frames <= MAX_FRAMES):
-            raise InputError(path, f"frames is {frames!r}, not a whole number from 1 to {MAX_FRAMES}", FIX_ADVICE)
-        if not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and math.isfinite(fps) and fps > 0):
-            raise InputError(path, f"fps is {fps!r}, not a positive number", FIX_ADVICE)
-        return CameraPath(tuple(keyframes), frames, float(fps), bool(loop))
+        return _checked(path, keyframes, frames, fps, loop, "world")
 
     def sample(self) -> tuple[np.ndarray, np.ndarray]:
         """(``frames``, 4, 4) camera-to-world poses along the path and their (``frames``,) vertical fields of
@@ -119,6 +126,48 @@ class CameraPath:
         poses[:, :3, 3] = centres
         low, high = min(k.fov for k in keys), max(k.fov for k in keys)
         return poses, np.clip(fovs, low, high)  # a spline may overshoot; a field of view stays within the keys'
+
+
+def nerfstudio_path(poses_sfm: np.ndarray, fovs: np.ndarray, width: int, height: int, fps: float) -> dict[str, Any]:
+    """A rendered path in nerfstudio's camera-path schema (what ``ns-render camera-path`` reads): each frame's
+    ``camera_to_world`` (OpenGL axes, row-major, in the SfM frame of the run's ``transforms.json``), vertical
+    ``fov`` in degrees and ``aspect``; the render size, ``fps`` and ``seconds``. ``poses_sfm``: (N, 4, 4)
+    OpenCV camera-to-world."""
+    from nerfpipe.geometry.cameras import OPENGL_TO_OPENCV
+
+    return {
+        "camera_type": "perspective", "render_height": int(height), "render_width": int(width),
+        "fps": float(fps), "seconds": len(poses_sfm) / float(fps), "smoothness_value": 0.0, "is_cycle": False,
+        "crop": None, "keyframes": [], "nerfpipe_frame": NERFSTUDIO_FRAME,
+        "camera_path": [{"camera_to_world": (np.asarray(pose) @ OPENGL_TO_OPENCV).reshape(-1).tolist(),
+                         "fov": float(fov), "aspect": width / height} for pose, fov in zip(poses_sfm, fovs)],
+    }
+
+
+def _from_nerfstudio(entry: Any, path: Path, i: int) -> dict[str, Any]:
+    """A nerfstudio camera-path entry as a keyframe's c2w (OpenCV axes) and fov."""
+    from nerfpipe.geometry.cameras import OPENGL_TO_OPENCV
+
+    if not isinstance(entry, dict):
+        raise InputError(path, f"camera_path[{i}] is not an object with camera_to_world and fov", FIX_ADVICE)
+    try:
+        gl = np.array(entry.get("camera_to_world"), dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(path, f"camera_path[{i}]: camera_to_world is not 16 numbers", FIX_ADVICE) from None
+    if gl.size not in (12, 16):
+        raise InputError(path, f"camera_path[{i}]: camera_to_world is not 16 numbers (a 4x4 matrix)", FIX_ADVICE)
+    gl = np.vstack([gl.reshape(-1, 4)[:3], [0.0, 0.0, 0.0, 1.0]])
+    return {"c2w": gl @ OPENGL_TO_OPENCV, "fov": entry.get("fov")}
+
+
+def _checked(path: Path, keyframes: list[Keyframe], frames: Any, fps: Any, loop: Any, frame: str) -> CameraPath:
+    if not keyframes:
+        raise InputError(path, "has no keyframes", "add at least one keyframe (Add keyframe, in the viewer)")
+    if not (isinstance(frames, int) and not isinstance(frames, bool) and 1 <= frames <= MAX_FRAMES):
+        raise InputError(path, f"frames is {frames!r}, not a whole number from 1 to {MAX_FRAMES}", FIX_ADVICE)
+    if not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and math.isfinite(fps) and fps > 0):
+        raise InputError(path, f"fps is {fps!r}, not a positive number", FIX_ADVICE)
+    return CameraPath(tuple(keyframes), frames, float(fps), bool(loop), frame)
 
 
 def _keyframe(entry: Any, path: Path, where: str, fov: float | None) -> Keyframe:

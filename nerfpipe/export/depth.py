@@ -131,4 +131,34 @@ def read_view(folder: Path, view: DepthView) -> dict[str, np.ndarray]:
     return out
 
 
+def depth_in_frame(folder: Path, index: DepthIndex) -> float:
+    """Turn a copy of the depth maps in ``folder`` (from the normalized world ``index`` describes) into the SfM
+    frame, where every other export is: ``.depth.npy`` times the similarity's scale s, ``.disparity.npy``
+    divided by it, each ``.depth.json`` sidecar's PNG scale divided by it (the PNGs' values stay), and
+    ``index.json``: the views with their cameras, near and far in that frame. Returns what a PNG value
+    multiplies to give depth in SfM units (nerfstudio's ``depth_unit_scale_factor``)."""
+    from nerfpipe.geometry.normalize import Similarity
+    from nerfpipe.pipeline.store import write_json_atomic
+
+    move = Similarity.from_matrix(np.asarray(index.to_sfm))
+    s = move.scale
+    units = "the SfM frame's (the exported cameras' and transforms.json's)"
+    for view in index.views:
+        stem = folder / view.stem
+        for name, power in (("depth", 1.0), ("disparity", -1.0)):
+            path = Path(f"{stem}.{name}.npy")
+            if path.is_file():
+                np.save(path, (np.load(path) * s ** power).astype(np.float32))
+        sidecar = Path(f"{stem}.depth.json")
+        if sidecar.is_file():
+            doc = json.loads(sidecar.read_text(encoding="utf-8"))
+            doc.update({"scale": doc["scale"] / s, "units": units, "to_sfm": np.eye(4).tolist()})
+            write_json_atomic(sidecar, doc)
+    views = [DepthView(v.name, v.stem, v.role, v.width, v.height, v.intrinsics,
+                       tuple(map(tuple, move.apply_c2w(np.asarray(v.c2w)).tolist())), v.near * s, v.far * s)
+             for v in index.views]
+    DepthIndex(views, index.png_scale / s, np.eye(4).tolist(), index.acc_threshold, units).save(folder / "index.json")
+    return s / index.png_scale
+
+
 DEPTH_INDEX = ArtifactRef("depth_index", DepthIndex.load)  # export_depth's depth.json, typed

@@ -117,14 +117,17 @@ def merge_vertices(mesh: Mesh, tolerance: float) -> Mesh:
 
 
 def vertex_normals(mesh: Mesh) -> np.ndarray:
-    """Area-weighted vertex normals (V, 3), unit length (0 for isolated vertices)."""
-    v, f = mesh.vertices, mesh.triangles
-    face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    normals = np.zeros_like(v)
-    for corner in range(3):
-        np.add.at(normals, f[:, corner], face_n)
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    return np.where(length > 0, normals / np.maximum(length, 1e-30), 0.0)
+    """Vertex normals (V, 3), unit length, trimesh's: the mean of the normals of a vertex's triangles,
+    weighted by their angles at it (0 for an isolated vertex)."""
+    import trimesh
+
+    if not len(mesh.triangles):
+        return np.zeros_like(mesh.vertices, dtype=np.float64)
+    solid = trimesh.Trimesh(mesh.vertices, mesh.triangles, process=False)
+    normals = np.asarray(solid.vertex_normals, dtype=np.float64)
+    used = np.zeros(len(mesh.vertices), dtype=bool)
+    used[np.asarray(mesh.triangles).reshape(-1)] = True
+    return np.where(used[:, None], normals, 0.0)
 
 
 def to_open3d(mesh: Mesh) -> Any:

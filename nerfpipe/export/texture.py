@@ -194,26 +194,57 @@ def sample(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return colours.reshape(-1, 3)[:count].astype(np.float64) / 255.0
 
 
+def _textured_trimesh(mesh: TexturedMesh, similarity: np.ndarray, material: Any) -> Any:
+    """A trimesh of ``mesh`` under the 4x4 similarity, with ``material``, its texture coordinates, and vertex
+    normals: the welded mesh's (trimesh's, weighted by the corners' angles), so that the seams of the atlas,
+    where a vertex is one per chart, shade smooth."""
+    import trimesh
+
+    from nerfpipe.export.mesh import Mesh, vertex_normals
+    from nerfpipe.geometry.normalize import Similarity
+
+    # glTF and OBJ's per-vertex texture coordinates: a vertex at a seam of the atlas is one per chart
+    corners = np.concatenate([mesh.triangles.reshape(-1, 1).astype(np.float64), mesh.uvs.reshape(-1, 2)], axis=1)
+    unique, inverse = np.unique(corners, axis=0, return_inverse=True)
+    welded = unique[:, 0].astype(np.int64)
+    move = Similarity.from_matrix(np.asarray(similarity))
+    normals = vertex_normals(Mesh(mesh.vertices, mesh.triangles))[welded] @ move.rotation.T
+    return trimesh.Trimesh(move.apply_points(mesh.vertices[welded]), inverse.reshape(-1, 3), vertex_normals=normals,
+                           visual=trimesh.visual.TextureVisuals(uv=unique[:, 1:], material=material), process=False)
+
+
 def write_textured_glb(path: Path, mesh: TexturedMesh, to_gltf: np.ndarray, units: str) -> None:
     """The textured mesh as a GLB: the texture as its PBR material's ``baseColorTexture`` (sRGB, as glTF
-    defines it), metallic 0, roughness ``GLB_ROUGHNESS``, under the 4x4 similarity ``to_gltf``."""
+    defines it), metallic 0, roughness ``GLB_ROUGHNESS``, with ``NORMAL``s, under the 4x4 similarity
+    ``to_gltf``."""
     import trimesh
     from PIL import Image
 
     from nerfpipe.export.mesh import GLB_ROUGHNESS
-    from nerfpipe.geometry.normalize import Similarity
 
-    # glTF keeps texture coordinates per vertex: a vertex at a seam of the atlas is one per chart
-    corners = np.concatenate([mesh.triangles.reshape(-1, 1).astype(np.float64), mesh.uvs.reshape(-1, 2)], axis=1)
-    unique, inverse = np.unique(corners, axis=0, return_inverse=True)
-    positions = Similarity.from_matrix(np.asarray(to_gltf)).apply_points(mesh.vertices[unique[:, 0].astype(np.int64)])
-    uv = unique[:, 1:]
     material = trimesh.visual.material.PBRMaterial(name="nerfpipe", baseColorTexture=Image.fromarray(mesh.texture),
                                                    metallicFactor=0.0, roughnessFactor=GLB_ROUGHNESS, doubleSided=True)
-    solid = trimesh.Trimesh(positions, inverse.reshape(-1, 3),
-                            visual=trimesh.visual.TextureVisuals(uv=uv, material=material), process=False)
+    solid = _textured_trimesh(mesh, to_gltf, material)
     solid.metadata.update({"units": units, "up": "+y", "generator": "nerfpipe"})
-    solid.export(path, file_type="glb")
+    solid.export(path, file_type="glb", include_normals=True)
+
+
+OBJ_TEXTURE = "mesh_texture"  # the OBJ's material, and its texture's file name (``mesh_texture.png``)
+
+
+def write_textured_obj(path: Path, mesh: TexturedMesh, similarity: np.ndarray) -> list[Path]:
+    """The textured mesh as Wavefront OBJ under the 4x4 similarity: ``path`` (positions, texture coordinates,
+    normals), its material library beside it (``path`` with ``.mtl``: a white diffuse colour, so the texture
+    shows as baked, no specular) and the texture ``mesh_texture.png``. Returns the files written."""
+    import trimesh
+    from PIL import Image
+
+    material = trimesh.visual.material.SimpleMaterial(image=Image.fromarray(mesh.texture), name=OBJ_TEXTURE,
+                                                      diffuse=[255, 255, 255, 255], ambient=[255, 255, 255, 255],
+                                                      specular=[0, 0, 0, 255], glossiness=1.0)
+    mtl = path.with_suffix(".mtl")
+    _textured_trimesh(mesh, similarity, material).export(path, file_type="obj", mtl_name=mtl.name, include_normals=True)
+    return [path, mtl, path.parent / f"{OBJ_TEXTURE}.png"]
 
 
 def spread(names: list[str], count: int) -> list[str]:

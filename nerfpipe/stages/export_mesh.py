@@ -120,7 +120,7 @@ class ExportMeshStage(Stage):
     the SfM frame."""
 
     name = "export_mesh"
-    version = 4  # 4: a scene by Poisson, the blend of the photos corrected for those missing a texel; 3: a texture from the photos, scored on the held-out views; 2: the GLB +Y up, PBR, linear colours
+    version = 5  # 5: the OBJ textured (mesh.mtl, mesh_texture.png), the GLB with normals; 4: a scene by Poisson, the blend of the photos corrected for those missing a texel; 3: a texture from the photos, scored on the held-out views; 2: the GLB +Y up, PBR, linear colours
     Params = ExportMeshParams
     Summary = ExportMeshSummary
     presets = {
@@ -164,7 +164,7 @@ class ExportMeshStage(Stage):
             vertex_normals,
             write_mesh,
         )
-        from nerfpipe.export.texture import UnchartableMeshError, colours_at, write_textured_glb
+        from nerfpipe.export.texture import UnchartableMeshError, colours_at, write_textured_glb, write_textured_obj
         from nerfpipe.nerf.model import RadianceModel
 
         started = time.perf_counter()
@@ -228,6 +228,8 @@ class ExportMeshStage(Stage):
         for suffix in FORMATS:
             if suffix == ".glb" and textured is not None:
                 write_textured_glb(out / "mesh.glb", textured, to_gltf, GLB_UNITS)
+            elif suffix == ".obj" and textured is not None:  # with mesh.mtl and mesh_texture.png
+                write_textured_obj(out / "mesh.obj", textured, np.asarray(bounds.to_sfm))
             else:
                 write_mesh(in_sfm if suffix != ".glb" else transformed(mesh, to_gltf), out / f"mesh{suffix}")
         advance(1, "written")
@@ -253,8 +255,8 @@ class ExportMeshStage(Stage):
             summary["poisson_faces"] = surface.faces
             advance(1, "Poisson surface")
         summary["seconds"] = round(time.perf_counter() - started, 2)
-        ctx.log.info("export_mesh: %d triangles, %d vertices -> mesh.ply, mesh.obj (SfM frame), mesh.glb (+Y up)", mesh.faces,
-                     len(mesh.vertices))
+        ctx.log.info("export_mesh: %d triangles, %d vertices -> mesh.ply, mesh.obj%s (SfM frame), mesh.glb (+Y up)",
+                     mesh.faces, len(mesh.vertices), " with mesh.mtl and mesh_texture.png" if textured is not None else "")
         return ExportMeshSummary(**summary)
 
 

@@ -147,7 +147,7 @@ class RenderStage(Stage):
     """Render novel views along a spiral (forward-facing) or an orbit (360°): PNG frames, MP4s, the path."""
 
     name = "render"
-    version = 7  # 7: sweeps framed on the largest gap; 6: orbits from 300 deg of azimuth (270 before); 5: keyframe paths
+    version = 8  # 8: camera_path.nerfstudio.json too; 7: sweeps framed on the largest gap; 6: orbits from 300 deg of azimuth (270 before); 5: keyframe paths
     Params = RenderParams
     Summary = RenderSummary
     presets = {
@@ -158,7 +158,8 @@ class RenderStage(Stage):
         "paper": FULL,
     }
     requires = ("model", "model_json", "cameras", "bounds", "scene")
-    provides = {"video": "render.mp4", "depth_video": "depth.mp4", "frames": "frames", "camera_path": "camera_path.json"}
+    provides = {"video": "render.mp4", "depth_video": "depth.mp4", "frames": "frames", "camera_path": "camera_path.json",
+                "camera_path_nerfstudio": "camera_path.nerfstudio.json"}
     libraries = ("torch", "numpy", "av", "matplotlib")
     accelerated = True
     budget_share = 0.10
@@ -175,8 +176,9 @@ class RenderStage(Stage):
             return self._run(inputs, out, params, ctx, device)
 
     def _run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext, device) -> RenderSummary:
-        from nerfpipe.export.camera_path import CameraPath, view_range
-        from nerfpipe.export.paths import path_for_scene
+        from nerfpipe.export.camera_path import CameraPath, fov_of, nerfstudio_path, view_range
+        from nerfpipe.export.paths import path_for_scene, transform_poses
+        from nerfpipe.geometry.normalize import Similarity
         from nerfpipe.export.video import write_mp4
         from nerfpipe.nerf.model import RadianceModel
         from nerfpipe.nerf.throughput import seconds_per_view
@@ -203,6 +205,8 @@ class RenderStage(Stage):
         else:
             keyed = CameraPath.load(Path(params.path))
             poses, fovs = keyed.sample()
+            if keyed.frame == "sfm":  # nerfstudio's schema: in the SfM frame of the exported transforms.json
+                poses = transform_poses(poses, Similarity.from_matrix(np.asarray(bounds.to_sfm)).inverse().matrix())
             fps = keyed.fps
             description = (f"the camera path of {params.path}: {len(keyed.keyframes)} keyframes, {keyed.frames} frames "
                            f"at {fps:g} fps{', looped' if keyed.loop else ''}")
@@ -243,6 +247,8 @@ class RenderStage(Stage):
         to_sfm = np.asarray(model.info.get("to_sfm", bounds.to_sfm), dtype=np.float64)
         write_json_atomic(out / "camera_path.json", camera_path_json(
             description, layout, fps, cameras, (bounds.near, bounds.far), depth_range, to_sfm, poses))
+        write_json_atomic(out / "camera_path.nerfstudio.json", nerfstudio_path(
+            transform_poses(poses, to_sfm), np.array([fov_of(c.height, c.fy) for c in cameras]), width, height, fps))
         per_frame = seconds / max(len(poses), 1)
         ctx.log.info("render: %d frames in %.1f s (%.2f s a frame) -> render.mp4, depth.mp4", count, seconds, per_frame)
         return RenderSummary(

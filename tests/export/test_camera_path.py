@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from nerfpipe.export.camera_path import CameraPath, Keyframe, focal_of, fov_of
+from nerfpipe.export.camera_path import CameraPath, Keyframe, focal_of, fov_of, nerfstudio_path
 from nerfpipe.pipeline.errors import InputError
 from tests.helpers import look_at
 
@@ -90,3 +90,27 @@ def test_a_broken_camera_path_is_one_line_naming_it(tmp_path, doc, problem):
     with pytest.raises(InputError, match=problem) as err:
         CameraPath.load(tmp_path / "path.json")
     assert err.value.path == tmp_path / "path.json" and "\n" not in str(err.value)
+
+
+def test_nerfstudios_schema_round_trips_every_frame(tmp_path):
+    # ns-render's camera path: camera_to_world as 16 numbers, OpenGL axes, row-major; fov vertical in degrees
+    poses = np.array([look_at(np.array([3.0 * np.cos(a), 3.0 * np.sin(a), 1.0]), np.zeros(3)) for a in (0.0, 0.5, 1.0)])
+    fovs = np.array([40.0, 50.0, 45.0])
+    doc = nerfstudio_path(poses, fovs, 640, 360, 12.0)
+    assert doc["camera_type"] == "perspective" and doc["seconds"] == 0.25 and len(doc["camera_path"]) == 3
+    first = np.array(doc["camera_path"][0]["camera_to_world"]).reshape(4, 4)
+    assert np.allclose(first[:3, 2], -poses[0][:3, 2])  # OpenGL: the camera looks down its -z
+    assert doc["camera_path"][0]["aspect"] == pytest.approx(640 / 360)
+    (tmp_path / "path.json").write_text(json.dumps(doc))
+    path = CameraPath.load(tmp_path / "path.json")
+    assert path.frame == "sfm" and path.frames == 3 and path.fps == 12.0
+    sampled, sampled_fovs = path.sample()
+    assert np.allclose(sampled, poses, atol=1e-9) and np.allclose(sampled_fovs, fovs)
+    # without fps, nerfstudio's seconds give it
+    del doc["fps"]
+    (tmp_path / "path.json").write_text(json.dumps(doc))
+    assert CameraPath.load(tmp_path / "path.json").fps == pytest.approx(12.0)
+    doc["camera_path"][1]["camera_to_world"] = [1, 2, 3]
+    (tmp_path / "path.json").write_text(json.dumps(doc))
+    with pytest.raises(InputError, match=r"camera_path\[1\]: camera_to_world is not 16 numbers"):
+        CameraPath.load(tmp_path / "path.json")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from nerfpipe.export.mesh import Mesh
-from nerfpipe.export.texture import Photo, bake, colours_at, fill_gaps, render, write_textured_glb
+from nerfpipe.export.texture import Photo, bake, colours_at, fill_gaps, render, write_textured_glb, write_textured_obj
 from tests.helpers import look_at
 
 # the colour of each face of the cube, by its outward normal: +x, -x, +y, -y, +z, -z
@@ -118,6 +118,57 @@ def test_the_glb_carries_the_texture_in_a_dielectric_material(baked, tmp_path):
     assert np.allclose(solid.bounds, [[-1, -1, -1], [1, 1, 1]], atol=1e-5)  # the cube under to_gltf
     assert len(solid.faces) == baked.faces and solid.metadata["units"] == "metres"
     assert solid.visual.uv.shape == (len(solid.vertices), 2) and 0 <= solid.visual.uv.min() <= solid.visual.uv.max() <= 1
+    # NORMAL per vertex (viewers shade it smooth rather than faceted), pointing out of the cube, unit length
+    doc = glb_json(tmp_path / "m.glb")
+    (primitive,) = doc["meshes"][0]["primitives"]
+    assert {"POSITION", "NORMAL", "TEXCOORD_0"} <= set(primitive["attributes"])
+    normals = glb_accessor(tmp_path / "m.glb", doc, primitive["attributes"]["NORMAL"])
+    positions = glb_accessor(tmp_path / "m.glb", doc, primitive["attributes"]["POSITION"])
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+    assert np.all(np.sum(normals * positions, axis=1) > 0)
+    # a seam vertex, one per chart, has the same normal in each: the welded mesh's
+    first = {}
+    for position, normal in zip(np.round(positions, 5).tolist(), normals):
+        assert np.allclose(first.setdefault(tuple(position), normal), normal, atol=1e-6)
+
+
+def glb_json(path):
+    """The JSON chunk of a binary glTF file."""
+    import json
+    import struct
+
+    data = path.read_bytes()
+    length, kind = struct.unpack("<I4s", data[12:20])
+    assert kind == b"JSON"
+    return json.loads(data[20:20 + length])
+
+
+def glb_accessor(path, doc, index) -> np.ndarray:
+    """A float32 VEC3 accessor of a GLB, as an (N, 3) array (the binary chunk after the JSON one)."""
+    import struct
+
+    data = path.read_bytes()
+    length = struct.unpack("<I", data[12:16])[0]
+    binary = data[20 + length + 8:]
+    accessor = doc["accessors"][index]
+    view = doc["bufferViews"][accessor["bufferView"]]
+    start = view.get("byteOffset", 0) + accessor.get("byteOffset", 0)
+    assert accessor["componentType"] == 5126 and accessor["type"] == "VEC3"
+    return np.frombuffer(binary, np.float32, accessor["count"] * 3, start).reshape(-1, 3)
+
+
+def test_the_obj_comes_with_its_material_and_texture(baked, tmp_path):
+    import trimesh
+
+    files = write_textured_obj(tmp_path / "mesh.obj", baked, np.diag([2.0, 2.0, 2.0, 1.0]))
+    assert [f.name for f in files] == ["mesh.obj", "mesh.mtl", "mesh_texture.png"] and all(f.is_file() for f in files)
+    text = (tmp_path / "mesh.obj").read_text()
+    assert "mtllib mesh.mtl" in text and "\nvt " in text and "\nvn " in text
+    mtl = (tmp_path / "mesh.mtl").read_text()
+    assert "map_Kd mesh_texture.png" in mtl and "Kd 1.00000000 1.00000000 1.00000000" in mtl  # the texture as baked
+    solid = trimesh.load(tmp_path / "mesh.obj", process=False)
+    assert len(solid.faces) == baked.faces and np.allclose(solid.bounds, [[-1, -1, -1], [1, 1, 1]], atol=1e-5)
+    assert solid.visual.material.image.size == (256, 256)
 
 
 def test_a_folded_edge_and_a_loose_sliver_are_cleaned_before_charting():

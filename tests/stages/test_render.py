@@ -236,6 +236,13 @@ def test_a_keyframe_camera_path_is_rendered_frame_by_frame_with_its_fields_of_vi
     again, _, _ = run_render(tmp_path / "b", "inward360", path=str(out / "camera_path.json"))
     assert np.allclose([f["c2w"] for f in json.loads((again / "camera_path.json").read_text())["frames"]], poses)
     assert (read_png(again / "frames" / "rgb_0002.png") == read_png(out / "frames" / "rgb_0002.png")).all()
+    # and so does the path it wrote in nerfstudio's schema, in the SfM frame (TO_SFM away from the world)
+    nerfstudio = json.loads((out / "camera_path.nerfstudio.json").read_text())
+    assert len(nerfstudio["camera_path"]) == 5 and nerfstudio["render_width"] == summary["resolution"][0]
+    assert [c["fov"] for c in nerfstudio["camera_path"]] == pytest.approx(list(fovs))
+    third, _, _ = run_render(tmp_path / "c", "inward360", path=str(out / "camera_path.nerfstudio.json"))
+    assert np.allclose([f["c2w"] for f in json.loads((third / "camera_path.json").read_text())["frames"]], poses)
+    assert np.abs(read_png(third / "frames" / "rgb_0002.png").astype(int) - read_png(out / "frames" / "rgb_0002.png")).max() <= 1
 
 
 def test_a_camera_path_file_enters_the_cache_key(tmp_path: Path, monkeypatch) -> None:
