@@ -81,7 +81,7 @@ def transforms_json(cameras: CameraSet, image_paths: dict[str, str], **optional:
     one camera, per frame otherwise. ``image_paths``: frame name -> its ``file_path``.
 
     ``optional``, nerfstudio's optional fields where there are any: ``ply_file_path`` (str),
-    ``train_filenames`` and ``val_filenames`` (lists of file paths), ``mask_path`` and ``depth_file_path``
+    ``train_filenames``, ``val_filenames`` and ``test_filenames`` (lists of file paths), ``mask_path`` and ``depth_file_path``
     (frame name -> path), ``depth_unit_scale_factor`` (depth = PNG value x it, in the frame's units)."""
     shared = len({f.camera_id for f in cameras.frames}) == 1
     per_frame = {key: optional.pop(key) or {} for key in ("mask_path", "depth_file_path") if key in optional}
@@ -139,29 +139,33 @@ def _camera_exports(views: CapturedViews, staging: Path, has_depth: bool) -> Non
 
     from nerfpipe.export.points import Cloud, write_ply
 
+    frames = views.cameras.frames
     paths, masks = {}, {}
-    for frame in views.cameras.frames:
+    for frame in frames:
         _copy(views.images[frame.name], staging / "images" / frame.name)
         paths[frame.name] = f"images/{frame.name}"
-        mask = (views.masks or {}).get(frame.name)
-        if mask is not None:  # nerfstudio's masks: 0 where the pixel is ignored
+    # nerfstudio takes masks and depth maps for every frame or for none
+    if views.masks is not None and all(views.masks.get(f.name) is not None for f in frames):
+        (staging / "masks").mkdir()
+        for frame in frames:  # one channel, 0 where the pixel is ignored
             masks[frame.name] = f"masks/{Path(frame.name).stem}.png"
-            (staging / "masks").mkdir(exist_ok=True)
-            cv2.imwrite(str(staging / masks[frame.name]), np.where(mask, 255, 0).astype(np.uint8))
+            cv2.imwrite(str(staging / masks[frame.name]), np.where(views.masks[frame.name], 255, 0).astype(np.uint8))
     ply = None
     if views.points is not None and len(views.points.xyz):
         write_ply(staging / SPARSE_PLY, Cloud(views.points.xyz, views.points.rgb / 255.0))
         ply = SPARSE_PLY
     depth_paths, depth_scale = {}, None
     if has_depth and views.depth is not None:
-        depth_paths = {v.name: f"depth/{v.stem}.depth.png" for v in views.depth.views}
         depth_scale = depth_in_frame(staging / "depth", views.depth)
+        depth_paths = {v.name: f"depth/{v.stem}.depth.png" for v in views.depth.views}
+        if not all(f.name in depth_paths for f in frames):
+            depth_paths = {}
     heldout = set(views.heldout)
-    names = [f.name for f in views.cameras.frames]
+    held = [paths[f.name] for f in frames if f.name in heldout]  # nerfstudio evaluates on "val" or "test"
     doc = transforms_json(views.cameras, paths, ply_file_path=ply,
-                          train_filenames=[paths[n] for n in names if n not in heldout],
-                          val_filenames=[paths[n] for n in names if n in heldout],
-                          mask_path=masks, depth_file_path=depth_paths, depth_unit_scale_factor=depth_scale)
+                          train_filenames=[paths[f.name] for f in frames if f.name not in heldout],
+                          val_filenames=held, test_filenames=held, mask_path=masks, depth_file_path=depth_paths,
+                          depth_unit_scale_factor=depth_scale if depth_paths else None)
     write_json_atomic(staging / "transforms.json", doc)
     colmap_model(views.cameras, views.points, staging / "sparse" / "0")
 

@@ -146,7 +146,7 @@ def test_transforms_json_carries_nerfstudios_optional_fields(tmp_path):
 
     ArtifactStore(tmp_path / "run").prepare()
     index = depth_maps(tmp_path / "stages" / "depth", NAMES)
-    masks = {name: np.pad(np.ones((2, 2), bool), 2)[:6, :8] for name in NAMES[:2]}
+    masks = {name: np.pad(np.ones((2, 2), bool), 2)[:6, :8] for name in NAMES}
     points = Points(np.array([[0.1, 0.2, 0.3], [1.0, 2.0, 3.0]]), np.array([[255, 0, 0], [0, 0, 255]], np.uint8),
                     np.zeros(2))
     views = CapturedViews(cameras(), {n: TEMPLE / n for n in NAMES}, points, masks, (NAMES[2],), index)
@@ -155,18 +155,23 @@ def test_transforms_json_carries_nerfstudios_optional_fields(tmp_path):
     assert {"masks", "sparse_pc.ply", "sparse"} <= set(exported.names)
     doc = json.loads((folder / "transforms.json").read_text())
     assert doc["ply_file_path"] == "sparse_pc.ply" and np.allclose(read_ply(folder / "sparse_pc.ply").xyz, points.xyz)
-    assert doc["train_filenames"] == [f"images/{n}" for n in NAMES[:2]] and doc["val_filenames"] == [f"images/{NAMES[2]}"]
+    assert doc["train_filenames"] == [f"images/{n}" for n in NAMES[:2]]
+    assert doc["val_filenames"] == doc["test_filenames"] == [f"images/{NAMES[2]}"]
     assert doc["depth_unit_scale_factor"] == pytest.approx(0.002)
+    check_nerfstudio_fields(folder, doc)
     for i, frame in enumerate(doc["frames"]):
-        assert (folder / frame["depth_file_path"]).is_file() and frame["depth_file_path"] == f"depth/{i:04d}.depth.png"
-        if i < 2:  # nerfstudio's masks: one channel, 0 where ignored
-            mask = cv2.imread(str(folder / frame["mask_path"]), cv2.IMREAD_UNCHANGED)
-            assert mask.dtype == np.uint8 and mask.ndim == 2 and set(np.unique(mask)) == {0, 255}
-        else:
-            assert "mask_path" not in frame
+        assert frame["depth_file_path"] == f"depth/{i:04d}.depth.png"
+        mask = cv2.imread(str(folder / frame["mask_path"]), cv2.IMREAD_UNCHANGED)
+        assert set(np.unique(mask)) == {0, 255}
     # the stage's own depth maps stay in the normalized world
     assert np.allclose(np.load(tmp_path / "stages" / "depth" / "0000.depth.npy"), 1.5)
     assert np.allclose(np.load(folder / "depth" / "0000.depth.npy"), 3.0)
+    # a mask missing for one frame: none at all (nerfstudio takes them for every frame or none)
+    del masks[NAMES[1]]
+    doc = json.loads((collect(tmp_path / "run", {}, views).folder / "transforms.json").read_text())
+    assert all("mask_path" not in f and "depth_file_path" not in f for f in doc["frames"])
+    assert "depth_unit_scale_factor" not in doc
+    check_nerfstudio_fields(tmp_path / "run" / "exports", doc)
 
 
 def test_collect_writes_no_exports_into_a_folder_nerfpipe_did_not_make(tmp_path):
@@ -175,3 +180,33 @@ def test_collect_writes_no_exports_into_a_folder_nerfpipe_did_not_make(tmp_path)
     with pytest.raises(InputError, match="is not a folder nerfpipe made"):
         collect(tmp_path / "docs", {}, None, {})
     assert (tmp_path / "docs" / "exports" / "taxes.csv").read_text() == "1,2"
+
+
+def check_nerfstudio_fields(folder, doc) -> None:
+    """What nerfstudio's own dataparser (nerfstudio/data/dataparsers/nerfstudio_dataparser.py) asks of a
+    transforms.json: shared or per-frame intrinsics; mask_path and depth_file_path on every frame or on
+    none; split lists naming frames' file_path, for train and for the evaluation split (val or test) alike;
+    the files there, masks of one 8-bit channel, depth as 16-bit PNG; ply_file_path a point cloud Open3D
+    reads."""
+    import cv2
+    import open3d as o3d
+
+    keys = ("fl_x", "fl_y", "cx", "cy", "h", "w")
+    for frame in doc["frames"]:
+        assert all(k in doc or k in frame for k in keys) and (folder / frame["file_path"]).is_file()
+        assert np.asarray(frame["transform_matrix"]).shape == (4, 4)
+    assert doc.get("camera_model", "OPENCV") in ("OPENCV", "PINHOLE", "OPENCV_FISHEYE", "EQUIRECTANGULAR")
+    for key in ("mask_path", "depth_file_path"):
+        assert sum(key in f for f in doc["frames"]) in (0, len(doc["frames"]))
+    files = {f["file_path"] for f in doc["frames"]}
+    if any(f"{s}_filenames" in doc for s in ("train", "val", "test")):
+        assert set(doc["train_filenames"]) <= files and set(doc["val_filenames"]) <= files
+        assert set(doc["test_filenames"]) == set(doc["val_filenames"])
+    for frame in doc["frames"]:
+        if "mask_path" in frame:
+            mask = cv2.imread(str(folder / frame["mask_path"]), cv2.IMREAD_UNCHANGED)
+            assert mask.dtype == np.uint8 and mask.ndim == 2
+        if "depth_file_path" in frame:
+            assert cv2.imread(str(folder / frame["depth_file_path"]), cv2.IMREAD_ANYDEPTH).dtype == np.uint16
+    if "ply_file_path" in doc:
+        assert len(o3d.io.read_point_cloud(str(folder / doc["ply_file_path"])).points) > 0
