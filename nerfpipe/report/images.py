@@ -62,7 +62,9 @@ def plot_cameras(path: Path, centers: np.ndarray, axes: np.ndarray, points: np.n
     ax = fig.add_subplot(projection="3d")
     if points is not None and len(points):
         keep = np.random.default_rng(0).permutation(len(points))[:MAX_PLOTTED_POINTS]
-        ax.scatter(*points[keep].T, s=0.5, c=None if colors is None else colors[keep], alpha=0.6)
+        ax.scatter(*points[keep].T, s=0.5, c=None if colors is None else colors[keep], alpha=0.6,
+                   label=f"{len(points):,} sparse points, in their colours"
+                         + (f" ({len(keep):,} shown)" if len(keep) < len(points) else ""))
     ax.scatter(*centers.T, s=12, c="tab:red", label="cameras")
     span = float(np.ptp(centers, axis=0).max()) if len(centers) > 1 else 1.0
     ax.quiver(*centers.T, *(axes * 0.1 * span).T, color="tab:red", linewidth=0.8)
@@ -74,6 +76,26 @@ def plot_cameras(path: Path, centers: np.ndarray, axes: np.ndarray, points: np.n
     ax.set_ylabel("y")
     ax.set_zlabel("z")
     ax.legend(loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_depth_scale(path: Path, steps: int = 256) -> None:
+    """The depth previews' colour scale as a bar: the colours ``nerfpipe.export.depth.depth_preview`` gives,
+    from a view's near (red, left) to its far (blue, right), linear in disparity (each view's own near and far
+    are in its caption)."""
+    from nerfpipe.export.depth import depth_preview
+
+    near, far = 1.0, 16.0
+    depth = 1.0 / np.linspace(1.0 / near, 1.0 / far, steps)
+    bar = depth_preview(np.tile(depth, (24, 1)), np.ones((24, steps)), near, far)
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6, 0.9), dpi=100)
+    ax.imshow(bar, aspect="auto", extent=(0.0, 1.0, 0.0, 1.0))
+    ax.set_xticks([0.0, 0.5, 1.0])
+    ax.set_xticklabels(["near", "halfway in 1 / depth", "far"])
+    ax.set_yticks([])
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

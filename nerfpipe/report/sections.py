@@ -17,7 +17,7 @@ import numpy as np
 from nerfpipe.artifacts import ImageIndex, SceneDecisions, view_file_stem
 from nerfpipe.imaging.png import write_png
 from nerfpipe.report.data import RunData
-from nerfpipe.report.images import plot_cameras, plot_per_image, plot_training, thumbnail
+from nerfpipe.report.images import plot_cameras, plot_depth_scale, plot_per_image, plot_training, thumbnail
 from nerfpipe.report.markup import figure, grid, paragraphs, section, table, video
 
 MAX_THUMBS = 48
@@ -94,11 +94,13 @@ def training(run: RunData) -> str | None:
 
 
 ERROR_GAIN = 4  # the held-out difference images, brightened: a 1/4 error is white
+OVERRUN = 1.1  # a stage that took more than this times its allotment is noted in the time table
 
 
 def heldout_pairs(run: RunData) -> list[str]:
-    """One row per held-out view of the train stage's ``metrics.json``: its render, its photo and their
-    difference side by side (those that exist), with the view's PSNR and SSIM."""
+    """One row per held-out view of the train stage's ``metrics.json``: its render, its photo as taken and
+    their difference side by side (those that exist), with the view's PSNR and SSIM; where the score was
+    taken against the photo with its backdrop masked out, both PSNRs, each said for what it is."""
     from nerfpipe.imaging.png import read_png
 
     metrics = json.loads(run.artifact("train", "metrics").read_text(encoding="utf-8"))
@@ -106,21 +108,24 @@ def heldout_pairs(run: RunData) -> list[str]:
     blocks = []
     for view in metrics.get("views", []):
         stem = view_file_stem(view["name"])
+        photo = next((renders / f"{stem}.{s}.png" for s in ("photo", "gt") if (renders / f"{stem}.{s}.png").exists()),
+                     None)
         row = []
-        for suffix, caption in (("render", "render"), ("gt", "photo")):
-            source = renders / f"{stem}.{suffix}.png"
-            if source.exists():
-                shutil.copy2(source, run.img / f"eval_{stem}.{suffix}.png")
-                row.append(figure(f"img/eval_{stem}.{suffix}.png", f"{view['name']}: {caption}"))
+        for source, caption in ((renders / f"{stem}.render.png", "render"), (photo, "photo")):
+            if source is not None and source.exists():
+                shutil.copy2(source, run.img / f"eval_{source.name}")
+                row.append(figure(f"img/eval_{source.name}", f"{view['name']}: {caption}"))
         if len(row) == 2:
-            rendered, photo = (read_png(renders / f"{stem}.{suffix}.png").astype(np.int32) for suffix in ("render", "gt"))
-            if rendered.shape == photo.shape:
-                difference = np.abs(rendered - photo)[..., :3] * ERROR_GAIN
+            rendered, taken = (read_png(path).astype(np.int32) for path in (renders / f"{stem}.render.png", photo))
+            if rendered.shape == taken.shape:
+                difference = np.abs(rendered - taken)[..., :3] * ERROR_GAIN
                 write_png(run.img / f"eval_{stem}.error.png", np.clip(difference, 0, 255).astype(np.uint8))
                 row.append(figure(f"img/eval_{stem}.error.png", f"{view['name']}: difference x{ERROR_GAIN}"))
         if row:
-            blocks.append(f"<div class='row'>{''.join(row)}<p>PSNR {view['psnr']:.2f} dB, "
-                          f"SSIM {view['ssim']:.3f}</p></div>")
+            scores = (f"PSNR {view['psnr']:.2f} dB against the photo with its backdrop masked out (the score), "
+                      f"{view['psnr_photo']:.2f} dB against the photo as taken" if "psnr_photo" in view
+                      else f"PSNR {view['psnr']:.2f} dB")
+            blocks.append(f"<div class='row'>{''.join(row)}<p>{scores}, SSIM {view['ssim']:.3f}</p></div>")
     return blocks
 
 
@@ -146,14 +151,25 @@ def depth(run: RunData) -> str | None:
 
     views = DepthIndex.load(run.artifact("export_depth", "depth_index")).views
     previews = run.artifact("export_depth", "depth")
-    figures = []
+    figures, shown = [], []
     for view in preview_views(views, MAX_DEPTH_PREVIEWS):
         source = previews / f"{view.stem}.preview.png"
         if source.exists():
             shutil.copy2(source, run.img / f"depth_{view.stem}.png")
             figures.append(figure(f"img/depth_{view.stem}.png", f"{view.name} ({view.role})"))
+            shown.append(view)
+    from nerfpipe.artifacts import Bounds
+    from nerfpipe.geometry.normalize import Similarity
+
+    to_sfm = np.asarray(Bounds.load(run.artifact("bounds", "bounds")).to_sfm) if "bounds" in run.results else np.eye(4)
+    scale = Similarity.from_matrix(to_sfm).scale
+    plot_depth_scale(run.img / "depth_scale.png")
+    figures = [f.replace("</figcaption>", f", red {v.near * scale:.3g} to blue {v.far * scale:.3g} SfM units</figcaption>")
+               for f, v in zip(figures, shown)]
     return section("Depth", paragraphs(run.describe("export_depth"))
-                   + "<p>disparity, near red to far blue; black where the field is transparent</p>" + grid(figures))
+                   + figure("img/depth_scale.png", "the previews' colours: linear in disparity (1 / depth) from each "
+                            "view's near (red) to its far (blue); black where the field is transparent")
+                   + grid(figures))
 
 
 GEOMETRY = (("export_mesh", "mesh", "mesh"), ("export_points", "points", "point cloud"))  # stage, artifact, label
@@ -252,10 +268,12 @@ def stage_times(run: RunData) -> str:
     for name in run.order:
         status, t = run.statuses[name], timings[name]
         seconds, allotted = t.get("seconds"), t.get("allotted")
+        over = (f"over its allotment by {seconds - allotted:.0f} s ({seconds / allotted - 1:.0%})"
+                if seconds is not None and allotted and seconds > OVERRUN * allotted else "")
         rows.append((name, status.state, "" if seconds is None else f"{seconds:.1f} s",
                      "" if allotted is None else f"{allotted:.0f} s",
                      f"{seconds / total:.0%}" if name in run.results and seconds is not None and total else "",
-                     "; ".join(status.reasons)))
+                     "; ".join([*status.reasons, *([over] if over else [])])))
     notes = [f"total of fresh stages: {total:.0f} s"]
     budget = next((t["budget"] for t in timings.values() if "budget" in t), None)
     if budget is not None:

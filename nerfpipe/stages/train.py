@@ -1,4 +1,5 @@
-"""train: fit the NeRF of Mildenhall et al. 2020 to the posed images, then evaluate it on held-out views.
+"""train: fit a radiance field (Mildenhall et al. 2020's volume rendering; by default a grid field, the paper's
+MLPs with ``--preset paper``) to the posed images, then evaluate it on held-out views.
 
 Reads the normalized world, per-image near/far and the scene decisions, and models what they call for:
 rays in NDC for forward-facing captures (Section 6.1's real scenes), rays clipped to the scene box for
@@ -8,7 +9,8 @@ background colour for photos with alpha or a constant backdrop; sRGB previews of
 Writes ``model.pt`` / ``model.json`` (``nerfpipe.nerf.model.RadianceModel``), ``views.json`` (which
 frames trained it and which were held out), ``checkpoints/``,
 ``metrics.jsonl`` (loss and PSNR against wall time), ``metrics.json`` (PSNR and SSIM on held-out views)
-and ``eval/`` (each held-out view rendered, beside its ground truth).
+and ``eval/`` (each held-out view rendered, beside its ground truth and, where a backdrop mask made that
+ground truth, the photo as taken).
 
 Held-out views: the capture's test (else val) split when it has one; otherwise every 8th image, as the
 paper holds out 1/8 of its real scenes (Section 6.1).
@@ -249,7 +251,7 @@ class TrainSummary(Summary):
 
 
 class TrainStage(Stage):
-    """Train the NeRF (positional encoding, coarse + fine MLPs, hierarchical sampling) and evaluate it."""
+    """Train the radiance field the scene calls for (by default a grid field with occupancy marching; the paper's MLPs with `--preset paper`) and score it on held-out views."""
 
     name = "train"
     version = 12  # 12: model.json holds the parts' configs; 11: directions into the colour MLP as they are (L = 0; 4 before); 10: poses refined beyond 2 px

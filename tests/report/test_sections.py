@@ -98,6 +98,10 @@ def test_stage_times_total_only_the_fresh_stages(tmp_path):
     assert "<tr><td>train</td><td>fresh</td><td>70.0 s</td><td>75 s</td><td>70%</td><td></td></tr>" in html
     assert html.endswith("<p>total of fresh stages: 100 s; job budget: 100 s (--budget); training the field: 60 s, "
                          "60% of the total</p></section>")
+    # a stage over its allotment by more than a tenth is noted
+    slow = Committed(tmp_path, {"timings": {"seconds": 39.0, "allotted": 27.0, "budget": 100.0}})
+    html = sections.stage_times(run_data(tmp_path / "c", {"render": slow}, {"render": StageStatus("render", "fresh", (), "k", slow)}))
+    assert "<td>over its allotment by 12 s (44%)</td>" in html
 
 
 @pytest.mark.parametrize("caption, alt", [("", "img/a.png"), ("a <b>", "a &lt;b&gt;")])
@@ -166,3 +170,31 @@ def test_the_exports_section_links_every_file(tmp_path):
     html = sections.exports(run_data(tmp_path, {}))
     assert "<a href='../run/exports/depth/'>depth/</a> (1 files)" in html
     assert "<a href='../run/exports/mesh.glb'>mesh.glb</a> (2.0 MB)" in html
+
+
+def test_a_masked_score_shows_the_photo_as_taken_and_says_both_scores(tmp_path):
+    from nerfpipe.imaging.png import write_png
+
+    result = tmp_path / "train"
+    (result / "eval").mkdir(parents=True)
+    (result / "metrics.json").write_text('{"views": [{"name": "a.png", "psnr": 28.6, "psnr_photo": 24.6, "ssim": 0.9}]}')
+    write_png(result / "eval" / "a.render.png", np.zeros((4, 6, 3), np.uint8))
+    write_png(result / "eval" / "a.gt.png", np.zeros((4, 6, 3), np.uint8))  # the backdrop masked out
+    write_png(result / "eval" / "a.photo.png", np.full((4, 6, 3), 50, np.uint8))  # as taken
+    (block,) = sections.heldout_pairs(run_data(tmp_path, {"train": Committed(result, {})}, stages={"train": TrainStage()}))
+    assert "img/eval_a.photo.png" in block and "eval_a.gt.png" not in block
+    assert ("PSNR 28.60 dB against the photo with its backdrop masked out (the score), 24.60 dB against the photo "
+            "as taken, SSIM 0.900") in block
+
+
+def test_the_depth_scale_runs_red_near_to_blue_far_as_the_previews(tmp_path):
+    from nerfpipe.imaging.png import read_png
+    from nerfpipe.report.images import plot_depth_scale
+
+    plot_depth_scale(tmp_path / "scale.png")
+    bar = read_png(tmp_path / "scale.png")[..., :3].astype(int)
+    row = bar[bar.shape[0] // 3]  # through the bar, above the tick labels
+    coloured = np.flatnonzero(row.max(axis=1) - row.min(axis=1) > 40)  # the bar, not the white margins
+    span = coloured[-1] - coloured[0]
+    near, far = row[coloured[0] + span // 10], row[coloured[0] + 9 * span // 10]
+    assert near[0] > near[2] + 60 and far[2] > far[0] + 60

@@ -113,7 +113,8 @@ def evaluate(model: RadianceModel, loader: ImageLoader, frames: list[Frame], fol
     training photo's exposure (``model.appearance``) is scored as NeRF-W is (``fit_left_score_right``), with
     ``psnr_mean_appearance`` beside; ``fit_appearance`` scores any model so (True) or none (False).
 
-    With a ``folder``, writes ``<view>.render.png`` beside ``<view>.gt.png`` (sRGB-encoded when the model
+    With a ``folder``, writes ``<view>.render.png`` beside ``<view>.gt.png`` (and ``<view>.photo.png``, the photo
+    as taken, where a backdrop mask made the ground truth; sRGB-encoded when the model
     trained on linear RAW values). ``advance(1, info=...)`` is called after each view (a progress bar's).
     ``scale`` < 1 renders each view at that share of its width and height (the intrinsics scaled alike) and
     scores it against its image averaged down to that size.
@@ -150,7 +151,8 @@ def evaluate(model: RadianceModel, loader: ImageLoader, frames: list[Frame], fol
             view["psnr_photo"] = round(_metrics(render[:, scored], photo[:, scored])[0], 4)
         if folder is not None:
             stem = view_file_stem(frame.name)
-            for suffix, pixels in (("render", render.numpy()), ("gt", gt)):
+            shown_too = () if mask is None else (("photo", photo),)  # the photo as taken, beside the masked one
+            for suffix, pixels in (("render", render.numpy()), ("gt", gt), *shown_too):
                 shown = srgb_encode(pixels) if linear else pixels
                 write_png(folder / f"{stem}.{suffix}.png", np.round(np.clip(shown, 0, 1) * 255).astype(np.uint8))
         views.append(view)
