@@ -6,11 +6,10 @@ rays in NDC for forward-facing captures (Section 6.1's real scenes), rays clippe
 inward 360° captures, depth sampling linear in disparity for unbounded ones; compositing onto the
 background colour for photos with alpha or a constant backdrop; sRGB previews of linear RAW renders.
 
-Writes ``model.pt`` / ``model.json`` (``nerfpipe.nerf.model.RadianceModel``), ``views.json`` (which
-frames trained it and which were held out), ``checkpoints/``,
-``metrics.jsonl`` (loss and PSNR against wall time), ``metrics.json`` (PSNR and SSIM on held-out views)
-and ``eval/`` (each held-out view rendered, beside its ground truth and, where a backdrop mask made that
-ground truth, the photo as taken).
+Writes ``model.pt`` / ``model.json`` (``nerfpipe.nerf.model.RadianceModel``), ``views.json`` (which frames
+trained it and which were held out), ``checkpoints/``, ``metrics.jsonl`` (loss and PSNR against wall time),
+``metrics.json`` (PSNR and SSIM on held-out views) and ``eval/`` (each held-out view rendered, beside its
+ground truth and, where a backdrop mask made that ground truth, the photo as taken).
 
 Held-out views: the capture's test (else val) split when it has one; otherwise every 8th image, as the
 paper holds out 1/8 of its real scenes (Section 6.1).
