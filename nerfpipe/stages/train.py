@@ -25,7 +25,8 @@ from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 from nerfpipe.artifacts import ViewSplit
-from nerfpipe.nerf.config import OptimParams, PerImageParams, SpaceParams, auto_sampler, field_configs, sampler_configs, step_bytes
+from nerfpipe.nerf.config import (OptimParams, PerImageParams, SpaceParams, auto_sampler, field_configs,
+                                  sampler_configs, step_bytes)
 from nerfpipe.nerf.fields.configs import FieldConfig, GridConfig
 from nerfpipe.nerf.samplers.configs import MarchingConfig, SamplerConfig
 from nerfpipe.pipeline.params import param
