@@ -71,8 +71,9 @@ class Run:
         return list(ViewSplit.load(self._pipe.artifact("views", "the train/held-out split")).heldout)
 
     def photo(self, view: int | str) -> np.ndarray:
-        """The photo of a view as training saw it (undistorted), (H, W, 3) float32 in [0, 1]."""
-        from nerfpipe.imaging.png import read_png
+        """The photo of a view as training saw it (undistorted), (H, W, 3) float32 in [0, 1], in the colours
+        ``render`` gives (a RAW capture's linear photos sRGB-encoded, as its renders are)."""
+        from nerfpipe.imaging.png import read_png, srgb_encode
 
         frame = self._frame(view)
         folders = [p for p in (self._pipe.optional_artifact("undistorted_images"), self._pipe.optional_artifact("images")) if p]
@@ -81,8 +82,15 @@ class Run:
             raise InputError(self.path, f"has no photo for {frame.name}", "run `nerfpipe run` again")
         pixels = read_png(path)
         pixels = pixels.astype(np.float32) / (65535.0 if pixels.dtype == np.uint16 else 255.0)
-        pixels = np.repeat(pixels[..., None], 3, axis=-1) if pixels.ndim == 2 else pixels
-        return pixels[..., :3]
+        pixels = (np.repeat(pixels[..., None], 3, axis=-1) if pixels.ndim == 2 else pixels)[..., :3]
+        return srgb_encode(pixels).astype(np.float32) if self._linear else pixels
+
+    @cached_property
+    def _linear(self) -> bool:
+        """Whether the field was trained on linear RAW photos (the scene stage's photometric decision)."""
+        from nerfpipe.artifacts import SceneDecisions
+
+        return SceneDecisions.load(self._pipe.artifact("scene", "scene decisions")).photometric.value == "linear_raw"
 
     # -- rendering ---------------------------------------------------------------------------------------
     def render(self, view: int | str | tuple[np.ndarray, Camera], size: int | tuple[int, int] | None = None,
@@ -111,7 +119,7 @@ class Run:
             out = self._model.render_image((scaled.fx, scaled.fy, scaled.cx, scaled.cy), c2w, width, height, near, far,
                                            chunk)
         rgb = out["rgb"].clamp(0.0, 1.0).numpy()
-        if self._model.info.get("photometric") == "linear_raw":
+        if self._linear:
             rgb = srgb_encode(rgb)
         return Rendered(rgb.astype(np.float32), (out["depth"].numpy() * to_sfm.scale).astype(np.float32),
                         out["acc"].numpy().astype(np.float32))

@@ -52,6 +52,8 @@ def test_stages_lists_params_defaults_and_presets():
     out = result.stdout
     assert "ingest" in out and "ingest.max_size" in out and "1600" in out
     assert "preset draft: max_size=400" in out and "auto|8|16" in out
+    # train as it is: a grid field by default, the paper's MLPs only when asked
+    assert "Train the radiance field the scene calls for (by default a grid field" in " ".join(out.split())
 
 
 def test_clean_prunes_old_keys(capture, tmp_path):

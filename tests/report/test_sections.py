@@ -198,3 +198,28 @@ def test_the_depth_scale_runs_red_near_to_blue_far_as_the_previews(tmp_path):
     span = coloured[-1] - coloured[0]
     near, far = row[coloured[0] + span // 10], row[coloured[0] + 9 * span // 10]
     assert near[0] > near[2] + 60 and far[2] > far[0] + 60
+
+
+def test_the_sfm_plot_names_its_points_and_cameras_in_its_legend(tmp_path, monkeypatch):
+    from nerfpipe.report import images
+
+    legends = []
+    real = images._pyplot
+
+    def recording():
+        plt = real()
+        original = plt.Axes.legend
+
+        def legend(ax, *args, **kwargs):
+            made = original(ax, *args, **kwargs)
+            legends.append([text.get_text() for text in made.get_texts()])
+            return made
+
+        monkeypatch.setattr(plt.Axes, "legend", legend)
+        return plt
+
+    monkeypatch.setattr(images, "_pyplot", recording)
+    rng = np.random.default_rng(0)
+    centers, axes = rng.normal(size=(5, 3)), np.tile([0.0, 0.0, 1.0], (5, 1))
+    images.plot_cameras(tmp_path / "sfm.png", centers, axes, rng.normal(size=(40, 3)), rng.uniform(size=(40, 3)))
+    assert legends == [["40 sparse points, in their colours", "cameras"]]
