@@ -200,6 +200,10 @@ def _open_window(vis: Any, title: str, width: int, height: int) -> bool:
             with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Info):
                 opened = vis.create_window(window_name=title, width=width, height=height)
         finally:
+            # Open3D logs through Python's print: what sits in sys.stdout's buffer (without PYTHONUNBUFFERED)
+            # must reach the captured file before the terminal is given back
+            sys.stdout.flush()
+            sys.stderr.flush()
             os.dup2(saved[0], 1)
             os.dup2(saved[1], 2)
             os.close(saved[0])

@@ -384,7 +384,9 @@ def test_show_falls_back_when_open3d_only_gets_an_offscreen_window(o3d, tmp_path
         "camera = s.ViewCamera((50.0, 50.0, 32.0, 24.0), c2w, 64, 48)\n"
         "print('RESULT', s.show(cameras=[camera], screenshot_path=sys.argv[1], width=96, height=64))\n"
     )
-    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    # without PYTHONUNBUFFERED too: Open3D's log goes through Python's buffered sys.stdout (this hung under a
+    # bare environment, env -i, while passing under one that set it)
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "PYTHONUNBUFFERED")}
     done = subprocess.run([sys.executable, "-c", code, str(tmp_path / "v.png")],
                           capture_output=True, text=True, check=False, timeout=120, env=env)
     assert done.returncode == 0, done.stderr

@@ -297,8 +297,11 @@ def check_exports_report_and_view(run_dir: Path, run_stdout: str) -> None:
     render = result_of("render")
     assert (render / "render.mp4").stat().st_size > 0 and (render / "depth.mp4").stat().st_size > 0
     exports = run_dir / "exports"  # what a user takes away, under stable names
-    assert f"exports: {exports} (mesh.glb, mesh.ply, mesh.obj, points.ply, render.mp4, depth.mp4, depth, " \
-           "mesh_watertight.glb, mesh_watertight.ply, transforms.json, images, colmap)" in run_stdout.replace("\n", "")
+    listed = re.search(rf"exports: {re.escape(str(exports))} \((.*?)\)", run_stdout.replace("\n", "")).group(1).split(", ")
+    assert listed[:9] == ["mesh.glb", "mesh.ply", "mesh.obj", "points.ply", "render.mp4", "depth.mp4", "depth",
+                          "camera_path.json", "camera_path.nerfstudio.json"]
+    assert {"mesh_watertight.glb", "mesh_watertight.ply", "transforms.json", "images", "sparse", "masks"} <= set(listed)
+    assert sorted(listed) == sorted(p.name for p in exports.iterdir())  # what it says is what is there
     transforms = json.loads((exports / "transforms.json").read_text())
     assert len(transforms["frames"]) == 16 and all((exports / f["file_path"]).is_file() for f in transforms["frames"])
     assert (exports / "render.mp4").read_bytes() == (render / "render.mp4").read_bytes()
