@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from nerfpipe.geometry.cameras import Camera, CameraSet, Frame
-from nerfpipe.pipeline import InputError, Pipeline
+from nerfpipe.pipeline import Pipeline
 
 
 @dataclass(frozen=True)
@@ -51,12 +51,9 @@ class Run:
     @cached_property
     def cameras(self) -> CameraSet:
         """The cameras the field was trained with (refined where pose refinement ran), in the SfM frame."""
-        from nerfpipe.export.paths import transform_poses
+        from nerfpipe.export.bundle import in_sfm_frame
 
-        trained = CameraSet.load(self._pipe.artifact("cameras", "trained cameras"))
-        poses = transform_poses(np.array([f.c2w for f in trained.frames]), self._bounds.to_sfm)
-        frames = [Frame(f.name, f.camera_id, pose, f.split) for f, pose in zip(trained.frames, poses)]
-        return CameraSet(trained.cameras, frames, None, trained.source)
+        return in_sfm_frame(CameraSet.load(self._pipe.artifact("cameras", "trained cameras")), self._bounds.to_sfm)
 
     @property
     def names(self) -> list[str]:
@@ -73,16 +70,12 @@ class Run:
     def photo(self, view: int | str) -> np.ndarray:
         """The photo of a view as training saw it (undistorted), (H, W, 3) float32 in [0, 1], in the colours
         ``render`` gives (a RAW capture's linear photos sRGB-encoded, as its renders are)."""
-        from nerfpipe.imaging.png import read_png, srgb_encode
+        from nerfpipe.imaging.png import srgb_encode
+        from nerfpipe.nerf.train.images import ImageLoader
 
-        frame = self._frame(view)
-        folders = [p for p in (self._pipe.optional_artifact("undistorted_images"), self._pipe.optional_artifact("images")) if p]
-        path = next((folder / frame.name for folder in folders if (folder / frame.name).is_file()), None)
-        if path is None:
-            raise InputError(self.path, f"has no photo for {frame.name}", "run `nerfpipe run` again")
-        pixels = read_png(path)
-        pixels = pixels.astype(np.float32) / (65535.0 if pixels.dtype == np.uint16 else 255.0)
-        pixels = (np.repeat(pixels[..., None], 3, axis=-1) if pixels.ndim == 2 else pixels)[..., :3]
+        name = self._frame(view).name
+        loader = ImageLoader.from_inputs(self._pipe.stage_inputs("train"))
+        pixels = loader.stored(next(f for f in loader.world.frames if f.name == name))[..., :3]
         return srgb_encode(pixels).astype(np.float32) if self._linear else pixels
 
     @cached_property

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-import numpy as np
+from pathlib import Path
 
 from nerfpipe.export.bundle import FILES, CapturedViews, Exported, collect
 from nerfpipe.pipeline import Pipeline
@@ -25,18 +25,16 @@ def captured_views(pipe: Pipeline) -> CapturedViews | None:
     them), the SfM points, the held-out split, the masks where the scene has a backdrop or alpha, and the depth
     maps' index; None before the cameras are trained."""
     from nerfpipe.artifacts import Bounds, ViewSplit
+    from nerfpipe.export.bundle import in_sfm_frame
     from nerfpipe.export.depth import DepthIndex
-    from nerfpipe.export.paths import transform_poses
-    from nerfpipe.geometry.cameras import CameraSet, Frame
+    from nerfpipe.geometry.cameras import CameraSet
 
     world, bounds = pipe.optional_artifact("cameras"), pipe.optional_artifact("bounds")
     if world is None or bounds is None:
         return None
     trained = CameraSet.load(world)
-    to_sfm = Bounds.load(bounds).to_sfm
-    poses = transform_poses(np.array([f.c2w for f in trained.frames]), to_sfm) if trained.frames else []
-    frames = [Frame(f.name, f.camera_id, pose, f.split) for f, pose in zip(trained.frames, poses)]
-    cameras = CameraSet(trained.cameras, frames, None, trained.source)
+    cameras = in_sfm_frame(trained, Bounds.load(bounds).to_sfm)
+    frames = cameras.frames
     folders = [p for p in (pipe.optional_artifact("undistorted_images"), pipe.optional_artifact("images")) if p]
     images = {frame.name: next((folder / frame.name for folder in folders if (folder / frame.name).is_file()), None)
               for frame in frames}
@@ -49,17 +47,13 @@ def captured_views(pipe: Pipeline) -> CapturedViews | None:
                          DepthIndex.load(depth) if depth is not None else None)
 
 
-def masks(pipe: Pipeline, trained) -> dict[str, np.ndarray] | None:
-    """Each trained frame's mask as training used it (alpha, or the pixels off the constant backdrop); None
-    when the scene has neither."""
-    from nerfpipe.nerf.train.images import ImageLoader
-    from nerfpipe.pipeline import NerfpipeError
+def masks(pipe: Pipeline, trained) -> dict[str, Path] | None:
+    """Each trained frame's mask as the train stage wrote it (``masks/``: alpha, or the pixels off the constant
+    backdrop), by frame name; None when it wrote none."""
+    from nerfpipe.nerf.train.images import mask_file
 
-    try:
-        loader = ImageLoader.from_inputs(pipe.stage_inputs("train"))
-    except NerfpipeError:
+    folder = pipe.optional_artifact("masks")
+    if folder is None or not folder.is_dir():
         return None
-    if not loader.use_alpha and loader.backdrop is None:
-        return None
-    found = {f.name: loader.alpha(f) if loader.use_alpha else loader.foreground(f) for f in trained.frames}
-    return {name: mask for name, mask in found.items() if mask is not None} or None
+    found = {f.name: folder / mask_file(f.name) for f in trained.frames}
+    return {name: path for name, path in found.items() if path.is_file()} or None

@@ -62,16 +62,27 @@ class Exported:
 @dataclass(frozen=True)
 class CapturedViews:
     """What the camera exports are made of, in the SfM frame: the trained ``cameras``, each frame's photo
-    (``images``: name -> file), the SfM ``points`` (or None), each frame's mask (``masks``: name -> (H, W)
-    bool, True where the subject is; None without masks), the held-out frames' names, and the depth maps'
+    (``images``: name -> file), the SfM ``points`` (or None), each frame's mask (``masks``: name -> its PNG, one
+    channel, 0 where the pixel is ignored; None without masks), the held-out frames' names, and the depth maps'
     index (in the normalized world: its ``to_sfm`` maps it into the SfM frame)."""
 
     cameras: CameraSet
     images: dict[str, Path]
     points: Points | None = None
-    masks: dict[str, np.ndarray] | None = None
+    masks: dict[str, Path] | None = None
     heldout: tuple[str, ...] = ()
     depth: DepthIndex | None = None
+
+
+def in_sfm_frame(trained: CameraSet, to_sfm: Any) -> CameraSet:
+    """The trained cameras (normalized world) moved into the SfM frame by the bounds' ``to_sfm``, as every
+    export and ``nerfpipe.open`` give them."""
+    from nerfpipe.export.paths import transform_poses
+    from nerfpipe.geometry.cameras import Frame
+
+    poses = transform_poses(np.array([f.c2w for f in trained.frames]), to_sfm) if trained.frames else []
+    frames = [Frame(f.name, f.camera_id, pose, f.split) for f, pose in zip(trained.frames, poses)]
+    return CameraSet(trained.cameras, frames, None, trained.source)
 
 
 def transforms_json(cameras: CameraSet, image_paths: dict[str, str], **optional: Any) -> dict[str, Any]:
@@ -135,8 +146,6 @@ def colmap_model(cameras: CameraSet, points: Points | None, folder: Path) -> Non
 
 def _camera_exports(views: CapturedViews, staging: Path, has_depth: bool) -> None:
     """transforms.json with images/, masks/ and sparse_pc.ply where there are any, and sparse/0/."""
-    import cv2
-
     from nerfpipe.export.points import Cloud, write_ply
 
     frames = views.cameras.frames
@@ -145,11 +154,10 @@ def _camera_exports(views: CapturedViews, staging: Path, has_depth: bool) -> Non
         _copy(views.images[frame.name], staging / "images" / frame.name)
         paths[frame.name] = f"images/{frame.name}"
     # nerfstudio takes masks and depth maps for every frame or for none
-    if views.masks is not None and all(views.masks.get(f.name) is not None for f in frames):
-        (staging / "masks").mkdir()
-        for frame in frames:  # one channel, 0 where the pixel is ignored
+    if views.masks is not None and all(f.name in views.masks for f in frames):
+        for frame in frames:
             masks[frame.name] = f"masks/{Path(frame.name).stem}.png"
-            cv2.imwrite(str(staging / masks[frame.name]), np.where(views.masks[frame.name], 255, 0).astype(np.uint8))
+            _copy(views.masks[frame.name], staging / masks[frame.name])
     ply = None
     if views.points is not None and len(views.points.xyz):
         write_ply(staging / SPARSE_PLY, Cloud(views.points.xyz, views.points.rgb / 255.0))

@@ -9,7 +9,8 @@ background colour for photos with alpha or a constant backdrop; sRGB previews of
 Writes ``model.pt`` / ``model.json`` (``nerfpipe.nerf.model.RadianceModel``), ``views.json`` (which frames
 trained it and which were held out), ``checkpoints/``, ``metrics.jsonl`` (loss and PSNR against wall time),
 ``metrics.json`` (PSNR and SSIM on held-out views) and ``eval/`` (each held-out view rendered, beside its
-ground truth and, where a backdrop mask made that ground truth, the photo as taken).
+ground truth and, where a backdrop mask made that ground truth, the photo as taken), ``masks/`` (the masks it
+trained with, where the scene has any).
 
 Held-out views: the capture's test (else val) split when it has one; otherwise every 8th image, as the
 paper holds out 1/8 of its real scenes (Section 6.1).
@@ -246,13 +247,13 @@ class TrainStage(Stage):
     """Train the radiance field the scene calls for (by default a grid field with occupancy marching; the paper's MLPs with `--preset paper`) and score it on held-out views."""
 
     name = "train"
-    version = 12  # 12: model.json holds the parts' configs; 11: directions into the colour MLP as they are (L = 0; 4 before); 10: poses refined beyond 2 px
+    version = 13  # 13: masks/ (what it trained with) and eval/ photos as taken; 12: model.json holds the parts' configs; 11: directions into the colour MLP as they are (L = 0; 4 before); 10: poses refined beyond 2 px
     Params = TrainParams
     Summary = TrainSummary
     presets = PRESETS
     requires = ("images", "undistorted_images", "pinhole", "world", "bounds", "scene")
     provides = {"model": "model.pt", "model_json": "model.json", "metrics": "metrics.json", "eval": "eval",
-                "views": "views.json", "cameras": "cameras"}
+                "views": "views.json", "cameras": "cameras", "masks": "masks"}
     libraries = ("torch", "kornia", "numpy")
     accelerated = True
     resumable = True
@@ -282,7 +283,7 @@ class TrainStage(Stage):
         from nerfpipe.export.web import watching
         from nerfpipe.nerf.policy import build_model, density_noise
         from nerfpipe.nerf.train.evaluation import evaluate, evaluation_scale, scaled_size
-        from nerfpipe.nerf.train.images import ImageLoader, describe_masks, split_views, trained_cameras
+        from nerfpipe.nerf.train.images import ImageLoader, describe_masks, split_views, trained_cameras, write_masks
         from nerfpipe.nerf.train.trainer import Trainer
 
         loader = ImageLoader.from_inputs(inputs)
@@ -344,6 +345,7 @@ class TrainStage(Stage):
                                     *scaled_size(first.width, first.height, scale), predicted, predicted - kept, kept)
             with ctx.progress(len(views.heldout), "evaluate") as advance:
                 evaluation = evaluate(model, loader, views.heldout, out / "eval", params.chunk, advance, scale=scale)
+        write_masks(out / "masks", loader, loader.world.frames)  # as trained and scored, for the exports
         summary = TrainSummary(
             steps=trainer.step,
             budget_seconds=params.seconds if params.steps == 0 else None,

@@ -146,7 +146,10 @@ def test_transforms_json_carries_nerfstudios_optional_fields(tmp_path):
 
     ArtifactStore(tmp_path / "run").prepare()
     index = depth_maps(tmp_path / "stages" / "depth", NAMES)
-    masks = {name: np.pad(np.ones((2, 2), bool), 2)[:6, :8] for name in NAMES}
+    (tmp_path / "masks").mkdir()
+    for name in NAMES:  # as the train stage writes them: one channel, 255 on the subject
+        cv2.imwrite(str(tmp_path / "masks" / name), np.pad(np.full((2, 2), 255, np.uint8), 2)[:6, :8])
+    masks = {name: tmp_path / "masks" / name for name in NAMES}
     points = Points(np.array([[0.1, 0.2, 0.3], [1.0, 2.0, 3.0]]), np.array([[255, 0, 0], [0, 0, 255]], np.uint8),
                     np.zeros(2))
     views = CapturedViews(cameras(), {n: TEMPLE / n for n in NAMES}, points, masks, (NAMES[2],), index)

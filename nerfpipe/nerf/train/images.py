@@ -169,6 +169,29 @@ class ImageLoader:
         )
 
 
+def mask_file(name: str) -> str:
+    """The file a frame's mask is written to, in ``masks/``."""
+    return f"{Path(name).stem}.png"
+
+
+def write_masks(folder: Path, loader: ImageLoader, frames: list[Frame]) -> int:
+    """Write into ``folder`` (made, empty when the scene has no masks) each frame's mask as training used it,
+    one 8-bit channel, 255 on the subject and 0 where the pixel is ignored (alpha >= 0.5, or the pixels off the
+    constant backdrop): nerfstudio's masks. Returns how many it wrote."""
+    from nerfpipe.imaging.png import write_png
+
+    folder.mkdir(parents=True, exist_ok=True)
+    if not loader.use_alpha and loader.backdrop is None:
+        return 0
+    written = 0
+    for frame in frames:
+        mask = loader.alpha(frame) if loader.use_alpha else loader.foreground(frame)
+        if mask is not None:
+            write_png(folder / mask_file(frame.name), np.where(mask, 255, 0).astype(np.uint8))
+            written += 1
+    return written
+
+
 def describe_masks(pixels: PixelSet) -> str | None:
     """A sentence on the backdrop masks of a pixel set (None without): how much of it is backdrop."""
     if pixels.alpha is None:
