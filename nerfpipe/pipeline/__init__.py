@@ -16,12 +16,12 @@ from nerfpipe.pipeline.errors import (
 )
 from nerfpipe.pipeline.params import ParamSpec, build_params, param_specs, parse_assignments
 from nerfpipe.pipeline.runner import Pipeline, PlannedStage, StageOutcome, StageStatus
-from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
+from nerfpipe.pipeline.stage import LaterStage, Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import ArtifactStore, Committed, Damage
 
 __all__ = [
     "ArtifactStore", "BadPhotoError", "Committed", "Damage", "Dag", "DiskFullError", "InputError", "NerfpipeError", "ParamError",
-    "ParamSpec", "Pipeline", "PlannedStage", "RunLockedError", "Stage", "StageContext", "StageError",
+    "LaterStage", "ParamSpec", "Pipeline", "PlannedStage", "RunLockedError", "Stage", "StageContext", "StageError",
     "StageInputs", "StageOutcome", "StageStatus", "UpstreamNotReadyError", "build_params", "param_specs",
     "parse_assignments",
 ]

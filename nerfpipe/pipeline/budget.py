@@ -143,6 +143,41 @@ def fit_to_allotment(full_seconds: float, left: float | None, floor: float, fixe
     return Fit(scale, cost(scale), max(cost(scale) - max(left, 0.0), 0.0) if scale <= floor else 0.0)
 
 
+@dataclass(frozen=True)
+class FloorWork:
+    """What a budgeted stage's outputs cost at their floors (``Stage.floor_work``), before it has run: ``units`` of
+    the work whose rate the elastic stage measures (for a radiance field's exports: rays, each weighted by its
+    stage's overhead), ``fixed`` seconds whatever that rate, and ``what`` they are, for the line that says so."""
+
+    units: float
+    fixed: float
+    what: str
+
+    def seconds(self, per_unit: float) -> float:
+        return self.units * per_unit + self.fixed
+
+
+def floors_line(floors: Iterable[tuple[FloorWork, float]], per_unit: float, budget: float) -> tuple[str, float]:
+    """The one line that says whether the outputs fit the budget at their floors, and the seconds the job takes
+    beyond its budget for them (0: they fit). ``floors``: each output's ``FloorWork`` and the seconds the budget
+    keeps for it; ``per_unit``: the measured seconds a unit of work takes. An output that fits its part needs
+    nothing more, and one that does not takes the difference: none of them is made smaller than its floor."""
+    parts, over, need, kept = [], 0.0, 0.0, 0.0
+    for work, allotted in floors:
+        seconds = work.seconds(per_unit)
+        need, kept = need + seconds, kept + allotted
+        if seconds > allotted:
+            over += seconds - allotted
+            parts.append(f"{work.what}, {format_duration(seconds - allotted)} over")
+    if over < 1.0:
+        return (f"budget: the outputs at their floors take about {format_duration(need)} of the "
+                f"{format_duration(kept)} the {format_duration(budget)} budget keeps for them"), 0.0
+    return (f"budget: the outputs at their floors take about {format_duration(need)}, where the "
+            f"{format_duration(budget)} budget keeps {format_duration(kept)} for them ({'; '.join(parts)}): the job "
+            f"takes about {format_duration(over)} longer rather than make them smaller (a larger --budget, or "
+            "--budget off, runs them as set)"), over
+
+
 def takes_part(share: float, elastic_params: tuple[str, ...], chosen: Iterable[str]) -> tuple[bool, bool]:
     """(budgeted, elastic) for a stage with ``share`` and ``elastic_params`` whose parameters set by the user
     or a preset are ``chosen``: elastic unless one of those was chosen; budgeted if either."""

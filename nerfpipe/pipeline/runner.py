@@ -37,7 +37,7 @@ from nerfpipe.pipeline.plan import (
     upstream_problem,
 )
 from nerfpipe.pipeline.run_config import RunConfig, run_command
-from nerfpipe.pipeline.stage import ProgressFactory, Stage, StageContext, StageInputs, _no_progress
+from nerfpipe.pipeline.stage import LaterStage, ProgressFactory, Stage, StageContext, StageInputs, _no_progress
 from nerfpipe.pipeline.store import ArtifactStore, Committed, Damage
 from nerfpipe.pipeline.summary import as_json
 
@@ -327,7 +327,7 @@ class Pipeline:
         work = self.store.begin(name, key, resume=planned.stage.resumable and not forced)
         started = time.time()
         ctx = StageContext(log=logging.getLogger(f"nerfpipe.stages.{name}"), progress=self.progress, debug=self.debug,
-                           extra=self.extra, allotment=self._allotment(planned))
+                           extra=self.extra, allotment=self._allotment(planned), later=self._later(planned))
         try:
             summary = as_json(planned.stage.run(inputs, work, planned.params, ctx))
             missing = [rel for rel in planned.stage.provides.values() if not (work / rel).exists()]
@@ -371,6 +371,13 @@ class Pipeline:
         if planned.elastic:
             return Allotment(job.remainder(self.dag.stages[n].budget_share for n in self._pending), job.seconds, True)
         return Allotment(job.share(planned.stage.budget_share), job.seconds)
+
+    def _later(self, planned: PlannedStage) -> tuple[LaterStage, ...]:
+        """The stages with a share of the job's budget still to run after the elastic ``planned`` (none for others)."""
+        plan, job = self.plan(), self._job
+        return () if job is None or not planned.elastic else tuple(
+            LaterStage(plan[n].stage, plan[n].params, job.share(plan[n].stage.budget_share)) for n in self._pending
+            if "budget" in plan[n].material and plan[n].stage.budget_share > 0)
 
     def _check_space(self, planned: PlannedStage, inputs: StageInputs) -> None:
         """Refuse to start a stage whose outputs, as it predicts them, do not fit on the disk."""

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, ClassVar, Generic, Iterator, Mapping, TypeVar
 
-from nerfpipe.pipeline.budget import Allotment
+from nerfpipe.pipeline.budget import Allotment, FloorWork
 from nerfpipe.pipeline.fingerprint import Fingerprint
 from nerfpipe.pipeline.summary import Summary
 
@@ -70,6 +70,22 @@ def _no_progress(total: int, description: str) -> Iterator[Callable[..., None]]:
     yield lambda n=1, info=None: None
 
 
+@dataclass(frozen=True)
+class LaterStage:
+    """A budgeted stage still to run after the running one: its ``params`` and the ``seconds`` of its share."""
+
+    stage: "Stage"
+    params: Any
+    seconds: float
+
+    @property
+    def name(self) -> str:
+        return self.stage.name
+
+    def floor_work(self, *capture: Any) -> FloorWork | None:
+        return self.stage.floor_work(self.params, *capture)
+
+
 @dataclass
 class StageContext:
     """Services the runner gives a running stage: a logger, progress bars, and ``extra``: what the caller of
@@ -80,6 +96,7 @@ class StageContext:
     debug: bool = False
     extra: dict[str, Any] = field(default_factory=dict)
     allotment: Allotment | None = None  # its part of the job's time budget (``nerfpipe.pipeline.budget``), if any
+    later: tuple[LaterStage, ...] = ()  # under a budget, the stages with a share still to run after it
 
 
 class Stage:
@@ -127,6 +144,11 @@ class Stage:
     def least_seconds(self, params: Any) -> tuple[float, str] | None:
         """The fewest seconds ``params`` can cost on any machine, and the setting that asks for them, where the
         parameters alone tell (``train.steps``): a job whose budget is smaller is refused before it starts."""
+        return None
+
+    def floor_work(self, params: Any, *capture: Any) -> FloorWork | None:
+        """What this stage's outputs cost at their floors, where it can tell before its inputs exist, from what the
+        elastic stage knows of the ``capture`` (the application says what that is); None: no floor to keep."""
         return None
 
     def describe(self, result: Path, manifest: Mapping[str, Any]) -> list[str]:

@@ -17,7 +17,7 @@ from typing import Literal
 
 from nerfpipe.artifacts import BOUNDS, CAMERAS, VIEWS, ViewSplit, view_file_stem
 from nerfpipe.geometry.cameras import CameraSet
-from nerfpipe.pipeline.budget import fit_to_allotment
+from nerfpipe.pipeline.budget import FloorWork, fit_to_allotment
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
@@ -107,6 +107,18 @@ class ExportDepthStage(Stage):
                 width, height = scaled_size(camera.width, camera.height, params.scale)
                 total += width * height * 3 * 4
         return total
+
+    def floor_work(self, params: ExportDepthParams, world: CameraSet, split: ViewSplit, *rest) -> FloorWork | None:
+        """The depth maps at their floor (a quarter of the photos' side, ``DEPTH_FLOOR``, or the scale asked for when
+        smaller): their rays, as ``_fitting_scale`` weighs them."""
+        by_name = {f.name: f for f in world.frames}
+        cameras = [world.camera_of(by_name[name]) for _, name in wanted_views(split, params) if name in by_name]
+        if not cameras:
+            return None
+        scale = min(params.scale, DEPTH_FLOOR)
+        sizes = [scaled_size(c.width, c.height, scale) for c in cameras]
+        return FloorWork(VIEW_OVERHEAD * sum(w * h for w, h in sizes), 0.0,
+                         f"{len(sizes)} depth maps at {sizes[0][0]}x{sizes[0][1]}")
 
     @staticmethod
     def _fitting_scale(model, frames, world: CameraSet, near_far, params: ExportDepthParams, ctx: StageContext,

@@ -26,9 +26,9 @@ from typing import Any, Iterator, Literal, Sequence
 import numpy as np
 
 from nerfpipe.artifacts import BOUNDS, CAMERAS, SCENE
-from nerfpipe.geometry.cameras import Camera
+from nerfpipe.geometry.cameras import Camera, CameraSet
 from nerfpipe.imaging.png import read_png, srgb_encode, write_png
-from nerfpipe.pipeline.budget import check_affordable, fit_to_allotment
+from nerfpipe.pipeline.budget import FloorWork, check_affordable, fit_to_allotment
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
@@ -168,6 +168,20 @@ class RenderStage(Stage):
     def input_files(self, source: Path, params: RenderParams) -> list[Path]:
         """A camera path file, when ``path`` names one: its content enters the cache key."""
         return [] if params.path in PATH_KINDS else [Path(params.path)]
+
+    def floor_work(self, params: RenderParams, world: CameraSet, *rest: Any) -> FloorWork | None:
+        """The video at its floor (``VIDEO_FLOOR_SIDE``, or the size asked for when smaller): its frames' rays, as
+        ``_run`` weighs them, and each frame's fixed cost."""
+        from nerfpipe.export.camera_path import CameraPath
+
+        if not world.frames:
+            return None
+        frames = params.frames if params.path in PATH_KINDS else CameraPath.load(Path(params.path)).frames
+        wanted = render_size(world.camera_of(world.frames[0]), params.scale, params.max_side, params.short_side)
+        floor = min(1.0, VIDEO_FLOOR_SIDE / min(wanted))
+        width, height = (max(2, 2 * round(side * floor / 2)) for side in wanted)
+        return FloorWork(FRAME_OVERHEAD * frames * width * height, FRAME_SECONDS * frames,
+                         f"the video, {frames} frames at {width}x{height}")
 
     def run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext) -> RenderSummary:
         from nerfpipe.nerf.device import rendering_device

@@ -282,7 +282,8 @@ class TrainStage(Stage):
         started = time.monotonic()
         from nerfpipe.export.web import watching
         from nerfpipe.nerf.policy import build_model, density_noise
-        from nerfpipe.nerf.train.evaluation import evaluate, evaluation_scale, scaled_size
+        from nerfpipe.nerf.train.evaluation import evaluate, evaluated_scale, evaluation_scale, scaled_size
+        from nerfpipe.nerf.train.floors import floor_hook
         from nerfpipe.nerf.train.images import ImageLoader, describe_masks, split_views, trained_cameras, write_masks
         from nerfpipe.nerf.train.trainer import Trainer
 
@@ -323,7 +324,9 @@ class TrainStage(Stage):
         with watching(model, loader.world, loader.images, loader.bounds, ctx.extra.get("watch_port"),
                       ctx.extra.get("watch_host", "127.0.0.1"), ctx.log):
             with ctx.progress(trainer.total - trainer.done_units(), "train") as advance:
-                trainer.run(advance)
+                trainer.run(advance, None if ctx.allotment is None or params.steps > 0 else floor_hook(
+                    ctx.log, ctx.allotment.budget, ctx.later, model, loader, views, params.seconds, params.chunk,
+                    (evaluated_scale(params.eval_scale), params.eval_budget * params.seconds)))
             ctx.log.info("train: %d steps drew %s rays, %.0f a second, %.3g per training pixel, at %.1f samples a ray",
                          trainer.step, f"{trainer.total_rays:,}", trainer.total_rays / max(trainer.elapsed, 1e-9),
                          trainer.total_rays / max(int(pixels.rgb.shape[0]), 1),

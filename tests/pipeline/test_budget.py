@@ -68,6 +68,7 @@ class Recorder(Stage):
     version = 1
     Params = SleepParams
     seen: ClassVar[dict[str, Allotment | None]] = {}
+    later: ClassVar[dict[str, tuple]] = {}
 
     def __init__(self, name: str, requires: tuple[str, ...], share: float = 0.0, elastic: tuple[str, ...] = ()) -> None:
         self.name, self.requires, self.budget_share, self.elastic = name, requires, share, elastic
@@ -75,6 +76,7 @@ class Recorder(Stage):
 
     def run(self, inputs, out, params, ctx):
         Recorder.seen[self.name] = ctx.allotment
+        Recorder.later[self.name] = tuple((s.name, s.seconds) for s in ctx.later)
         time.sleep(params.seconds)
         (out / f"{self.name}.json").write_text("{}")
         return {}
@@ -94,6 +96,8 @@ def test_stages_get_their_part_of_the_job_and_the_budget_enters_only_their_keys(
     assert render == Allotment(2.0, 20.0) and mesh == Allotment(1.0, 20.0)
     # 20 s less what ingest and slow spent (at least the 0.5 s slept), less render's 2 s and mesh's 1 s
     assert train.elastic and 15.0 < train.seconds <= 16.5
+    # the elastic stage knows the stages still to come with a share, and their seconds (to ask for their floors)
+    assert Recorder.later == {"slow": (), "train": (("render", 2.0), ("mesh", 1.0)), "render": (), "mesh": ()}
     assert Recorder.seen["slow"] is None and json.loads((run_dir / "run.json").read_text())["budget"] == 20.0
     manifest = json.loads((pipe.result("render").path / "manifest.json").read_text())
     assert manifest["budget"] == 20.0 and manifest["timings"]["allotted"] == 2.0

@@ -84,8 +84,13 @@ def evaluation_scale(setting: str, model: RadianceModel, loader: ImageLoader, fr
     first, camera = frames[0], loader.world.camera_of(frames[0])
     per_ray = seconds_per_ray(model, loader.intrinsics(first), first.c2w, camera.width, camera.height,
                               *loader.near_far[first.name], chunk)
-    scale = AUTO_EVAL_SCALE if setting == "auto" else float(setting)
+    scale = evaluated_scale(setting)
     return scale, per_ray * pixels * scale**2
+
+
+def evaluated_scale(setting: str) -> float:
+    """The scale ``train.eval_scale`` scores the held-out views at: a number in (0, 1], or "auto" (``AUTO_EVAL_SCALE``)."""
+    return AUTO_EVAL_SCALE if setting == "auto" else float(setting)
 
 
 def scaled_size(width: int, height: int, scale: float) -> tuple[int, int]:

@@ -309,3 +309,52 @@ def test_rendering_without_gradients_evaluates_each_density_once_and_renders_the
     assert 0 < fast.evaluated < once  # the pass looked at more samples than the rays kept
     for key in ("rgb", "depth", "acc"):
         torch.testing.assert_close(getattr(fast, key), getattr(slow, key))
+
+
+def test_training_skips_the_visibility_pass_where_it_would_keep_nearly_every_sample() -> None:
+    """In thin fog (optical depth at most 0.5 across the sphere) the pass keeps every marched sample: measured once,
+    training then evaluates the marched samples directly, the same ones, each density once. Against an opaque
+    sphere it drops most of them and keeps running. A grid refresh makes the next step measure again."""
+    grid = OccupancyGrid(*BOX, resolution=16)
+    rays = camera_rays(100, spread=0.6)
+    fog = CountingSphere(radius=0.5, density=0.5)
+    model = marching(fog, grid, MarchingConfig(steps=128, early_stop=1e-3))
+    sampler = model.sampler
+    measured = model.render(rays, train=True, generator=torch.Generator().manual_seed(1))
+    assert sampler.visible_share == 1.0 and not sampler.measure
+    fog.densities = 0
+    skipped = model.render(rays, train=True, generator=torch.Generator().manual_seed(1))
+    assert fog.densities == skipped.evaluated == measured.evaluated  # no pass: the field saw each sample once
+    torch.testing.assert_close(skipped.rgb, measured.rgb)
+    sampler.update(17, fog.query_density, torch.Generator().manual_seed(0))
+    assert not sampler.measure  # no refresh at step 17
+    sampler.update(32, fog.query_density, torch.Generator().manual_seed(0))
+    fog.densities = 0
+    again = model.render(rays, train=True, generator=torch.Generator().manual_seed(1))
+    assert fog.densities > again.evaluated and not sampler.measure  # measured again after the refresh
+
+    wall = CountingSphere(radius=0.5, density=200.0)
+    model = marching(wall, OccupancyGrid(*BOX, resolution=16), MarchingConfig(steps=128, early_stop=1e-3))
+    model.render(rays, train=True, generator=torch.Generator().manual_seed(1))
+    assert model.sampler.visible_share < MarchingSampler.SKIP_VISIBILITY_ABOVE
+    wall.densities = 0
+    out = model.render(rays, train=True, generator=torch.Generator().manual_seed(1))
+    assert wall.densities > out.evaluated  # the pass ran: it looked at the samples behind the surface too
+    with torch.no_grad():  # rendering always runs it (its densities are reused)
+        fog.densities = 0
+        marching(fog, grid, sampler.config).render(rays)
+        assert fog.densities > 0
+
+
+def test_the_measured_share_is_saved_so_a_resumed_training_skips_as_it_would_have() -> None:
+    sampler = MarchingSampler(OccupancyGrid(*BOX, resolution=8), MarchingConfig(occupancy_resolution=8))
+    sampler.visible_share, sampler.measure = 0.93, False
+    state = sampler.state_dict()
+    resumed = MarchingSampler(OccupancyGrid(*BOX, resolution=8), MarchingConfig(occupancy_resolution=8))
+    resumed.load_state_dict(state)
+    assert resumed.visible_share == pytest.approx(0.93) and not resumed.measure
+    older = {k: v for k, v in state.items() if k != "visible_share"}  # a model saved before the share was kept
+    resumed.load_state_dict(older)
+    assert resumed.visible_share == -1.0 and resumed.measure
+    resumed.reset()
+    assert resumed.measure

@@ -1,0 +1,94 @@
+"""Whether a job's outputs fit its budget at their floors, said once, early in training.
+
+Under a job budget every output has a floor below which it is useless (held-out scores at half the photos' side,
+depth maps at a quarter, a video of 360 pixels on its short side), and each export stage renders at the size its
+share affords, never below its floor. What rendering costs is a property of the trained field (its samples a ray
+follow what the occupancy grid has learned), so it cannot be timed before training; it can once the grid has seen
+the field (``CALIBRATION_STEPS``, the grid's warm-up, or ``CALIBRATION_SHARE`` of the training time, whichever
+comes first). Then ``floor_check`` times the field on a few thousand rays and says, in one line, whether the
+outputs fit what the budget keeps for them, or how much longer the job will take: before the rest of training,
+not after it. Each stage still times its own work when it runs, and says again if it goes over.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Callable, Sequence
+
+from nerfpipe.artifacts import ViewSplit
+from nerfpipe.nerf.model import RadianceModel
+from nerfpipe.nerf.throughput import seconds_per_ray
+from nerfpipe.nerf.train.evaluation import scaled_size
+from nerfpipe.nerf.train.images import ImageLoader, Views
+from nerfpipe.pipeline.budget import FloorWork, floors_line
+from nerfpipe.pipeline.errors import NerfpipeError
+from nerfpipe.pipeline.stage import LaterStage
+
+CALIBRATION_STEPS = 256  # the occupancy grid's warm-up (``MarchingConfig.warmup``): it knows the field by then
+CALIBRATION_SHARE = 0.1  # or this share of the training time, on a machine too slow for that many steps
+
+
+def calibrated(step: int, elapsed: float, seconds: float) -> bool:
+    """Whether training has gone far enough for its field's rendering cost to say what the outputs will cost."""
+    return step >= CALIBRATION_STEPS or elapsed >= CALIBRATION_SHARE * seconds
+
+
+def evaluation_floor(loader: ImageLoader, heldout: Sequence, scale: float) -> FloorWork | None:
+    """The held-out evaluation at ``scale`` of the photos' side: its rays."""
+    if not heldout:
+        return None
+    sizes = [scaled_size(c.width, c.height, scale) for c in map(loader.world.camera_of, heldout)]
+    return FloorWork(float(sum(w * h for w, h in sizes)), 0.0,
+                     f"the held-out evaluation, {len(sizes)} view{'s' * (len(sizes) != 1)} at {sizes[0][0]}x{sizes[0][1]}")
+
+
+def floor_check(model: RadianceModel, loader: ImageLoader, views: Views, evaluation: tuple[float, float],
+                later: Sequence[LaterStage], budget: float, chunk: int) -> tuple[str, float]:
+    """The line that says whether the outputs fit the budget at their floors, and the seconds the job will take
+    beyond it (0: they fit), with rendering timed on ``model`` as it is now (``seconds_per_ray`` on the first
+    held-out view, else the first training view).
+
+    Args:
+        evaluation: (scale, seconds kept): the held-out views' scale and the seconds the budget keeps for scoring
+            them. later: the budgeted stages still to run (``StageContext.later``), each asked for its floor
+            (``Stage.floor_work(params, world, split)``); a stage that cannot tell is left out.
+    """
+    first = (views.heldout or views.train)[0]
+    camera = loader.world.camera_of(first)
+    was_training = [f.training for f in model.fields()]
+    try:
+        per_ray = seconds_per_ray(model, loader.intrinsics(first), first.c2w, camera.width, camera.height,
+                                  *loader.near_far[first.name], chunk)
+    finally:
+        for f, mode in zip(model.fields(), was_training):
+            f.train(mode)
+    floors = []
+    scored = evaluation_floor(loader, views.heldout, evaluation[0])
+    if scored is not None:
+        floors.append((scored, evaluation[1]))
+    split = ViewSplit([f.name for f in views.train], [f.name for f in views.heldout], views.rule)
+    for stage in later:
+        try:
+            work = stage.floor_work(loader.world, split)
+        except NerfpipeError:  # its own settings are wrong (a camera path that cannot be read): it says so itself
+            work = None
+        if work is not None:
+            floors.append((work, stage.seconds))
+    return floors_line(floors, per_ray, budget)
+
+
+def floor_hook(log: logging.Logger, budget: float, later: Sequence[LaterStage], model: RadianceModel,
+               loader: ImageLoader, views: Views, seconds: float, chunk: int,
+               evaluation: tuple[float, float]) -> Callable[..., bool]:
+    """A ``Trainer.run`` step hook that, once ``calibrated``, logs ``floor_check``'s line: a warning when the job
+    will take longer than its ``budget``. It never stops training."""
+    pending = [True]
+
+    def check(trainer) -> bool:
+        if pending and calibrated(trainer.step, trainer.elapsed, seconds):
+            pending.clear()
+            line, over = floor_check(model, loader, views, evaluation, later, budget, chunk)
+            (log.warning if over else log.info)(line)
+        return False
+
+    return check

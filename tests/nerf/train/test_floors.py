@@ -1,0 +1,88 @@
+"""Floors under a busy machine: early in training, one line says whether the outputs fit the budget at their floors,
+or how much longer the job will take; the cost of rendering is injected, as a slow machine would measure it."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+import torch
+
+import nerfpipe.nerf.train.floors as floors
+from nerfpipe.nerf.policy import build_model
+from nerfpipe.nerf.train.images import Views
+from nerfpipe.pipeline.stage import LaterStage
+from nerfpipe.stages import ExportDepthParams, ExportDepthStage, RenderParams, RenderStage, TrainParams
+from tests.nerf.scenes import loader_of, write_image_folders
+
+
+@pytest.fixture
+def job(tmp_path: Path):
+    """Three 12x8 photos, the first held out; the video (5 s of the budget) and the depth maps (3 s) still to come."""
+    loader = loader_of(write_image_folders(tmp_path))
+    model, _ = build_model(TrainParams(), loader.scene, loader.world, loader.bounds, torch.device("cpu"))
+    frames = loader.world.frames
+    views = Views(train=frames[1:], heldout=frames[:1], rule="the first")
+    later = (LaterStage(RenderStage(), RenderParams(), 5.0), LaterStage(ExportDepthStage(), ExportDepthParams(), 3.0))
+    return model, loader, views, later
+
+
+def test_a_slow_machine_is_told_how_much_longer_the_job_takes_at_the_floors(job, monkeypatch) -> None:
+    model, loader, views, later = job
+    # the injected cost model: a microsecond a ray (a machine 50x slower than this one renders beer)
+    monkeypatch.setattr(floors, "seconds_per_ray", lambda *args: 1e-6)
+    line, over = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
+    # the video: 360 px on the short side of 12x8 photos is 540x360, 45 frames, 1.1 x the rays plus 0.01 s a frame:
+    # 1.1 x 45 x 540 x 360 x 1e-6 + 0.45 = 10.07 s, 5.07 s over its 5 s; the evaluation (one view at 6x4, 24 rays) and
+    # the depth maps (three at a quarter of 12x8, 3x2, 1.15 x 18 rays) cost microseconds and fit their 1 s and 3 s
+    assert over == pytest.approx(1.1 * 45 * 540 * 360 * 1e-6 + 0.45 - 5.0 + 0.0, rel=1e-9)
+    assert line == ("budget: the outputs at their floors take about 10 s, where the 1 min 40 s budget keeps 9 s for "
+                    "them (the video, 45 frames at 540x360, 5 s over): the job takes about 5 s longer rather than make "
+                    "them smaller (a larger --budget, or --budget off, runs them as set)")
+
+
+def test_a_fast_machine_hears_that_the_outputs_fit(job, monkeypatch) -> None:
+    model, loader, views, later = job
+    monkeypatch.setattr(floors, "seconds_per_ray", lambda *args: 1e-7)  # the video: 0.96 s + 0.45 s of its 5 s
+    line, over = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
+    assert over == 0.0
+    assert line == "budget: the outputs at their floors take about 1 s of the 9 s the 1 min 40 s budget keeps for them"
+
+
+def test_each_output_over_its_part_is_named_and_the_overs_add_up(job, monkeypatch) -> None:
+    model, loader, views, later = job
+    monkeypatch.setattr(floors, "seconds_per_ray", lambda *args: 0.1)  # a tenth of a second a ray
+    _, over = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
+    video = 1.1 * 45 * 540 * 360 * 0.1 + 0.45
+    assert over == pytest.approx((24 * 0.1 - 1.0) + (video - 5.0))  # the depth maps' 2.07 s fit their 3 s
+    line, _ = floors.floor_check(model, loader, views, (0.5, 1.0), later[1:], 100.0, 4096)
+    # 2.4 s for one view at 6x4 (1.4 s over 1 s), 2.07 s for the depth maps (within 3 s)
+    assert "(the held-out evaluation, 1 view at 6x4, 1 s over)" in line and "depth maps" not in line
+
+
+def test_the_line_comes_once_when_training_has_found_the_scene(job, monkeypatch, caplog) -> None:
+    model, loader, views, later = job
+    monkeypatch.setattr(floors, "seconds_per_ray", lambda *args: 1e-6)
+    caplog.set_level(logging.INFO, "test.floors")
+    hook = floors.floor_hook(logging.getLogger("test.floors"), 100.0, later, model, loader, views, 300.0, 4096,
+                             (0.5, 30.0))
+    assert not hook(SimpleNamespace(step=255, elapsed=29.0)) and not caplog.records  # neither 256 steps nor 10 %
+    assert not hook(SimpleNamespace(step=256, elapsed=29.0))  # never stops training
+    assert [r.levelname for r in caplog.records] == ["WARNING"] and "5 s longer" in caplog.text
+    hook(SimpleNamespace(step=400, elapsed=60.0))
+    assert len(caplog.records) == 1
+    slow = floors.floor_hook(logging.getLogger("test.floors"), 100.0, later, model, loader, views, 300.0, 4096,
+                             (0.5, 30.0))
+    slow(SimpleNamespace(step=12, elapsed=30.0))  # a machine too slow for 256 steps: 10 % of the training time
+    assert len(caplog.records) == 2
+
+
+def test_a_model_probed_mid_training_goes_on_training(job) -> None:
+    """The real probe renders without gradients, which sets the fields to eval mode: they are put back."""
+    model, loader, views, later = job
+    for f in model.fields():
+        f.train()
+    floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
+    assert all(f.training for f in model.fields())
