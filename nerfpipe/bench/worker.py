@@ -51,6 +51,7 @@ class Setup:
     config: TrainSettings  # the train stage's parameters, checkpoints off and a budget's seconds in
     chunk: int
     density_noise: float = 0.0
+    eval_scale: float = 1.0  # the share of the photos' side the held-out views are scored at, as the train stage does
 
 
 def prepare(spec: dict[str, Any]) -> Setup:
@@ -61,6 +62,7 @@ def prepare(spec: dict[str, Any]) -> Setup:
     from nerfpipe import Pipeline, default_stages
     from nerfpipe.nerf.policy import build_model, density_noise
     from nerfpipe.nerf.device import resolve_device
+    from nerfpipe.nerf.train.evaluation import evaluated_scale
     from nerfpipe.nerf.train.images import ImageLoader, split_views
 
     pipe = Pipeline(default_stages(), Path(spec["capture"]), Path(spec["run_dir"]), None, spec["overrides"])
@@ -79,7 +81,7 @@ def prepare(spec: dict[str, Any]) -> Setup:
         # a time-budgeted preset trains for the benchmark's budget: its learning rate decays over that time
         config = dataclasses.replace(config, seconds=float(spec["budget"]))
     return Setup(device, loader, views, heldout, model, decisions, config, params.chunk,
-                 density_noise(params, loader.scene.layout.value))
+                 density_noise(params, loader.scene.layout.value), evaluated_scale(params.eval_scale))
 
 
 def prepare_capture(capture: Path, run_dir: Path, size: int, sets: list[str], budget: float) -> Setup:
@@ -138,7 +140,7 @@ def evaluate_snapshots(setup: Setup, snapshots: list[dict[str, Any]], name: str)
     for snap in snapshots:
         setup.model.load_state({k: {n: v.to(setup.device) for n, v in d.items()} for k, d in snap["state"].items()})
         started = time.perf_counter()
-        result = evaluate(setup.model, setup.loader, setup.heldout, None, setup.chunk)
+        result = evaluate(setup.model, setup.loader, setup.heldout, None, setup.chunk, scale=setup.eval_scale)
         render_seconds = (time.perf_counter() - started) / max(len(setup.heldout), 1)
         points.append({"mark": snap["mark"], "seconds": round(snap["seconds"], 2), "step": snap["step"],
                        "psnr": result["psnr"], "ssim": result["ssim"]})
@@ -148,6 +150,8 @@ def evaluate_snapshots(setup: Setup, snapshots: list[dict[str, Any]], name: str)
 
 def _run(spec: dict[str, Any]) -> dict[str, Any]:
     import torch
+
+    from nerfpipe.nerf.train.evaluation import scaled_size
 
     setup = prepare(spec)
     budget = float(spec["budget"])
@@ -168,7 +172,7 @@ def _run(spec: dict[str, Any]) -> dict[str, Any]:
         "samples_per_s": round(trainer.total_samples / max(trainer.elapsed, 1e-9)),
         "samples_per_ray": round(trainer.total_samples / max(trainer.total_rays, 1), 2),
         "render_seconds_per_image": None if render_seconds is None else round(render_seconds, 3),
-        "image_size": None if camera is None else [camera.width, camera.height],
+        "image_size": None if camera is None else list(scaled_size(camera.width, camera.height, setup.eval_scale)),
         "peak_memory_bytes": peak,
         "train_images": len(setup.views.train),
         "heldout": len(heldout),
