@@ -27,8 +27,10 @@ class MarchingSampler:
     # behind opaque surfaces, each of which would cost a density and colour evaluation with its backward pass, about
     # five times as much on a CPU (measured: the temple, 77 % kept, trains 7 % fewer rays a second without the
     # pass): it pays below about four fifths kept. In fog (beer's contracted shell: 94-98 % kept) it is a fifth of a
-    # step spent for nothing, and skipping it trains 1.29x the rays a second (docs/benchmarks.md). Rendering always
-    # runs it: its densities are reused there.
+    # step spent for nothing, and skipping it trains 1.29x the rays a second (docs/benchmarks.md). Only in contracted
+    # space, where that fog is: an object in its box keeps the pass (lego's draft field, 90 % kept early on, trained
+    # 500 fixed steps without it to 1 dB below its pose-refinement test's mark, on fewer rays a step). Rendering
+    # always runs it: its densities are reused there.
     SKIP_VISIBILITY_ABOVE = 0.85
 
     def __init__(self, grid: OccupancyGrid, config: MarchingConfig) -> None:
@@ -54,7 +56,7 @@ class MarchingSampler:
         leading rays with at most ``4 max_samples`` marched samples, and the samples kept are those of the
         leading rays with at most ``max_samples`` visible ones."""
         samples = march(rays, space, self.grid, self.config.steps, train, generator)
-        training = train and torch.is_grad_enabled()
+        training = train and torch.is_grad_enabled() and getattr(space, "kind", "") == "contracted"
         if training and not self.measure and self.visible_share > self.SKIP_VISIBILITY_ABOVE:
             if max_samples > 0:  # the training pass evaluates every marched sample: the budget bounds those
                 samples = samples.leading(within_budget(samples, max_samples))

@@ -311,14 +311,21 @@ def test_rendering_without_gradients_evaluates_each_density_once_and_renders_the
         torch.testing.assert_close(getattr(fast, key), getattr(slow, key))
 
 
+class Contracted(BoxSpace):
+    """The box space, named as contracted space is: where training may skip the visibility pass."""
+
+    kind = "contracted"
+
+
 def test_training_skips_the_visibility_pass_where_it_would_keep_nearly_every_sample() -> None:
-    """In thin fog (optical depth at most 0.5 across the sphere) the pass keeps every marched sample: measured once,
-    training then evaluates the marched samples directly, the same ones, each density once. Against an opaque
-    sphere it drops most of them and keeps running. A grid refresh makes the next step measure again."""
+    """In contracted space, in thin fog (optical depth at most 0.5 across the sphere) the pass keeps every marched
+    sample: measured once, training then evaluates the marched samples directly, the same ones, each density once.
+    Against an opaque sphere it drops most of them and keeps running; in a box (an object's space) it always runs.
+    A grid refresh makes the next step measure again."""
     grid = OccupancyGrid(*BOX, resolution=16)
     rays = camera_rays(100, spread=0.6)
     fog = CountingSphere(radius=0.5, density=0.5)
-    model = marching(fog, grid, MarchingConfig(steps=128, early_stop=1e-3))
+    model = RadianceModel(fog, None, MarchingSampler(grid, MarchingConfig(steps=128, early_stop=1e-3)), Contracted(BOX), None)
     sampler = model.sampler
     measured = model.render(rays, train=True, generator=torch.Generator().manual_seed(1))
     assert sampler.visible_share == 1.0 and not sampler.measure
@@ -333,8 +340,15 @@ def test_training_skips_the_visibility_pass_where_it_would_keep_nearly_every_sam
     again = model.render(rays, train=True, generator=torch.Generator().manual_seed(1))
     assert fog.densities > again.evaluated and not sampler.measure  # measured again after the refresh
 
+    boxed = marching(fog, OccupancyGrid(*BOX, resolution=16), MarchingConfig(steps=128, early_stop=1e-3))
+    boxed.render(rays, train=True, generator=torch.Generator().manual_seed(1))
+    fog.densities = 0
+    out = boxed.render(rays, train=True, generator=torch.Generator().manual_seed(1))
+    assert fog.densities > out.evaluated and boxed.sampler.visible_share == -1.0  # a box: the pass ran, unmeasured
+
     wall = CountingSphere(radius=0.5, density=200.0)
-    model = marching(wall, OccupancyGrid(*BOX, resolution=16), MarchingConfig(steps=128, early_stop=1e-3))
+    model = RadianceModel(wall, None, MarchingSampler(OccupancyGrid(*BOX, resolution=16),
+                                                      MarchingConfig(steps=128, early_stop=1e-3)), Contracted(BOX), None)
     model.render(rays, train=True, generator=torch.Generator().manual_seed(1))
     assert model.sampler.visible_share < MarchingSampler.SKIP_VISIBILITY_ABOVE
     wall.densities = 0
