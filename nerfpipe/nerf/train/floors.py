@@ -4,8 +4,8 @@ Under a job budget every output has a floor below which it is useless (held-out 
 depth maps at a quarter, a video of 360 pixels on its short side), and each export stage renders at the size its
 share affords, never below its floor. What rendering costs is a property of the trained field (its samples a ray
 follow what the occupancy grid has learned), so it cannot be timed before training; it can once the grid has seen
-the field and the field has left its first fog (``CALIBRATION_STEPS``, the grid's warm-up, and ``CALIBRATION_SHARE``
-of the training time, whichever comes later). Then ``floor_check`` renders a held-out view at a quarter of its side
+the field and the field has left its first fog (``Calibration``: the grid has begun to free cells and the samples a
+ray have settled). Then ``floor_check`` renders a held-out view at a quarter of its side
 and says, in one line, whether the outputs fit what the budget keeps for them, or how much longer the job will take:
 before the rest of training, not after it. Each stage still times its own work when it runs, and says again if it goes over.
 """
@@ -24,16 +24,50 @@ from nerfpipe.pipeline.budget import FloorWork, floors_line
 from nerfpipe.pipeline.errors import NerfpipeError
 from nerfpipe.pipeline.stage import LaterStage
 
-CALIBRATION_STEPS = 256  # the occupancy grid's warm-up (``MarchingConfig.warmup``): it knows the field by then
+CALIBRATION_STEPS = 256  # the occupancy grid's warm-up (``MarchingConfig.warmup``)
 # and this share of the training time: at 256 steps beer's field still renders 1.7x slower than trained (its depth
 # maps predicted at 108 s took 64)
 CALIBRATION_SHARE = 0.1
+# Then the samples a ray, averaged over windows of this many steps, must have settled: two windows in a row within
+# SETTLED_CHANGE of each other, after the occupancy grid began to free cells. The temple's grid frees its first cells
+# at step 256 and its samples a ray fall from 18 to 8 at once, then to 4.7 by step 500 (4.2 at the end): timed at
+# step 256 and a tenth of its 126 s, its video was predicted at 117 s and took 39. Beer's grid frees its first cells
+# about step 650 (41 samples a ray, then 34; 31-33 to the end), the cup's about step 520 (36, then 35; 32 at the end).
+SETTLED_WINDOW = 64
+SETTLED_CHANGE = 0.1
+LATEST_SHARE = 0.3  # whatever the field does, the line comes by this share of the training time
 PROBE_SCALE = 0.25  # the share of the view's side timed: whole neighbourhoods of rays, as the exports render them
 
 
-def calibrated(step: int, elapsed: float, seconds: float) -> bool:
-    """Whether training has gone far enough for its field's rendering cost to say what the outputs will cost."""
-    return step >= CALIBRATION_STEPS and elapsed >= CALIBRATION_SHARE * seconds
+class Calibration:
+    """Whether training has gone far enough for its field's rendering cost to say what the outputs will cost: at
+    least ``CALIBRATION_STEPS`` and ``CALIBRATION_SHARE`` of the ``seconds`` of training, the occupancy grid below
+    what it held when first asked (a sampler without one has nothing to free), and the samples a ray of the last two
+    windows of ``SETTLED_WINDOW`` steps since then within ``SETTLED_CHANGE`` of each other; or ``LATEST_SHARE`` of
+    the training time, whatever the field does. Called once a step with that step's samples and rays."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+        self.first: float | None = None  # the occupancy when first asked
+        self.windows: list[float] = []  # samples a ray of each whole window since the grid began to free cells
+        self.samples = self.rays = self.steps = 0
+
+    def __call__(self, step: int, elapsed: float, samples: int, rays: int, occupancy: float | None) -> bool:
+        if self.first is None:
+            self.first = occupancy
+        if occupancy is not None and self.first is not None and occupancy >= self.first:
+            self.samples = self.rays = self.steps = 0  # the grid still as it started: nothing counts yet
+        else:
+            self.samples, self.rays, self.steps = self.samples + samples, self.rays + rays, self.steps + 1
+            if self.steps == SETTLED_WINDOW:
+                self.windows.append(self.samples / max(self.rays, 1))
+                self.samples = self.rays = self.steps = 0
+        if elapsed >= LATEST_SHARE * self.seconds:
+            return True
+        if step < CALIBRATION_STEPS or elapsed < CALIBRATION_SHARE * self.seconds or len(self.windows) < 2:
+            return False
+        before, last = self.windows[-2:]
+        return abs(last - before) <= SETTLED_CHANGE * before
 
 
 def evaluation_floor(loader: ImageLoader, heldout: Sequence, scale: float) -> FloorWork | None:
@@ -85,12 +119,14 @@ def floor_check(model: RadianceModel, loader: ImageLoader, views: Views, evaluat
 def floor_hook(log: logging.Logger, budget: float, later: Sequence[LaterStage], model: RadianceModel,
                loader: ImageLoader, views: Views, seconds: float, chunk: int,
                evaluation: tuple[float, float]) -> Callable[..., bool]:
-    """A ``Trainer.run`` step hook that, once ``calibrated``, logs ``floor_check``'s line: a warning when the job
-    will take longer than its ``budget``. It never stops training."""
+    """A ``Trainer.run`` step hook that, once ``Calibration`` says so, logs ``floor_check``'s line: a warning when
+    the job will take longer than its ``budget``. It never stops training."""
     pending = [True]
+    calibrated = Calibration(seconds)
 
     def check(trainer) -> bool:
-        if pending and calibrated(trainer.step, trainer.elapsed, seconds):
+        if pending and calibrated(trainer.step, trainer.elapsed, trainer.samples, trainer.rays,
+                                  model.sampler.stats().get("occupancy")):
             pending.clear()
             line, over = floor_check(model, loader, views, evaluation, later, budget, chunk)
             (log.warning if over else log.info)(line)

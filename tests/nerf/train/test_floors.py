@@ -67,17 +67,58 @@ def test_each_output_over_its_part_is_named_and_the_overs_add_up(job, monkeypatc
     assert "(the held-out evaluation, 1 view at 6x4, 1 s over)" in line and "depth maps" not in line
 
 
+def settle(calibration: floors.Calibration, first_step: int, steps: int, per_ray: float, occupancy: float,
+           seconds_per_step: float = 0.1) -> int | None:
+    """Feed ``calibration`` ``steps`` training steps of 100 rays at ``per_ray`` samples a ray from ``first_step`` on;
+    the step it said yes at, if it did."""
+    for step in range(first_step, first_step + steps):
+        if calibration(step, step * seconds_per_step, int(100 * per_ray), 100, occupancy):
+            return step
+    return None
+
+
+def test_the_line_waits_until_the_grid_has_freed_cells_and_the_samples_a_ray_have_settled() -> None:
+    window = floors.SETTLED_WINDOW
+    # the temple's trace: the grid frees its first cells at step 256 and its samples a ray fall 18 -> 8 -> 4.7
+    calibration = floors.Calibration(seconds=1000.0)  # 0.1 s a step: a tenth of the time is step 1000
+    assert settle(calibration, 0, 1000, 18.0, 1.0) is None  # the grid as it started: samples a ray mean nothing yet
+    assert settle(calibration, 1000, window, 8.0, 0.41) is None  # one window since it began to free cells
+    assert settle(calibration, 1000 + window, window, 6.0, 0.38) is None  # 8 -> 6: 25 % apart
+    assert settle(calibration, 1000 + 2 * window, window - 1, 5.6, 0.35) is None  # 6 -> 5.6 (7 %): one step short
+    assert settle(calibration, 1000 + 3 * window - 1, 1, 5.6, 0.35) == 1000 + 3 * window - 1
+    # settled early still waits for 256 steps and a tenth of the training time
+    early = floors.Calibration(seconds=1000.0)
+    assert settle(early, 0, 100, 30.0, 0.7) is None
+    assert settle(early, 100, 2 * window, 20.0, 0.6) is None  # two settled windows by step 228, under 256 steps
+    assert settle(early, 100 + 2 * window, 1000, 20.0, 0.6) == 1000  # and under a tenth of 1000 s until step 1000
+    # a field whose grid never frees a cell (or whose samples never settle) is timed at 30 % of the training time
+    stuck = floors.Calibration(seconds=100.0)
+    assert settle(stuck, 0, 400, 41.0, 0.74) == 300
+    # a sampler without an occupancy grid has nothing to free: settled samples a ray are enough
+    plain = floors.Calibration(seconds=200.0)  # a tenth of it is step 200
+    assert settle(plain, 0, 2 * window + 256, 64.0, None) == 256
+
+
 def test_the_line_comes_once_when_training_has_found_the_scene(job, monkeypatch, caplog) -> None:
     model, loader, views, later = job
     monkeypatch.setattr(floors, "seconds_per_view", per_ray(1e-6))
     caplog.set_level(logging.INFO, "test.floors")
     hook = floors.floor_hook(logging.getLogger("test.floors"), 100.0, later, model, loader, views, 300.0, 4096,
                              (0.5, 30.0))
-    assert not hook(SimpleNamespace(step=255, elapsed=31.0)) and not caplog.records  # not 256 steps yet
-    assert not hook(SimpleNamespace(step=400, elapsed=29.0)) and not caplog.records  # nor a tenth of the 300 s
-    assert not hook(SimpleNamespace(step=400, elapsed=30.0))  # both: it speaks, and never stops training
+    model.sampler.grid.occupied[:10] = False  # the grid has begun to free cells before the first look
+    for step in range(256):  # steady samples a ray, but not 256 steps yet
+        assert not hook(SimpleNamespace(step=step, elapsed=31.0, samples=3000, rays=100))
+    assert not caplog.records
+    for step in range(256, 400):  # nor a tenth of the 300 s
+        assert not hook(SimpleNamespace(step=step, elapsed=29.0, samples=3000, rays=100))
+    assert not caplog.records
+    model.sampler.grid.occupied[:20] = False  # then it frees more: the samples a ray are counted again from here
+    for step in range(400, 400 + 2 * floors.SETTLED_WINDOW - 1):
+        assert not hook(SimpleNamespace(step=step, elapsed=30.0, samples=3000, rays=100))
+    assert not caplog.records
+    assert not hook(SimpleNamespace(step=527, elapsed=30.0, samples=3000, rays=100))  # it speaks, and never stops
     assert [r.levelname for r in caplog.records] == ["WARNING"] and "5 s longer" in caplog.text
-    hook(SimpleNamespace(step=800, elapsed=60.0))
+    hook(SimpleNamespace(step=800, elapsed=100.0, samples=3000, rays=100))
     assert len(caplog.records) == 1  # once
 
 
