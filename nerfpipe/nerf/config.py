@@ -83,6 +83,9 @@ class OptimParams:
                                        "else 0) or a number")
     distortion: float = param(0.0, "weight of mip-NeRF 360's distortion loss (Eq. 15) against floaters, 0: off "
                                     "(on beer 0.01 cost 2.2 dB in 4 minutes: docs/benchmarks.md)", bounds=(0.0, 100.0))
+    pixels: Literal["uniform", "error"] = param("uniform", "which training pixels a step draws: uniform, or error (half of "
+                                                           "them in proportion to each 16-pixel tile's recent error, "
+                                                           "the loss weighted to stay unbiased; Instant-NGP's error map)")
 
     def __post_init__(self) -> None:
         at_least(self, 1, "batch_rays")
@@ -90,6 +93,8 @@ class OptimParams:
         if not (0 < self.lr_final and 0 < self.lr) or self.adam_eps <= 0 or not (0 < self.adam_beta2 < 1):
             raise ValueError("need lr > 0, lr_final > 0, adam_eps > 0 and 0 < adam_beta2 < 1")
         at_least(self, 0, "distortion")
+        if self.pixels not in ("uniform", "error"):
+            raise ValueError(f"pixels must be uniform or error, got {self.pixels!r}")
         if not 0 < self.mlp_lr_share <= 1:
             raise ValueError(f"mlp_lr_share must be in (0, 1], got {self.mlp_lr_share}")
         if self.density_noise != "auto":

@@ -285,6 +285,7 @@ class TrainStage(Stage):
         from nerfpipe.nerf.train.evaluation import evaluate, evaluated_scale, evaluation_scale, scaled_size
         from nerfpipe.nerf.train.floors import floor_hook
         from nerfpipe.nerf.train.images import ImageLoader, describe_masks, split_views, trained_cameras, write_masks
+        from nerfpipe.nerf.train.sampling import DRAWS
         from nerfpipe.nerf.train.trainer import Trainer
 
         loader = ImageLoader.from_inputs(inputs)
@@ -306,14 +307,13 @@ class TrainStage(Stage):
             if left < params.seconds:
                 ctx.log.warning("train: the budget leaves %.0f s for training; training %g s anyway (give a larger "
                                 "--budget, or --budget off and train.seconds)", max(left, 0.0), params.seconds)
-        if params.optim.distortion > 0:
-            decisions.append(f"mip-NeRF 360's distortion loss (Eq. 15) at weight {params.optim.distortion:g} against floaters")
-            ctx.log.info("train: %s", decisions[-1])
         trainer = Trainer(model, pixels, params, out, device, density_noise=density_noise(params, layout))
-        masks = describe_masks(trainer.pixels)
-        if masks is not None:
-            decisions.append(masks)
-            ctx.log.info("train: %s", masks)
+        for decision in (params.optim.distortion > 0 and f"mip-NeRF 360's distortion loss (Eq. 15) at weight "
+                         f"{params.optim.distortion:g} against floaters", params.optim.pixels == "error" and DRAWS,
+                         describe_masks(trainer.pixels)):
+            if decision:
+                decisions.append(decision)
+                ctx.log.info("train: %s", decision)
         resumed = trainer.resume()
         if resumed is not None:
             ctx.log.info("train: resuming from the checkpoint at step %d (%.0f s of training)", resumed, trainer.elapsed)

@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 
 from nerfpipe.nerf.train.checkpoints import load_latest_checkpoint, save_checkpoint
+from nerfpipe.nerf.train.sampling import ErrorMap, image_sizes
 from nerfpipe.nerf.device import synchronize
 from nerfpipe.nerf.config import OptimParams, TrainSettings
 from nerfpipe.nerf.model import RadianceModel
@@ -125,6 +126,8 @@ class Trainer:
         self.optimizer = torch.optim.Adam(groups, lr=config.optim.lr, betas=(0.9, config.optim.adam_beta2), eps=config.optim.adam_eps,
                                           fused=fused)
         self.scaler = torch.amp.GradScaler(device.type, enabled=config.autocast == "fp16")
+        self.error_map = None if config.optim.pixels == "uniform" else ErrorMap(
+            image_sizes(self.pixels.image, self.pixels.uv, len(self.pixels.intrinsics))).to(device)
         self.step = 0
         self.elapsed = 0.0
         self.resumed_from: int | None = None
@@ -155,6 +158,8 @@ class Trainer:
         self.rays_per_batch = float(state.get("rays_per_batch", self.config.optim.batch_rays))
         self.total_samples, self.total_rays = int(state.get("total_samples", 0)), int(state.get("total_rays", 0))
         self.lr_scale = float(state.get("lr_scale", 1.0))
+        if self.error_map is not None and "error_map" in state:
+            self.error_map.load_state_dict({"error": state["error_map"]})
         if int(state.get("restarted_at", -1)) >= 0:
             self.guard.restarted_at = int(state["restarted_at"])
         if float(state.get("psnr_ema", -1.0)) >= 0:  # the guard goes on as if never stopped
@@ -170,12 +175,16 @@ class Trainer:
             kept = [line for line in path.read_text().splitlines() if line.strip() and json.loads(line)["step"] <= step]
             path.write_text("".join(line + "\n" for line in kept))
 
-    def batch(self, step: int) -> tuple[Tensor, Tensor]:
-        """Ray indices and target colours of ``step``: a function of (seed, step) only, so a resumed run
-        draws exactly the batches an uninterrupted one would."""
+    def batch(self, step: int) -> tuple[Tensor, Tensor | None, Tensor | None, torch.Generator]:
+        """The pixel indices of ``step``'s rays; with an error map, their tiles and loss weights (else None); and the
+        step's generator. A function of (seed, step) and the error map only, so a resumed run draws exactly the
+        batches an uninterrupted one would."""
         generator = torch.Generator(device=self.device).manual_seed(self.config.seed * 1_000_003 + step)
-        index = torch.randint(self.pixels.rgb.shape[0], (int(self.rays_per_batch),), generator=generator, device=self.device)
-        return index, generator
+        count = int(self.rays_per_batch)
+        if self.error_map is not None:
+            return (*self.error_map.draw(count, generator), generator)
+        index = torch.randint(self.pixels.rgb.shape[0], (count,), generator=generator, device=self.device)
+        return index, None, None, generator
 
     def before_step(self, step: int, generator: torch.Generator) -> None:
         """Let the sampler catch up with the field (an occupancy grid refreshed from its density)."""
@@ -187,7 +196,7 @@ class Trainer:
     def train_step(self, step: int) -> tuple[float, float]:
         """One optimization step; returns (loss, PSNR of the final rendering on this batch)."""
         px = self.pixels
-        index, generator = self.batch(step)
+        index, tiles, weight, generator = self.batch(step)
         image = px.image[index]
         model = self.model
         c2w = px.c2w if model.refinement is None else model.refinement(px.c2w)  # (I, 4, 4)
@@ -216,7 +225,12 @@ class Trainer:
                 self.rays_per_batch = min(0.8 * self.rays_per_batch + 0.2 * wanted, wanted)
         # Eq. 6: squared error of every rendering the sampler made (coarse and fine) (a mean rather than a sum
         # over the batch)
-        losses = [torch.mean((o.rgb - target) ** 2) for o in out.passes()]
+        if weight is None:
+            losses = [torch.mean((o.rgb - target) ** 2) for o in out.passes()]
+        else:  # drawn by the error map: each ray weighted back to its share under uniform draws
+            per_ray = [((o.rgb - target) ** 2).mean(-1) for o in out.passes()]  # (R,) each
+            losses = [(weight[:self.rays] * e).mean() for e in per_ray]
+            self.error_map.record(tiles[:self.rays], per_ray[-1].detach())
         loss = sum(losses)
         if self.config.optim.distortion > 0:
             measured = [d.mean() for d in (o.distortion() for o in out.passes()) if d is not None]
@@ -253,6 +267,8 @@ class Trainer:
         self.optimizer.state.clear()
         self.lr_scale *= 0.5
         self.rays_per_batch = float(self.config.optim.batch_rays)
+        if self.error_map is not None:
+            self.error_map.error.fill_(-1.0)
 
     def watch(self, psnr: float) -> None:
         """Let the stall guard see this step's batch PSNR, and act on what it says."""
@@ -339,7 +355,8 @@ class Trainer:
                                     config.keep_checkpoints, {"rays_per_batch": self.rays_per_batch,
                                     "total_samples": self.total_samples, "total_rays": self.total_rays,
                                     "lr_scale": self.lr_scale, "restarted_at": self.guard.restarted_at or -1,
-                                    "psnr_ema": -1.0 if self.guard.ema is None else self.guard.ema})
+                                    "psnr_ema": -1.0 if self.guard.ema is None else self.guard.ema,
+                                    **({} if self.error_map is None else {"error_map": self.error_map.error})})
                     log.info("train: step %d%s, loss %.5f, batch PSNR %.2f dB, %.0f s", self.step,
                              f"/{config.steps}" if config.steps > 0 else f" of a {config.seconds:g} s budget", loss,
                              psnr, self.elapsed)
