@@ -114,3 +114,16 @@ def test_a_resumed_training_draws_and_ends_as_the_uninterrupted_one(tmp_path) ->
     torch.testing.assert_close(resumed.error_map.error, straight.error_map.error, rtol=0, atol=0)
     for a, b in zip(resumed.model.coarse.parameters(), straight.model.coarse.parameters()):
         torch.testing.assert_close(a, b, rtol=0, atol=1e-6)
+
+
+def test_extreme_errors_keep_the_weights_finite_and_at_most_twice_a_uniform_rays() -> None:
+    errors = ErrorMap(SIZES, tile=2)
+    errors.error[:] = torch.tensor([1e30, 0.0, 1e-30, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    p = errors.probabilities()
+    assert bool(torch.isfinite(p).all()) and float(p.sum()) == pytest.approx(1.0)
+    _, tiles, weight = errors.draw(10_000, torch.Generator().manual_seed(0))
+    # a tile keeps at least UNIFORM_SHARE of its uniform probability, so no ray weighs more than 1 / UNIFORM_SHARE
+    assert bool(torch.isfinite(weight).all()) and float(weight.max()) <= 2.0 + 1e-6
+    assert float((tiles == 0).double().mean()) == pytest.approx(0.5 + 0.5 * 4 / 31, abs=0.02)
+    errors.error.zero_()  # a perfect fit: nothing to weigh by, the draws uniform again
+    torch.testing.assert_close(errors.probabilities(), errors.pixels / 31.0)
