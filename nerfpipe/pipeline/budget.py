@@ -147,24 +147,31 @@ def fit_to_allotment(full_seconds: float, left: float | None, floor: float, fixe
 class FloorWork:
     """What a budgeted stage's outputs cost at their floors (``Stage.floor_work``), before it has run: ``units`` of
     the work whose rate the elastic stage measures (for a radiance field's exports: rays, each weighted by its
-    stage's overhead), ``fixed`` seconds whatever that rate, and ``what`` they are, for the line that says so."""
+    stage's overhead), ``fixed`` seconds whatever that rate, and ``what`` they are, for the line that says so.
+    ``rate``: which measured rate prices a unit: None for the elastic stage's own measurement, else the name of
+    another it knows how to measure (a radiance field's rays rendered over the whole scene's depth range, "scene",
+    cost more than those of one photo's)."""
 
     units: float
     fixed: float
     what: str
+    rate: str | None = None
 
     def seconds(self, per_unit: float) -> float:
         return self.units * per_unit + self.fixed
 
 
-def floors_line(floors: Iterable[tuple[FloorWork, float]], per_unit: float, budget: float) -> tuple[str, float]:
+def floors_line(floors: Iterable[tuple[FloorWork, float]], per_unit: float | Callable[[str | None], float],
+                budget: float) -> tuple[str, float]:
     """The one line that says whether the outputs fit the budget at their floors, and the seconds the job takes
     beyond its budget for them (0: they fit). ``floors``: each output's ``FloorWork`` and the seconds the budget
-    keeps for it; ``per_unit``: the measured seconds a unit of work takes. An output that fits its part needs
-    nothing more, and one that does not takes the difference: none of them is made smaller than its floor."""
+    keeps for it; ``per_unit``: the measured seconds a unit of work takes, or a function of a ``FloorWork.rate``
+    giving them. An output that fits its part needs nothing more, and one that does not takes the difference: none
+    of them is made smaller than its floor."""
+    rate_of = per_unit if callable(per_unit) else (lambda rate: per_unit)
     parts, over, need, kept = [], 0.0, 0.0, 0.0
     for work, allotted in floors:
-        seconds = work.seconds(per_unit)
+        seconds = work.seconds(rate_of(work.rate))
         need, kept = need + seconds, kept + allotted
         if seconds > allotted:
             over += seconds - allotted

@@ -180,8 +180,9 @@ class RenderStage(Stage):
         wanted = render_size(world.camera_of(world.frames[0]), params.scale, params.max_side, params.short_side)
         floor = min(1.0, VIDEO_FLOOR_SIDE / min(wanted))
         width, height = (max(2, 2 * round(side * floor / 2)) for side in wanted)
+        # a path of its own renders over the bounds' whole depth range (``_run``): priced at that range's rate
         return FloorWork(FRAME_OVERHEAD * frames * width * height, FRAME_SECONDS * frames,
-                         f"the video, {frames} frames at {width}x{height}")
+                         f"the video, {frames} frames at {width}x{height}", "scene" if params.path in PATH_KINDS else None)
 
     def run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext) -> RenderSummary:
         from nerfpipe.nerf.device import rendering_device

@@ -10,7 +10,8 @@ from typing import ClassVar
 import pytest
 
 from nerfpipe.pipeline import ParamError, Pipeline, Stage, StageError
-from nerfpipe.pipeline.budget import Allotment, JobBudget, format_duration, parse_duration, takes_part
+from nerfpipe.pipeline.budget import (Allotment, FloorWork, JobBudget, floors_line, format_duration, parse_duration,
+                                      takes_part)
 from nerfpipe.stages.ingest import IngestStage
 
 
@@ -170,3 +171,15 @@ def test_fit_to_allotment_shrinks_to_the_allotment_and_never_below_the_floor() -
     assert fit_to_allotment(100.0, 26.0, 0.25, 1.0).longer("x", Allotment(26.0, 260.0)) is None
     # a floor of 1 (the size asked for is already the smallest useful one) never shrinks; spent time counts as 0
     assert fit_to_allotment(100.0, -3.0, 1.0) == Fit(1.0, 100.0, 100.0)
+
+
+def test_each_floor_is_priced_at_the_rate_it_names() -> None:
+    plain = FloorWork(100.0, 1.0, "the plain one")  # the elastic stage's own rate
+    wide = FloorWork(100.0, 0.0, "the wide one", rate="scene")
+    rates = {None: 0.01, "scene": 0.05}
+    line, over = floors_line([(plain, 5.0), (wide, 2.0)], rates.__getitem__, 60.0)
+    # 100 x 0.01 + 1 = 2 s within its 5; 100 x 0.05 = 5 s, 3 over its 2
+    assert over == 3.0
+    assert "take about 7 s, where the 1 min budget keeps 7 s for them (the wide one, 3 s over)" in line
+    # one number prices every floor alike
+    assert floors_line([(plain, 5.0), (wide, 2.0)], 0.01, 60.0)[1] == 0.0

@@ -83,7 +83,9 @@ def floor_check(model: RadianceModel, loader: ImageLoader, views: Views, evaluat
                 later: Sequence[LaterStage], budget: float, chunk: int) -> tuple[str, float]:
     """The line that says whether the outputs fit the budget at their floors, and the seconds the job will take
     beyond it (0: they fit), with rendering timed on ``model`` as it is now: the first held-out view (else the first
-    training view) rendered whole at ``PROBE_SCALE`` of its side (``seconds_per_view``), per ray.
+    training view) rendered whole at ``PROBE_SCALE`` of its side (``seconds_per_view``), per ray, over its own depth
+    range, and over the bounds' whole range for work priced there (``FloorWork.rate`` "scene": the render stage's own
+    camera paths, which render every frame over it; the cup's frames cost 1.3x its photos' rays).
 
     Args:
         evaluation: (scale, seconds kept): the held-out views' scale and the seconds the budget keeps for scoring
@@ -92,15 +94,23 @@ def floor_check(model: RadianceModel, loader: ImageLoader, views: Views, evaluat
     """
     first = (views.heldout or views.train)[0]
     camera = loader.world.camera_of(first)
-    was_training = [f.training for f in model.fields()]
-    try:
-        width, height = scaled_size(camera.width, camera.height, PROBE_SCALE)
-        k = camera.scaled(width / camera.width, height / camera.height)
-        per_ray = seconds_per_view(model, (k.fx, k.fy, k.cx, k.cy), first.c2w, width, height,
-                                   *loader.near_far[first.name], chunk) / (width * height)
-    finally:
-        for f, mode in zip(model.fields(), was_training):
-            f.train(mode)
+    width, height = scaled_size(camera.width, camera.height, PROBE_SCALE)
+    k = camera.scaled(width / camera.width, height / camera.height)
+    ranges = {None: loader.near_far[first.name], "scene": (loader.bounds.near, loader.bounds.far)}
+    timed: dict[str | None, float] = {}
+
+    def per_ray(rate: str | None) -> float:
+        """Seconds a ray of the probe view rendered over the range ``rate`` names: its own, or the whole scene's."""
+        if rate not in timed:
+            was_training = [f.training for f in model.fields()]
+            try:
+                timed[rate] = seconds_per_view(model, (k.fx, k.fy, k.cx, k.cy), first.c2w, width, height,
+                                               *ranges[rate], chunk) / (width * height)
+            finally:
+                for f, mode in zip(model.fields(), was_training):
+                    f.train(mode)
+        return timed[rate]
+
     floors = []
     scored = evaluation_floor(loader, views.heldout, evaluation[0])
     if scored is not None:

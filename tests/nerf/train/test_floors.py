@@ -13,6 +13,7 @@ import torch
 import nerfpipe.nerf.train.floors as floors
 from nerfpipe.nerf.policy import build_model
 from nerfpipe.nerf.train.images import Views
+from nerfpipe.pipeline.budget import format_duration
 from nerfpipe.pipeline.stage import LaterStage
 from nerfpipe.stages import ExportDepthParams, ExportDepthStage, RenderParams, RenderStage, TrainParams
 from tests.nerf.scenes import loader_of, write_image_folders
@@ -65,6 +66,21 @@ def test_each_output_over_its_part_is_named_and_the_overs_add_up(job, monkeypatc
     line, _ = floors.floor_check(model, loader, views, (0.5, 1.0), later[1:], 100.0, 4096)
     # 2.4 s for one view at 6x4 (1.4 s over 1 s), 2.07 s for the depth maps (within 3 s)
     assert "(the held-out evaluation, 1 view at 6x4, 1 s over)" in line and "depth maps" not in line
+
+
+def test_a_video_along_the_capture_is_priced_over_the_scenes_whole_depth_range(job, monkeypatch) -> None:
+    model, loader, views, later = job
+    # the injected cost model: a microsecond a ray for each unit of depth range the rays march
+    monkeypatch.setattr(floors, "seconds_per_view",
+                        lambda model, k, c2w, width, height, near, far, *rest: 1e-6 * (far - near) * width * height)
+    own = loader.near_far[views.heldout[0].name]
+    scene = (loader.bounds.near, loader.bounds.far)
+    assert own == (1.0, 5.0) and scene == (2.0, 9.0)  # the held-out photo sees a part of the scene's range
+    line, over = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
+    # the render stage's own path renders over the bounds' 7 units (``RenderStage._run``), not the probe photo's 4
+    video = 1.1 * 45 * 540 * 360 * 1e-6 * 7.0 + 0.45
+    assert over == pytest.approx(video - 5.0, rel=1e-9)
+    assert f"the video, 45 frames at 540x360, {format_duration(video - 5.0)} over" in line
 
 
 def settle(calibration: floors.Calibration, first_step: int, steps: int, per_ray: float, occupancy: float,
