@@ -93,8 +93,6 @@ class OptimParams:
         if not (0 < self.lr_final and 0 < self.lr) or self.adam_eps <= 0 or not (0 < self.adam_beta2 < 1):
             raise ValueError("need lr > 0, lr_final > 0, adam_eps > 0 and 0 < adam_beta2 < 1")
         at_least(self, 0, "distortion")
-        if self.pixels not in ("uniform", "error"):
-            raise ValueError(f"pixels must be uniform or error, got {self.pixels!r}")
         if not 0 < self.mlp_lr_share <= 1:
             raise ValueError(f"mlp_lr_share must be in (0, 1], got {self.mlp_lr_share}")
         if self.density_noise != "auto":

@@ -41,7 +41,7 @@ class ErrorMap:
         sizes = sizes.long().cpu()
         if sizes.ndim != 2 or sizes.shape[1] != 2 or not bool((sizes > 0).all()):
             raise ValueError(f"image sizes must be (I, 2) positive widths and heights, got {tuple(sizes.shape)}")
-        self.tile, self.uniform_share = tile, float(uniform_share)
+        self.uniform_share = float(uniform_share)
         width, height = sizes[:, 0], sizes[:, 1]
         across, down = (width + tile - 1) // tile, (height + tile - 1) // tile
         per_image = across * down
@@ -57,7 +57,6 @@ class ErrorMap:
         self.pixels = (self.cols * self.rows).double()  # (T,)
         self.total = float(width.mul(height).sum())
         self.error = torch.full((len(image),), -1.0)
-        self.device = torch.device("cpu")
 
     def __len__(self) -> int:
         return self.error.shape[0]
@@ -65,7 +64,6 @@ class ErrorMap:
     def to(self, device: torch.device | str) -> "ErrorMap":
         for name in ("x0", "y0", "cols", "rows", "row_start", "width", "pixels", "error"):
             setattr(self, name, getattr(self, name).to(device))
-        self.device = torch.device(device)
         return self
 
     def probabilities(self) -> Tensor:
@@ -86,7 +84,7 @@ class ErrorMap:
         under uniform draws over its probability here, so that a weighted mean of squared errors is unbiased."""
         p = self.probabilities()
         tiles = torch.multinomial(p, count, replacement=True, generator=generator)
-        u = torch.rand((count, 2), generator=generator, device=self.device, dtype=torch.float64)
+        u = torch.rand((count, 2), generator=generator, device=self.error.device, dtype=torch.float64)
         dx = (u[:, 0] * self.cols[tiles]).long().clamp_max(self.cols[tiles] - 1)
         dy = (u[:, 1] * self.rows[tiles]).long().clamp_max(self.rows[tiles] - 1)
         index = self.row_start[tiles] + dy * self.width[tiles] + dx

@@ -356,7 +356,7 @@ class Trainer:
                                     "total_samples": self.total_samples, "total_rays": self.total_rays,
                                     "lr_scale": self.lr_scale, "restarted_at": self.guard.restarted_at or -1,
                                     "psnr_ema": -1.0 if self.guard.ema is None else self.guard.ema,
-                                    **({} if self.error_map is None else {"error_map": self.error_map.error})})
+                                    **({} if self.error_map is None else {"error_map": self.error_map.state_dict()["error"]})})
                     log.info("train: step %d%s, loss %.5f, batch PSNR %.2f dB, %.0f s", self.step,
                              f"/{config.steps}" if config.steps > 0 else f" of a {config.seconds:g} s budget", loss,
                              psnr, self.elapsed)
