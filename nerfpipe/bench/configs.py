@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from nerfpipe.stages.train import MLP_CPU, PRESETS
+from nerfpipe.nerf.presets import MLP_CPU, PRESETS
 
 
 @dataclass(frozen=True)

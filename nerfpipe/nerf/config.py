@@ -136,3 +136,4 @@ class TrainSettings(Protocol):
     keep_checkpoints: int
     autocast: str
     tf32: bool
+    compile: str

@@ -80,10 +80,24 @@ class RadianceModel:
         each ray, when the model learns appearance) and the ``background`` (3,) / (R, 3) behind it: "model"
         for the model's own, None for none. Gradients flow where autograd is on; ``render_rays`` renders without.
         """
+        samples, level, earlier = self.sample(rays, train=train, generator=generator, max_samples=max_samples,
+                                              density_noise=density_noise)
+        return self.shade(rays, samples, level, earlier, background=background, images=images, density_noise=density_noise)
+
+    def sample(self, rays: RayBatch, *, train: bool = False, generator: torch.Generator | None = None,
+               max_samples: int = 0, density_noise: float = 0.0) -> tuple[RaySamples, int, tuple[RenderOutput, ...]]:
+        """``render``'s first half: where the sampler looks along ``rays`` (its ``sample``: the samples, the level
+        of the field to evaluate there, and the renderings it made on its way)."""
         probe = _Probe(self, rays, density_noise, self.eval_points())
-        samples, level, earlier = self.sampler.sample(rays, self.ray_space, probe, train=train, generator=generator,
-                                                      max_samples=max_samples)
-        out = probe.render(samples, level)
+        return self.sampler.sample(rays, self.ray_space, probe, train=train, generator=generator, max_samples=max_samples)
+
+    def shade(self, rays: RayBatch, samples: RaySamples, level: int = 0, earlier: tuple[RenderOutput, ...] = (), *,
+              background: Tensor | None | str = "model", images: Tensor | None = None,
+              density_noise: float = 0.0) -> RenderOutput:
+        """``render``'s second half: the field of ``level`` at ``samples`` of ``rays``, composited (Eq. 3), then each
+        photo's appearance and the background, as ``render`` says. Shapes follow the samples' and the rays' counts
+        alone, so a step that pads both to fixed counts (``nerfpipe.nerf.train.compiled``) compiles once."""
+        out = _Probe(self, rays, density_noise, self.eval_points()).render(samples, level)
         out = dataclasses.replace(out, earlier=earlier,
                                   evaluated=len(samples) + sum(len(e.samples) for e in earlier))
         if images is not None and self.appearance is not None:  # as the photo's camera recorded the light

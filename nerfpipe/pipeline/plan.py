@@ -4,6 +4,7 @@ and why (StageStatus, stale_reasons), and what a run did with it (StageOutcome).
 from __future__ import annotations
 
 import importlib.metadata
+import logging
 import os
 import platform
 from dataclasses import dataclass, field
@@ -18,6 +19,8 @@ from nerfpipe.pipeline.hashing import cache_key
 from nerfpipe.pipeline.params import build_params, cache_view, describe_changes
 from nerfpipe.pipeline.stage import Stage, capture_root
 from nerfpipe.pipeline.store import MANAGED, ArtifactStore, Committed, Damage, is_run_dir
+
+log = logging.getLogger("nerfpipe.pipeline.plan")
 
 
 @dataclass(frozen=True)
@@ -81,7 +84,11 @@ def plan_stages(dag: Dag, source: Path, run_dir: Path, preset: str | None,
     planned: dict[str, PlannedStage] = {}
     for name in dag.order:
         stage = dag.stages[name]
-        params = build_params(name, stage.Params, stage.presets, preset, overrides.get(name, {}))
+        named = preset
+        if preset is None and (own := stage.machine_preset(overrides.get(name, {}))) is not None:
+            named = own[0]
+            log.info("%s: preset %s, %s", name, *own)
+        params = build_params(name, stage.Params, stage.presets, named, overrides.get(name, {}))
         files = tuple(fingerprints.fingerprint(p, root) for p in stage.input_files(source, params))
         material = {
             "stage": name,
@@ -90,7 +97,7 @@ def plan_stages(dag: Dag, source: Path, run_dir: Path, preset: str | None,
             "upstream": {up: planned[up].key for up in dag.upstream[name]},
             "inputs": {fp.relpath: fp.sha256 for fp in files},
         }
-        chosen = [*overrides.get(name, {}), *stage.presets.get(preset or "", {})]
+        chosen = [*overrides.get(name, {}), *stage.presets.get(named or "", {})]
         budgeted, elastic = takes_part(stage.budget_share, stage.elastic, chosen)
         if budget is not None and budgeted:
             material["budget"] = budget

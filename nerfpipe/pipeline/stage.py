@@ -130,6 +130,11 @@ class Stage:
     def summary(cls) -> str:
         return (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
 
+    def machine_preset(self, overrides: Mapping[str, Any]) -> tuple[str, str] | None:
+        """The preset this stage takes where the job names none, sized for the machine it runs on, and why (a
+        line for the log); None: its defaults. ``overrides``: the job's settings of this stage."""
+        return None
+
     def input_files(self, source: Path, params: Any) -> list[Path]:
         """Files of the capture folder this stage reads; their fingerprints enter the cache key."""
         return []

@@ -12,8 +12,7 @@ trained it and which were held out), ``checkpoints/``, ``metrics.jsonl`` (loss a
 ground truth and, where a backdrop mask made that ground truth, the photo as taken), ``masks/`` (the masks it
 trained with, where the scene has any).
 
-Held-out views: the capture's test (else val) split when it has one; otherwise every 8th image, as the
-paper holds out 1/8 of its real scenes (Section 6.1).
+Held-out views: the capture's test (else val) split, else every 8th image (the paper's 1/8, Section 6.1).
 """
 
 from __future__ import annotations
@@ -23,18 +22,21 @@ import dataclasses
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, Mapping
 
 from nerfpipe.artifacts import ViewSplit
 from nerfpipe.nerf.config import (OptimParams, PerImageParams, SpaceParams, auto_sampler, field_configs,
                                   sampler_configs, step_bytes)
 from nerfpipe.nerf.fields.configs import FieldConfig, GridConfig
+from nerfpipe.nerf.presets import PRESETS
 from nerfpipe.nerf.samplers.configs import MarchingConfig, SamplerConfig
 from nerfpipe.pipeline.params import param
 from nerfpipe.pipeline.resources import check_memory
 from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
+
+NVIDIA_DRIVER = Path("/proc/driver/nvidia")  # present where the NVIDIA kernel driver is loaded
 
 _SWITCH = {"true": "on", "false": "off", "yes": "on", "no": "off", "1": "on", "0": "off"}
 _SAMPLER = {"true": "marching", "on": "marching", "false": "hierarchical", "off": "hierarchical", "auto": "auto",
@@ -76,6 +78,8 @@ class TrainParams:
     device: Literal["auto", "cpu", "cuda"] = param("auto", "auto: CUDA when present, else CPU", keyed=False)
     tf32: bool = param(False, "CUDA: TF32 matmuls")
     autocast: Literal["none", "bf16", "fp16"] = param("none", "mixed precision for the MLP (compositing stays float32)")
+    compile: Literal["auto", "off", "kernels", "graphs"] = param("auto", "torch.compile the training step at fixed shapes "
+        "(samples padded to optim.batch_samples): kernels (fused), graphs (and replayed as CUDA graphs); auto: kernels on CUDA, off on the CPU")
     chunk: int = param(4096, "rays per chunk when rendering whole views", bounds=(1, 1_048_576), keyed=False)
 
     # the flat names before the parameters were grouped: still accepted, with a deprecation message
@@ -116,47 +120,6 @@ class TrainParams:
             raise ValueError(f"eval_budget must be > 0, got {self.eval_budget}")
         if self.steps < 0 or (self.steps == 0 and not self.seconds > 0):
             raise ValueError(f"need steps >= 1, or steps = 0 and seconds > 0; got steps={self.steps}, seconds={self.seconds}")
-
-
-# Section 5.3 and Fig. 7: the model, sampling and optimizer of the paper, without empty-space skipping
-PAPER = {
-    "field.kind": "mlp", "sampler.kind": "hierarchical", "steps": 200_000, "optim.batch_rays": 4096,
-    "optim.batch_samples": 0, "sampler.n_coarse": 64, "sampler.n_fine": 128, "field.fine_network": True,
-    "field.depth": 8, "field.width": 256, "field.view_width": 128, "field.skip_after": 5, "field.include_input": False,
-    "field.density_activation": "relu", "optim.lr": 5e-4, "optim.lr_final": 5e-5, "optim.adam_eps": 1e-7,
-    "optim.adam_beta2": 0.999, "checkpoint_every": 10_000, "field.dir_freqs": 4,
-}
-# the optimizer of the CPU-scale NeRF (4x128 MLP, softplus density, 512 rays a step, lr 3e-3 over 1500
-# steps); ``nerfpipe bench``'s Table 2 ablations and the ``balanced`` preset start from it
-MLP_CPU = {
-    "field.kind": "mlp", "sampler.kind": "hierarchical", "steps": 1500, "optim.batch_rays": 512,
-    "optim.batch_samples": 0, "optim.lr": 3e-3, "optim.lr_final": 5e-5, "optim.adam_eps": 1e-7,
-    "optim.adam_beta2": 0.999, "field.dir_freqs": 4,
-}
-PRESETS = {
-    # lego at 100 px on 2 CPU cores (``nerfpipe bench``): 500 steps in under a minute, 22.9 dB; its rate decays
-    # 10-fold, as measured (at lr_final 6e-3 clean lego gains 2 dB, re-exposed or moved photos far less), and is
-    # the MLP's too. Its one 64^3 grid leans on the paper's L = 4 for directions: on clean lego at 100 px, L = 0
-    # scored 22.16 dB against 23.0-23.3 (tests/stages/test_train_per_image.py)
-    "draft": {"steps": 500, "field.levels": 1, "field.max_resolution": 64, "sampler.occupancy_resolution": 32,
-              "optim.batch_samples": 32768, "optim.lr": 1e-2, "optim.lr_final": 1e-3, "optim.mlp_lr_share": 1.0,
-              "field.dir_freqs": 4},
-    # the default: 32^3, 64^3 and 128^3 grids, trained for train.seconds (120 s) as fast as the machine goes
-    "fast": {},
-    # the 4x128 MLP (Fig. 7's shape, smaller) marching the occupancy grid: 6000 steps, about half an hour there
-    "balanced": {**MLP_CPU, "sampler.kind": "marching", "steps": 6000, "optim.batch_rays": 1024,
-                 "optim.batch_samples": 32768, "optim.lr_final": 1e-4},
-    # one to two days on a V100 (Section 5.3), out of reach on a CPU
-    "paper": PAPER,
-    # the grid field with Instant-NGP's hashed fine levels: 12 levels of 16 to 1024 cells a side, the finest
-    # 8 hashed into 2^17 rows of 2 features each: 2.5 M parameters, where the dense default has 9.8 M
-    "hash": {"field.kind": "hash", "field.levels": 12, "field.min_resolution": 16, "field.max_resolution": 1024,
-             "field.features": 2, "field.log2_table": 17},
-    # three factorized planes a level (K-Planes): levels of 32, 102, 323 and 1024 cells a side, 4 features
-    # each, 14 M values, where a 1024^3 dense grid would need 4.3 G
-    "planes": {"field.kind": "planes", "field.levels": 4, "field.min_resolution": 32, "field.max_resolution": 1024,
-               "field.features": 4},
-}
 
 
 @dataclass(frozen=True)
@@ -263,6 +226,17 @@ class TrainStage(Stage):
         if params.steps:
             return params.steps * FASTEST_STEP_SECONDS, f"steps={params.steps}"
         return params.seconds, f"seconds={params.seconds:g}"
+
+    def machine_preset(self, overrides: Mapping[str, Any]) -> tuple[str, str] | None:
+        """``gpu`` where training would run on a CUDA device (``train.device`` auto or cuda, and torch sees one)."""
+        if str(overrides.get("device", "auto")) == "cpu" or "field.kind" in overrides or not NVIDIA_DRIVER.exists():
+            return None  # a field of the user's own, or no NVIDIA driver (then torch is not even imported)
+        import torch
+
+        if not torch.cuda.is_available():
+            return None
+        return "gpu", (f"sized for the CUDA device {torch.cuda.get_device_name()}: 2^18 samples a step, the hash field "
+                       "to 2048 cells a side, the step compiled (--preset fast: the CPU's sizes)")
 
     def run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext) -> TrainSummary:
         # torch is imported here, not at the top: the CPU settings of training must come before its first use

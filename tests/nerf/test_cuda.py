@@ -131,3 +131,27 @@ def test_grid_fields_have_finite_gradients_at_extreme_inputs_on_the_gpu(kind, dt
     (rgb.float().sum() + sigma.float().sum()).backward()
     assert all(torch.isfinite(p.grad).all() for p in field.parameters() if p.grad is not None)
     assert torch.isfinite(x.grad[:3]).all() and torch.isfinite(x.grad[5:]).all()
+
+
+@pytest.mark.parametrize("mode,autocast", [("auto", "none"), ("auto", "bf16"), ("graphs", "none")])
+def test_the_compiled_step_on_the_gpu_computes_the_eager_loss_and_lowers_it(mode, autocast, tmp_path: Path) -> None:
+    """auto compiles on CUDA (kernels); graphs replays them as CUDA graphs. Either trains as the eager step does:
+    the first batch's loss alike, finite losses falling, finite gradients."""
+    values = {"steps": 40, "optim.batch_rays": 256, "optim.batch_samples": 8192, "field.max_resolution": 256,
+              "checkpoint_every": 40, "autocast": autocast}
+
+    def run(choice: str) -> tuple[Trainer, list[float]]:
+        torch.manual_seed(0)
+        params = params_of({**values, "compile": choice})
+        model, _ = build_model(params, scene_of("inward360"), world_of_one_camera(), bounds_of(), CUDA, ["a.png"])
+        trainer = Trainer(model, one_view_pixels(CUDA), params, tmp_path / choice, CUDA)
+        return trainer, [trainer.train_step(step)[0] for step in range(40)]
+
+    trainer, losses = run(mode)
+    assert trainer.static is not None and trainer.static.mode == ("kernels" if mode == "auto" else mode)
+    assert trainer.static.compiled is not trainer.static.loss  # compiled, not fallen back to eager
+    _, eager = run("off")
+    assert losses[0] == pytest.approx(eager[0], rel=2e-2 if autocast == "bf16" else 1e-3)
+    assert all(np.isfinite(losses)) and np.mean(losses[-10:]) < 0.7 * np.mean(losses[:5]), losses
+    grads = [p.grad for p in trainer.model.coarse.parameters() if p.grad is not None]
+    assert grads and all(torch.isfinite(g).all() for g in grads)

@@ -215,3 +215,18 @@ def test_a_run_log_is_written(capture, tmp_path):
     assert len(logs) == 1
     text = logs[0].read_text()
     assert "ingest: running for the first time" in text and "count: done in" in text
+
+
+def test_a_stage_takes_its_machine_preset_only_where_the_job_names_none(capture, tmp_path, monkeypatch, caplog):
+    stages = two_stages()
+    count = stages[1]
+    monkeypatch.setattr(count, "presets", {**count.presets, "big": {"label": "big"}}, raising=False)
+    monkeypatch.setattr(count, "machine_preset", lambda overrides: ("big", "sized for this machine"), raising=False)
+    with caplog.at_level("INFO", logger="nerfpipe.pipeline.plan"):
+        planned = Pipeline(stages, capture, tmp_path / "a").plan()
+    assert planned["count"].params.label == "big"
+    assert any("count: preset big, sized for this machine" in r.getMessage() for r in caplog.records)
+    plain = Pipeline(two_stages(), capture, tmp_path / "b").plan()
+    assert plain["count"].params.label != "big" and planned["count"].key != plain["count"].key  # in the key
+    named = Pipeline(stages, capture, tmp_path / "c", preset="draft").plan()
+    assert named["count"].params.label == "draft"  # a preset the job names wins

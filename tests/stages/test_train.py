@@ -408,3 +408,22 @@ def check_web_viewer(run_dir: Path) -> None:
             process.kill()  # leave no viewer behind
             raise
     assert process.returncode == 0 and "web viewer stopped" in out and "Traceback" not in err, err
+
+
+def test_training_on_a_cuda_device_takes_the_gpu_preset_unless_told_otherwise(tmp_path, monkeypatch) -> None:
+    import nerfpipe.stages.train as train_stage
+
+    stage = TrainStage()
+    monkeypatch.setattr(train_stage, "NVIDIA_DRIVER", tmp_path / "no-driver")
+    assert stage.machine_preset({}) is None  # no driver: torch is not asked
+    monkeypatch.setattr(train_stage, "NVIDIA_DRIVER", tmp_path)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert stage.machine_preset({}) is None  # a driver, but torch sees no device (a CPU build)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "get_device_name", lambda *a: "NVIDIA H200")
+    name, why = stage.machine_preset({})
+    assert name == "gpu" and "NVIDIA H200" in why and "2^18 samples" in why
+    assert stage.machine_preset({"device": "cpu"}) is None and stage.machine_preset({"field.kind": "grid"}) is None
+    params = build_params("train", TrainParams, TrainStage.presets, name, {})
+    assert (params.field.kind, params.field.max_resolution, params.field.log2_table) == ("hash", 2048, 19)
+    assert params.optim.batch_samples == 2**18 and params.compile == "auto"

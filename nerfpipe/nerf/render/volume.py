@@ -114,9 +114,15 @@ class RaySamples:
         samples in float64 less its value where the ray begins, so that rays of any length cost one pass."""
         wide = values.double()
         before = torch.cumsum(wide, dim=0) - wide
-        counts = self.counts()
-        first = (torch.cumsum(counts, dim=0) - counts)[self.ray]
-        return (before - before[first]).to(_float(values).dtype)
+        return (before - before[self.firsts()]).to(_float(values).dtype)
+
+    def firsts(self) -> Tensor:
+        """(N,) the index of the first sample of each sample's ray: the largest index at or before it where a ray
+        begins. Shapes that depend on N alone (no count per ray), so a compiled step sees fixed shapes."""
+        index = torch.arange(len(self), device=self.ray.device)
+        begins = torch.ones_like(self.ray, dtype=torch.bool)
+        begins[1:] = self.ray[1:] != self.ray[:-1]
+        return torch.cummax(torch.where(begins, index, torch.zeros_like(index)), dim=0).values
 
     def per_ray(self, values: Tensor) -> Tensor:
         """The sum over each ray's samples of ``values`` (N, ...) -> (R, ...)."""

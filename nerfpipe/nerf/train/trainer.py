@@ -16,6 +16,8 @@ import torch
 from torch import Tensor
 
 from nerfpipe.nerf.train.checkpoints import load_latest_checkpoint, save_checkpoint
+from nerfpipe.nerf.train.compiled import StaticStep, compile_mode
+from nerfpipe.nerf.train.loss import step_loss
 from nerfpipe.nerf.train.sampling import ErrorMap, image_sizes
 from nerfpipe.nerf.device import synchronize
 from nerfpipe.nerf.config import OptimParams, TrainSettings
@@ -139,9 +141,25 @@ class Trainer:
         self.total_rays = 0
         self.lr_scale = 1.0  # halved by a restart after a stall
         model.sampler.start(model.ray_space, self.pixels.intrinsics, self.pixels.c2w)
+        self.static = self.static_step(compile_mode(config.compile, device))
         check = 200 if config.steps <= 0 else min(max(200, config.steps // 8), config.steps)
         self.guard = StallGuard(mean_colour_psnr(self.pixels.rgb), check_step=check)
         self._initial = copy.deepcopy(model.state())
+
+    def static_step(self, mode: str) -> StaticStep | None:
+        """The fixed-shape compiled step ``mode`` asks for (``nerfpipe.nerf.train.compiled``), or None: eager. Its
+        shapes: every sample of ``optim.batch_samples``, and rays up to the most a step draws (16 ``batch_rays``)."""
+        if mode == "off":
+            return None
+        optim = self.config.optim
+        if not (self.model.sampler.adaptive and optim.batch_samples > 0):
+            log.info("train: the step stays eager (train.compile=%s): fixed shapes need a sampler that marches to "
+                     "optim.batch_samples > 0 samples a step", self.config.compile)
+            return None
+        log.info("train: the step compiled at fixed shapes (%s): %d samples, %d rays", mode, optim.batch_samples,
+                 16 * optim.batch_rays + 1)
+        return StaticStep(self.model, 16 * optim.batch_rays + 1, optim.batch_samples, mode, optim.distortion,
+                          self.density_noise)
 
     @property
     def checkpoint_dir(self) -> Path:
@@ -212,36 +230,32 @@ class Trainer:
             group["lr"] = group["base_lr"] * decay * self.lr_scale * ramp
         with _autocast(self.device, self.config.autocast):
             self.before_step(step, generator)
-            # a grid update can make every ray longer at once: at most twice the samples wanted, whatever the
-            # number of rays drawn (a sampler whose cost per ray is fixed ignores the bound)
-            out = model.render(rays, train=True, generator=generator, max_samples=2 * self.config.optim.batch_samples,
-                               background="model" if backdrop is None else backdrop, images=image, density_noise=self.density_noise)
-            self.rays, self.samples = len(out), out.evaluated
-            target = target[:self.rays]
+            if self.static is not None:  # the samples' count padded to the fixed budget, the rest compiled
+                loss, mse, errors, self.rays, self.samples = self.static(rays, target, weight, backdrop, image, generator)
+            else:
+                # a grid update can make every ray longer at once: at most twice the samples wanted, whatever the
+                # number of rays drawn (a sampler whose cost per ray is fixed ignores the bound)
+                out = model.render(rays, train=True, generator=generator, max_samples=2 * self.config.optim.batch_samples,
+                                   background="model" if backdrop is None else backdrop, images=image,
+                                   density_noise=self.density_noise)
+                self.rays, self.samples = len(out), out.evaluated
+                share = torch.full((self.rays,), 1.0 / self.rays, device=self.device)
+                loss, mse, errors = step_loss(out, target[:self.rays], share, None if weight is None else weight[:self.rays],
+                                              self.config.optim.distortion)
             if self.config.optim.batch_samples > 0 and model.sampler.adaptive:  # Instant-NGP: samples per batch about constant
                 per_ray = max(self.samples / self.rays, 1.0)
                 wanted = min(max(self.config.optim.batch_samples / per_ray, 256.0), 16.0 * self.config.optim.batch_rays)
                 # grow smoothly; shrink at once, since a batch too large costs time and memory
                 self.rays_per_batch = min(0.8 * self.rays_per_batch + 0.2 * wanted, wanted)
-        # Eq. 6: squared error of every rendering the sampler made (coarse and fine) (a mean rather than a sum
-        # over the batch)
-        if weight is None:
-            losses = [torch.mean((o.rgb - target) ** 2) for o in out.passes()]
-        else:  # drawn by the error map: each ray weighted back to its share under uniform draws
-            per_ray = [((o.rgb - target) ** 2).mean(-1) for o in out.passes()]  # (R,) each
-            losses = [(weight[:self.rays] * e).mean() for e in per_ray]
-            self.error_map.record(tiles[:self.rays], per_ray[-1].detach())
-        loss = sum(losses)
-        if self.config.optim.distortion > 0:
-            measured = [d.mean() for d in (o.distortion() for o in out.passes()) if d is not None]
-            loss = loss + self.config.optim.distortion * sum(measured)
+        if self.error_map is not None:  # drawn by the error map: each ray's loss was weighted back to its uniform share
+            self.error_map.record(tiles[:self.rays], errors.detach())
         if model.refinement is not None:
             loss = loss + self.config.per_image.pose_penalty * model.refinement.penalty()
         self.optimizer.zero_grad(set_to_none=True)
         self.scaler.scale(loss).backward()
         self.scaler.step(self.optimizer)
         self.scaler.update()
-        return float(loss.detach()), mse_to_psnr(float(losses[-1].detach()))
+        return float(loss.detach()), mse_to_psnr(float(mse.detach()))
 
     def backdrop_targets(self, index: Tensor, target: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor | None]:
         """Targets (R, 3) and the colour (R, 3) each ray's render is composited onto, with backdrop masks

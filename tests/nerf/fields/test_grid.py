@@ -3,11 +3,12 @@ pass, and the field's contract (density 0 outside its box, the same density from
 
 from __future__ import annotations
 
+import pytest
 import torch
 
-from nerfpipe.nerf.fields.configs import GridConfig
-
+from nerfpipe.nerf.fields.configs import GridConfig, HashConfig, PlanesConfig
 from nerfpipe.nerf.fields.grid import GridField, _Trilinear, trilinear_corners
+from nerfpipe.nerf.registry import part_class
 
 
 def test_trilinear_interpolation_reproduces_linear_functions_exactly() -> None:
@@ -98,3 +99,32 @@ def test_gradients_reach_the_points_and_match_finite_differences() -> None:
     smooth = (ahead - behind).abs() < 2e-3
     assert int(smooth.sum()) >= 15  # a kink within 1e-3 of a few of the 18 coordinates at most
     torch.testing.assert_close(x.grad[smooth], ((ahead + behind) / 2)[smooth], atol=2e-3, rtol=2e-2)
+
+
+@pytest.mark.parametrize("kind", ["grid", "hash", "planes"])
+def test_the_gather_a_compiled_step_traces_is_the_eager_one_with_finite_gradients_at_extreme_inputs(kind) -> None:
+    """Inside ``torch.compile`` the corners are gathered by plain indexing (``gather_corners``), which the compiler
+    fuses; traced (``aot_eager``: the graph without code generation) it gives the eager field's colour, density
+    and gradients, finite at the box's faces, far outside it and at infinity."""
+    torch.manual_seed(0)
+    config = {"grid": GridConfig(levels=3, max_resolution=32), "hash": HashConfig(levels=4, max_resolution=256, log2_table=10),
+              "planes": PlanesConfig(levels=2, max_resolution=64)}[kind]
+    field = part_class(config).from_config(config, ((-1.0,) * 3, (1.0,) * 3))
+    edges = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [1.0 - 1e-7, 0.0, -1.0], [1e30, -1e30, 0.0],
+                          [float("inf"), 0.0, 0.0]])
+    x = torch.cat([edges, torch.rand(300, 3) * 2 - 1])
+    d = torch.nn.functional.normalize(torch.randn(len(x), 3), dim=-1)
+
+    def outputs(fn):
+        field.zero_grad(set_to_none=True)
+        rgb, sigma = fn(x, d)
+        (rgb.sum() + sigma.sum()).backward()
+        return rgb.detach(), sigma.detach(), [p.grad.clone() for p in field.parameters()]
+
+    eager = outputs(lambda a, b: field(a, b))
+    traced = outputs(torch.compile(lambda a, b: field(a, b), backend="aot_eager", dynamic=False, fullgraph=True))
+    torch.testing.assert_close(traced[0], eager[0])
+    torch.testing.assert_close(traced[1], eager[1])
+    for g, h in zip(eager[2], traced[2]):
+        assert bool(torch.isfinite(h).all())
+        torch.testing.assert_close(h, g, atol=1e-6, rtol=1e-5)
