@@ -33,6 +33,7 @@ def main() -> None:
     parser.add_argument("--window", type=float, default=15.0, help="seconds of training measured")
     parser.add_argument("--frames", type=int, default=8, help="render-stage frames measured")
     parser.add_argument("--eval-views", type=int, default=0, help="held-out views evaluated (0: all)")
+    parser.add_argument("--preset", default="fast", help="the train preset the settings start from (gpu: a CUDA device's)")
     parser.add_argument("--set", dest="sets", action="append", default=[], help="stage.param=value, as for run")
     parser.add_argument("--out", type=Path, default=None, help="run directory for the stages up to scene")
     args = parser.parse_args()
@@ -55,7 +56,7 @@ def measure(args: argparse.Namespace) -> None:
     from nerfpipe.stages.render import RenderParams, render_frames, render_size
 
     run_dir = args.out or Path(tempfile.mkdtemp(prefix="nerfpipe-throughput-"))
-    setup = prepare_capture(args.capture, run_dir, args.size, args.sets, args.seconds + args.window + 60)
+    setup = prepare_capture(args.capture, run_dir, args.size, args.sets, args.seconds + args.window + 60, args.preset)
     model = setup.model
     with tempfile.TemporaryDirectory() as scratch:
         trainer = Trainer(model, setup.loader.pixel_set(setup.views.train), setup.config, Path(scratch), setup.device,

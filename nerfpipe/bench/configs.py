@@ -56,7 +56,9 @@ ABLATION_CONFIGS = [
     BenchConfig("more frequencies", "ablations", None, {**COMPLETE, "field.pos_freqs": 15}, note="row 8: L = 15"),
 ]
 
-CONFIGS = {c.name: c for c in PRESET_CONFIGS + ABLATION_CONFIGS}
+# a CUDA device's default, by name only (``--config gpu``): on two CPU cores its 2^18-sample steps take seconds each
+GPU_CONFIG = BenchConfig("gpu", "presets", "gpu", note="hash field of 16 levels to 2048, 2^18 samples a step, compiled on CUDA")
+CONFIGS = {c.name: c for c in PRESET_CONFIGS + ABLATION_CONFIGS + [GPU_CONFIG]}
 GROUPS = {"presets": [c.name for c in PRESET_CONFIGS], "ablations": [c.name for c in ABLATION_CONFIGS]}
 
 

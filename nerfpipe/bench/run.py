@@ -44,7 +44,7 @@ def run_bench(capture: Path, run_dir: Path, configs: list[BenchConfig], budget: 
     from nerfpipe import Pipeline, default_stages
 
     shared = {k: dict(v) for k, v in overrides.items() if k != "train"}
-    Pipeline(default_stages(), capture, run_dir, None, shared).run(until="scene")  # makes run_dir nerfpipe's first
+    Pipeline(default_stages(), capture, run_dir, "", shared).run(until="scene")  # makes run_dir nerfpipe's first
     out = run_dir / BENCH_DIR
     out.mkdir(parents=True, exist_ok=True)
     previous = _load(out / "bench.json")

@@ -65,7 +65,8 @@ def prepare(spec: dict[str, Any]) -> Setup:
     from nerfpipe.nerf.train.evaluation import evaluated_scale
     from nerfpipe.nerf.train.images import ImageLoader, split_views
 
-    pipe = Pipeline(default_stages(), Path(spec["capture"]), Path(spec["run_dir"]), None, spec["overrides"])
+    # "": each configuration is exactly its own settings, whatever machine a preset would be sized for
+    pipe = Pipeline(default_stages(), Path(spec["capture"]), Path(spec["run_dir"]), "", spec["overrides"])
     params = pipe.plan()["train"].params
     device = resolve_device(params.device, "train.device")
     loader = ImageLoader.from_inputs(pipe.stage_inputs("train"))
@@ -84,15 +85,18 @@ def prepare(spec: dict[str, Any]) -> Setup:
                  density_noise(params, loader.scene.layout.value), evaluated_scale(params.eval_scale))
 
 
-def prepare_capture(capture: Path, run_dir: Path, size: int, sets: list[str], budget: float) -> Setup:
-    """``prepare`` for the scripts: ``--set`` assignments and ``ingest.max_size`` as overrides, the stages up to
-    scene run (or reused) in ``run_dir`` first."""
+def prepare_capture(capture: Path, run_dir: Path, size: int, sets: list[str], budget: float,
+                    preset: str = "fast") -> Setup:
+    """``prepare`` for the scripts: the train ``preset``'s settings, then ``--set`` assignments and
+    ``ingest.max_size`` as overrides, the stages up to scene run (or reused) in ``run_dir`` first."""
     from nerfpipe import Pipeline, default_stages
+    from nerfpipe.nerf.presets import PRESETS
     from nerfpipe.pipeline.params import parse_assignments
 
     overrides = parse_assignments(sets)
+    overrides["train"] = {**{k: str(v) for k, v in PRESETS[preset].items()}, **overrides.get("train", {})}
     overrides.setdefault("ingest", {})["max_size"] = str(size)
-    Pipeline(default_stages(), capture, run_dir, None, {k: v for k, v in overrides.items() if k != "train"}).run(
+    Pipeline(default_stages(), capture, run_dir, "", {k: v for k, v in overrides.items() if k != "train"}).run(
         until="scene")
     return prepare({"capture": str(capture), "run_dir": str(run_dir), "overrides": overrides, "eval_views": 0,
                     "budget": budget})

@@ -1,7 +1,30 @@
 """The train stage's presets (``--preset NAME``): settings of its parameters (``nerfpipe.stages.train.TrainParams``)
-that go together, each with what it is for. Plain data: listing them imports no torch."""
+that go together, each with what it is for; and ``gpu_preset``, what the stages that render take on a CUDA device
+where the job names no preset (``Stage.machine_preset``). Listing them imports no torch."""
 
 from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+NVIDIA_DRIVER = Path("/proc/driver/nvidia")  # present where the NVIDIA kernel driver is loaded
+
+
+def cuda_device(choice: str) -> str | None:
+    """The name of the CUDA device a stage whose ``device`` setting is ``choice`` (auto, cpu, cuda) computes on,
+    or None: ``cpu``, no NVIDIA driver loaded (torch is not even imported then), or a torch that sees none."""
+    if choice == "cpu" or not NVIDIA_DRIVER.exists():
+        return None
+    import torch
+
+    return torch.cuda.get_device_name() if torch.cuda.is_available() else None
+
+
+def gpu_preset(overrides: Mapping[str, Any], sizes: str) -> tuple[str, str] | None:
+    """``Stage.machine_preset`` of a stage with a ``gpu`` preset: ("gpu", why) where it computes on a CUDA
+    device (its ``device`` override, else auto), ``sizes`` saying what the preset sizes."""
+    name = cuda_device(str(overrides.get("device", "auto")))
+    return None if name is None else ("gpu", f"sized for the CUDA device {name}: {sizes}")
 
 # Section 5.3 and Fig. 7: the model, sampling and optimizer of the paper, without empty-space skipping
 PAPER = {
@@ -40,7 +63,8 @@ PRESETS = {
     # a CUDA device's (``TrainStage.machine_preset``): Instant-NGP's batch of 2^18 samples and hash field, 16 levels of
     # 16 to 2048 cells a side in tables of 2^19 rows, its step compiled (train.compile=auto)
     "gpu": {"field.kind": "hash", "field.levels": 16, "field.min_resolution": 16, "field.max_resolution": 2048,
-            "field.features": 2, "field.log2_table": 19, "optim.batch_samples": 262144, "chunk": 65536},
+            "field.features": 2, "field.log2_table": 19, "optim.batch_samples": 262144, "chunk": 65536,
+            "eval_scale": "1"},
     # three factorized planes a level (K-Planes): levels of 32, 102, 323 and 1024 cells a side, 4 features
     # each, 14 M values, where a 1024^3 dense grid would need 4.3 G
     "planes": {"field.kind": "planes", "field.levels": 4, "field.min_resolution": 32, "field.max_resolution": 1024,

@@ -77,8 +77,8 @@ def plan_stages(dag: Dag, source: Path, run_dir: Path, preset: str | None,
     """Every stage's parameters, fingerprinted capture files and cache key, in the DAG's order. The key hashes
     the stage's name, version and parameters (but those declared ``keyed=False``: a device, a chunk size), its
     upstream keys, its files' fingerprints and, for a stage that takes part in the job's time ``budget``, the
-    budget as given. ``rehash``: hash every capture file, trusting
-    no cached fingerprint."""
+    budget as given. ``preset``: the job's, or None for each stage's own for this machine (``Stage.machine_preset``),
+    or "" for none. ``rehash``: hash every capture file, trusting no cached fingerprint."""
     fingerprints = fingerprints or FingerprintCache(run_dir / ".cache" / "fingerprints.json", rehash)
     root = capture_root(source)
     planned: dict[str, PlannedStage] = {}

@@ -79,7 +79,7 @@ class Pipeline:
         self.store = ArtifactStore(self.run_dir)
         for stage_name in self.overrides:
             self.dag.check_name(stage_name)
-        if preset is not None and not any(preset in s.presets for s in stages):
+        if preset and not any(preset in s.presets for s in stages):  # "": no preset, not even a machine's
             known = sorted({p for s in stages for p in s.presets})
             raise ParamError(f"unknown preset {preset!r}; presets are: {', '.join(known)}")
         self._plan: dict[str, PlannedStage] | None = None

@@ -13,10 +13,11 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal, Mapping
 
 from nerfpipe.artifacts import BOUNDS, CAMERAS, VIEWS, ViewSplit, view_file_stem
 from nerfpipe.geometry.cameras import CameraSet
+from nerfpipe.nerf.presets import gpu_preset
 from nerfpipe.pipeline.budget import FloorWork, fit_to_allotment
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.summary import Summary
@@ -88,6 +89,7 @@ class ExportDepthStage(Stage):
         "preview": {"scale": 0.125},
         # full resolution: what other tools want, at 16x the rendering time of the default
         "full": {"scale": 1.0},
+        "gpu": {"scale": 1.0},  # a CUDA device's (``machine_preset``): full size is cheap there
     }
     requires = ("model", "model_json", "views", "cameras", "bounds")
     provides = {"depth": "depth", "depth_index": "depth.json"}
@@ -95,6 +97,9 @@ class ExportDepthStage(Stage):
     accelerated = True
     budget_share = 0.08
     optional = True
+
+    def machine_preset(self, overrides: Mapping[str, Any]) -> tuple[str, str] | None:
+        return gpu_preset(overrides, "depth maps at full size")
 
     def expected_bytes(self, inputs: StageInputs, params: ExportDepthParams) -> int:
         """The float32 depth, opacity and disparity arrays of every view (the PNGs beside them add less)."""

@@ -21,13 +21,14 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Literal, Sequence
+from typing import Any, Iterator, Literal, Mapping, Sequence
 
 import numpy as np
 
 from nerfpipe.artifacts import BOUNDS, CAMERAS, SCENE
 from nerfpipe.geometry.cameras import Camera, CameraSet
 from nerfpipe.imaging.png import read_png, srgb_encode, write_png
+from nerfpipe.nerf.presets import gpu_preset
 from nerfpipe.pipeline.budget import FloorWork, check_affordable, fit_to_allotment
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.summary import Summary
@@ -155,6 +156,7 @@ class RenderStage(Stage):
         "draft": PREVIEW,  # with ingest's and the others' draft: a quick run end to end
         # the length of the NeRF paper's videos (120 frames), at the training resolution
         "full": FULL,
+        "gpu": {"short_side": 0, "scale": 1.0, "max_side": 1920},  # a CUDA device's: the photos' size, at most 1080p
         "paper": FULL,
     }
     requires = ("model", "model_json", "cameras", "bounds", "scene")
@@ -164,6 +166,9 @@ class RenderStage(Stage):
     accelerated = True
     budget_share = 0.10
     optional = True
+
+    def machine_preset(self, overrides: Mapping[str, Any]) -> tuple[str, str] | None:
+        return gpu_preset(overrides, "the video at the photos' size, at most 1080p")
 
     def input_files(self, source: Path, params: RenderParams) -> list[Path]:
         """A camera path file, when ``path`` names one: its content enters the cache key."""

@@ -28,15 +28,13 @@ from nerfpipe.artifacts import ViewSplit
 from nerfpipe.nerf.config import (OptimParams, PerImageParams, SpaceParams, auto_sampler, field_configs,
                                   sampler_configs, step_bytes)
 from nerfpipe.nerf.fields.configs import FieldConfig, GridConfig
-from nerfpipe.nerf.presets import PRESETS
+from nerfpipe.nerf.presets import PRESETS, gpu_preset
 from nerfpipe.nerf.samplers.configs import MarchingConfig, SamplerConfig
 from nerfpipe.pipeline.params import param
 from nerfpipe.pipeline.resources import check_memory
 from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
 from nerfpipe.pipeline.store import write_json_atomic
-
-NVIDIA_DRIVER = Path("/proc/driver/nvidia")  # present where the NVIDIA kernel driver is loaded
 
 _SWITCH = {"true": "on", "false": "off", "yes": "on", "no": "off", "1": "on", "0": "off"}
 _SAMPLER = {"true": "marching", "on": "marching", "false": "hierarchical", "off": "hierarchical", "auto": "auto",
@@ -228,15 +226,11 @@ class TrainStage(Stage):
         return params.seconds, f"seconds={params.seconds:g}"
 
     def machine_preset(self, overrides: Mapping[str, Any]) -> tuple[str, str] | None:
-        """``gpu`` where training would run on a CUDA device (``train.device`` auto or cuda, and torch sees one)."""
-        if str(overrides.get("device", "auto")) == "cpu" or "field.kind" in overrides or not NVIDIA_DRIVER.exists():
-            return None  # a field of the user's own, or no NVIDIA driver (then torch is not even imported)
-        import torch
-
-        if not torch.cuda.is_available():
+        """``gpu`` where training runs on a CUDA device, unless the user chose the field."""
+        if "field.kind" in overrides:
             return None
-        return "gpu", (f"sized for the CUDA device {torch.cuda.get_device_name()}: 2^18 samples a step, the hash field "
-                       "to 2048 cells a side, the step compiled (--preset fast: the CPU's sizes)")
+        return gpu_preset(overrides, "2^18 samples a step, the hash field to 2048 cells a side, the step compiled, "
+                                     "held-out views at full size (--preset fast: the CPU's sizes)")
 
     def run(self, inputs: StageInputs, out: Path, params: TrainParams, ctx: StageContext) -> TrainSummary:
         # torch is imported here, not at the top: the CPU settings of training must come before its first use

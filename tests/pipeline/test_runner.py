@@ -230,3 +230,5 @@ def test_a_stage_takes_its_machine_preset_only_where_the_job_names_none(capture,
     assert plain["count"].params.label != "big" and planned["count"].key != plain["count"].key  # in the key
     named = Pipeline(stages, capture, tmp_path / "c", preset="draft").plan()
     assert named["count"].params.label == "draft"  # a preset the job names wins
+    exact = Pipeline(stages, capture, tmp_path / "d", preset="").plan()  # "": none at all (bench's configurations)
+    assert exact["count"].key == plain["count"].key

@@ -410,20 +410,26 @@ def check_web_viewer(run_dir: Path) -> None:
     assert process.returncode == 0 and "web viewer stopped" in out and "Traceback" not in err, err
 
 
-def test_training_on_a_cuda_device_takes_the_gpu_preset_unless_told_otherwise(tmp_path, monkeypatch) -> None:
-    import nerfpipe.stages.train as train_stage
+@pytest.mark.parametrize("stage_name", ["train", "export_depth", "render"])
+def test_a_stage_that_renders_takes_the_gpu_preset_on_a_cuda_device_unless_told_otherwise(stage_name, tmp_path,
+                                                                                           monkeypatch) -> None:
+    import nerfpipe.nerf.presets as presets
 
-    stage = TrainStage()
-    monkeypatch.setattr(train_stage, "NVIDIA_DRIVER", tmp_path / "no-driver")
+    stage = next(s for s in default_stages() if s.name == stage_name)
+    monkeypatch.setattr(presets, "NVIDIA_DRIVER", tmp_path / "no-driver")
     assert stage.machine_preset({}) is None  # no driver: torch is not asked
-    monkeypatch.setattr(train_stage, "NVIDIA_DRIVER", tmp_path)
+    monkeypatch.setattr(presets, "NVIDIA_DRIVER", tmp_path)
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     assert stage.machine_preset({}) is None  # a driver, but torch sees no device (a CPU build)
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     monkeypatch.setattr(torch.cuda, "get_device_name", lambda *a: "NVIDIA H200")
     name, why = stage.machine_preset({})
-    assert name == "gpu" and "NVIDIA H200" in why and "2^18 samples" in why
-    assert stage.machine_preset({"device": "cpu"}) is None and stage.machine_preset({"field.kind": "grid"}) is None
-    params = build_params("train", TrainParams, TrainStage.presets, name, {})
-    assert (params.field.kind, params.field.max_resolution, params.field.log2_table) == ("hash", 2048, 19)
-    assert params.optim.batch_samples == 2**18 and params.compile == "auto"
+    assert name == "gpu" and "sized for the CUDA device NVIDIA H200" in why and "gpu" in stage.presets
+    assert stage.machine_preset({"device": "cpu"}) is None
+    params = build_params(stage_name, stage.Params, stage.presets, name, {})
+    if stage_name == "train":
+        assert stage.machine_preset({"field.kind": "grid"}) is None  # a field of the user's own
+        assert (params.field.kind, params.field.max_resolution, params.field.log2_table) == ("hash", 2048, 19)
+        assert params.optim.batch_samples == 2**18 and params.compile == "auto" and params.eval_scale == "1"
+    else:  # full size
+        assert params.scale == 1.0
