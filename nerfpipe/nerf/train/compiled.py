@@ -68,12 +68,12 @@ class StaticStep:
     """The samples, render and loss of a training step of ``model``, at ``rays`` x ``samples`` fixed shapes.
 
     ``mode``: kernels or graphs (``MODES``); ``distortion`` and ``density_noise`` as the trainer's; compiled by
-    ``BACKEND``. If compiling fails, the step says so once and runs the same function eagerly: no machine loses
+    ``BACKEND``; ``clock``: the trainer's, which times the first call (``take_compile_seconds``). If compiling fails, the step says so once and runs the same function eagerly: no machine loses
     training to a missing compiler.
     """
 
     def __init__(self, model: RadianceModel, rays: int, samples: int, mode: str, distortion: float = 0.0,
-                 density_noise: float = 0.0) -> None:
+                 density_noise: float = 0.0, clock: Callable[[], float] = time.perf_counter) -> None:
         if rays < 2 or samples < 1:
             raise ValueError(f"a fixed-shape step needs at least 2 rays and 1 sample, got {rays} and {samples}")
         self.model, self.rays, self.samples, self.mode = model, rays, samples, mode
@@ -81,7 +81,7 @@ class StaticStep:
         options = {"mode": MODES[mode]} if BACKEND == "inductor" else {}
         self.compiled: Callable = torch.compile(self.loss, backend=BACKEND, dynamic=False, **options)
         self.calls = 0
-
+        self.clock, self.compile_seconds = clock, 0.0  # the first call's time, until the trainer takes it
     def loss(self, origins: Tensor, directions: Tensor, viewdirs: Tensor, near: Tensor, far: Tensor, ray: Tensor,
              t: Tensor, starts: Tensor, ends: Tensor, span_starts: Tensor | None, span_ends: Tensor | None,
              target: Tensor, share: Tensor, weight: Tensor | None, backdrop: Tensor | None,
@@ -127,10 +127,12 @@ class StaticStep:
         self.calls += 1
         if self.calls > 1:
             return self.compiled(*inputs)
-        started = time.perf_counter()
+        started = self.clock()
         try:  # the first call compiles
             result = self.compiled(*inputs)
-            log.info("train: the first step, compiling it, took %.1f s of training time", time.perf_counter() - started)
+            self.compile_seconds = self.clock() - started
+            log.info("train: the first step, compiling it, took %.1f s (not counted as training time)",
+                     self.compile_seconds)
             return result
         except Exception as err:  # a missing compiler, an operator inductor lacks: the same function, eagerly
             cause = getattr(err, "inner_exception", None) or err.__cause__ or err  # what the backend raised
@@ -138,4 +140,10 @@ class StaticStep:
             log.warning("train: compiling the training step failed (%s: %s); training without compiling "
                         "(train.compile=off skips the attempt)", type(cause).__name__, first)
             self.compiled = self.loss
+            self.compile_seconds = self.clock() - started
             return self.loss(*inputs)
+
+    def take_compile_seconds(self) -> float:
+        """The seconds the first call spent compiling (and the step it ran), once; 0 after."""
+        seconds, self.compile_seconds = self.compile_seconds, 0.0
+        return seconds

@@ -159,7 +159,7 @@ class Trainer:
         log.info("train: the step compiled at fixed shapes (%s): %d samples, %d rays", mode, optim.batch_samples,
                  16 * optim.batch_rays + 1)
         return StaticStep(self.model, 16 * optim.batch_rays + 1, optim.batch_samples, mode, optim.distortion,
-                          self.density_noise)
+                          self.density_noise, self.clock)
 
     @property
     def checkpoint_dir(self) -> Path:
@@ -340,7 +340,8 @@ class Trainer:
                 synchronize(self.device)
                 self.step += 1
                 now = self.clock()
-                self.elapsed += now - started
+                # compiling the step is set-up, as building the model is: the time budget is the training's
+                self.elapsed += now - started - (self.static.take_compile_seconds() if self.static is not None else 0.0)
                 started = now
                 last = self.finished()
                 self.watch(psnr)

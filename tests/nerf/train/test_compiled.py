@@ -130,3 +130,17 @@ def test_a_compiler_that_fails_leaves_the_eager_step_and_says_so(tmp_path: Path,
 def test_a_sampler_of_fixed_cost_a_ray_stays_eager(tmp_path: Path) -> None:
     model, params = model_of({"compile": "kernels", "sampler.kind": "hierarchical"})
     assert Trainer(model, one_view_pixels(CPU), params, tmp_path, CPU).static is None
+
+
+def test_compiling_is_not_counted_as_training_time(tmp_path: Path, monkeypatch) -> None:
+    now = [0.0]
+
+    def slow(graph, inputs):  # a backend that takes 50 s of the trainer's clock to compile
+        now[0] += 50.0
+        return graph.forward
+
+    monkeypatch.setattr(compiled, "BACKEND", slow)
+    model, params = model_of({"compile": "kernels", "steps": 3})
+    trainer = Trainer(model, one_view_pixels(CPU), params, tmp_path, CPU, clock=lambda: now[0])
+    trainer.run()
+    assert trainer.step == 3 and trainer.elapsed == 0.0 and trainer.static.compile_seconds == 0.0
