@@ -26,6 +26,7 @@ def gpu_preset(overrides: Mapping[str, Any], sizes: str) -> tuple[str, str] | No
     name = cuda_device(str(overrides.get("device", "auto")))
     return None if name is None else ("gpu", f"sized for the CUDA device {name}: {sizes}")
 
+
 # Section 5.3 and Fig. 7: the model, sampling and optimizer of the paper, without empty-space skipping
 PAPER = {
     "field.kind": "mlp", "sampler.kind": "hierarchical", "steps": 200_000, "optim.batch_rays": 4096,

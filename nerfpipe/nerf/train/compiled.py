@@ -41,12 +41,14 @@ def compile_mode(choice: str, device: torch.device) -> str:
     return choice
 
 
+def pad_rows(x: Tensor, count: int) -> Tensor:
+    """(R, ...) rows, R >= 1, followed by ``count - R`` copies of the first: (count, ...)."""
+    return torch.cat([x, x[:1].expand(count - len(x), *x.shape[1:])])
+
+
 def pad_rays(rays: RayBatch, count: int) -> RayBatch:
-    """``rays`` (R <= count of them, R >= 1) followed by ``count - R`` copies of the first: finite rays to pad
-    with."""
-    extra = count - len(rays)
-    return RayBatch(*(torch.cat([x, x[:1].expand(extra, *x.shape[1:])]) for x in
-                      (rays.origins, rays.directions, rays.viewdirs, rays.near, rays.far)))
+    """``rays`` (R <= count of them, R >= 1) followed by copies of the first: finite rays to pad with."""
+    return RayBatch(*(pad_rows(x, count) for x in (rays.origins, rays.directions, rays.viewdirs, rays.near, rays.far)))
 
 
 def pad_samples(samples: RaySamples, count: int, ray: int) -> RaySamples:
@@ -68,8 +70,9 @@ class StaticStep:
     """The samples, render and loss of a training step of ``model``, at ``rays`` x ``samples`` fixed shapes.
 
     ``mode``: kernels or graphs (``MODES``); ``distortion`` and ``density_noise`` as the trainer's; compiled by
-    ``BACKEND``; ``clock``: the trainer's, which times the first call (``take_compile_seconds``). If compiling fails, the step says so once and runs the same function eagerly: no machine loses
-    training to a missing compiler.
+    ``BACKEND``; ``clock``: the trainer's, which times the first call (``take_compile_seconds``). If compiling
+    fails, the step says so once and runs the same function eagerly: no machine loses training to a missing
+    compiler.
     """
 
     def __init__(self, model: RadianceModel, rays: int, samples: int, mode: str, distortion: float = 0.0,
@@ -80,8 +83,9 @@ class StaticStep:
         self.distortion, self.density_noise = distortion, density_noise
         options = {"mode": MODES[mode]} if BACKEND == "inductor" else {}
         self.compiled: Callable = torch.compile(self.loss, backend=BACKEND, dynamic=False, **options)
-        self.calls = 0
+        self.first = True  # the next call compiles
         self.clock, self.compile_seconds = clock, 0.0  # the first call's time, until the trainer takes it
+
     def loss(self, origins: Tensor, directions: Tensor, viewdirs: Tensor, near: Tensor, far: Tensor, ray: Tensor,
              t: Tensor, starts: Tensor, ends: Tensor, span_starts: Tensor | None, span_ends: Tensor | None,
              target: Tensor, share: Tensor, weight: Tensor | None, backdrop: Tensor | None,
@@ -112,7 +116,7 @@ class StaticStep:
         share[:kept] = 1.0 / kept
 
         def pad(x: Tensor | None) -> Tensor | None:
-            return None if x is None else torch.cat([x[:kept], x[:1].expand(self.rays - kept, *x.shape[1:])])
+            return None if x is None else pad_rows(x[:kept], self.rays)
 
         spans = padded.spans or (None, None)
         # where the samples lie is the sampler's, held fixed (nerfacc's too): a camera being refined learns through
@@ -124,10 +128,9 @@ class StaticStep:
         return loss, mse, errors[:kept], kept, real
 
     def _run(self, inputs: tuple) -> tuple[Tensor, Tensor, Tensor]:
-        self.calls += 1
-        if self.calls > 1:
+        if not self.first:
             return self.compiled(*inputs)
-        started = self.clock()
+        self.first, started = False, self.clock()
         try:  # the first call compiles
             result = self.compiled(*inputs)
             self.compile_seconds = self.clock() - started
