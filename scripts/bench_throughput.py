@@ -9,7 +9,9 @@ Run by hand from the repository root, with ../shared beside it:
 It trains the train stage's model (as ``nerfpipe run`` builds it) for ``--seconds`` of training, then measures,
 on that same model: training for ``--window`` more seconds (rays and samples a second: forward, backward and
 the optimizer step), evaluation of the held-out views (``nerf.evaluation.evaluate``, the train stage's chunk),
-and the render stage's orbit (``stages.render.render_frames`` at the render stage's size and chunk). A model
+and the render stage's orbit (``stages.render.render_frames`` at the render stage's size and chunk), after one
+small render that warms up what a process does once (compiling rendering's functions, ``nerfpipe.nerf.kernels``;
+its time is printed apart). A model
 that has trained a while is measured, because empty-space skipping depends on what the occupancy grid learned.
 """
 
@@ -70,6 +72,10 @@ def measure(args: argparse.Namespace) -> None:
         steps = trainer.step - step0
 
     heldout = setup.heldout[:args.eval_views] if args.eval_views > 0 else setup.heldout
+    # the first render of a process compiles rendering's functions (nerfpipe.nerf.kernels), once: timed apart
+    started = time.perf_counter()
+    evaluate(model, setup.loader, heldout[:1], None, setup.chunk, scale=0.1)
+    warm_up = time.perf_counter() - started
     started = time.perf_counter()
     result = evaluate(model, setup.loader, heldout, None, setup.chunk)
     eval_seconds = time.perf_counter() - started
@@ -102,6 +108,8 @@ def measure(args: argparse.Namespace) -> None:
           f"{eval_rays:,} rays in {eval_seconds:.1f} s |")
     print(f"| render stage ({len(poses)} frames of {width}x{height}, chunk {render.chunk}, PNGs written) | "
           f"{render_rays / render_seconds:,.0f} | {render_rays:,} rays in {render_seconds:.1f} s |")
+    print(f"| first render of the process (one held-out view at a tenth of its side; compiles, NERFPIPE_COMPILE) | | "
+          f"{warm_up:.1f} s |")
 
 
 if __name__ == "__main__":

@@ -31,7 +31,7 @@ def main() -> None:
 
     from nerfpipe import Pipeline, default_stages
     from nerfpipe.nerf.train.images import ImageLoader, split_views
-    from nerfpipe.nerf.samplers.march import march, visible
+    from nerfpipe.nerf.samplers.march import at_samples, march, visible
     from nerfpipe.nerf.model import RadianceModel
     from nerfpipe.nerf.spaces.ray_space import ContractedSpace
     from nerfpipe.nerf.render.volume import optical_depth
@@ -49,7 +49,7 @@ def main() -> None:
     sampler, space = model.sampler, model.ray_space
     with torch.no_grad():
         marched = march(rays, space, sampler.grid, sampler.config.steps, False)
-        kept = visible(rays, space, marched, model.coarse.density_features, sampler.config.early_stop, 16)
+        kept = visible(rays, space, marched, at_samples(rays, space, model.coarse.density_features), sampler.config.early_stop, 16)
         points = space.field_points(rays.points(kept.ray, kept.t))
         sigma = model.coarse.query_density(points).float()
         tau = optical_depth(sigma, (kept.ends - kept.starts).clamp_min(0.0)).double()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 from pathlib import Path
@@ -17,6 +18,10 @@ from tests.helpers import REPO, SHARED_DATA, TEMPLE
 settings.register_profile("nerfpipe", database=None)
 settings.load_profile("nerfpipe")
 set_hypothesis_home_dir(tempfile.mkdtemp(prefix="nerfpipe-tests-hypothesis-"))
+
+# rendering evaluates its fields eagerly in tests (``nerfpipe.nerf.kernels``): compiling a graph for each of the
+# suite's many small models would cost more than it saves; tests/nerf/test_kernels.py compiles them on purpose
+os.environ.setdefault("NERFPIPE_COMPILE", "off")
 
 # what the tests may write in the checkout: caches of Python and pytest
 _SCRATCH = ("__pycache__", ".pytest_cache", ".egg-info", ".git")

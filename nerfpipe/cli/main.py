@@ -103,6 +103,9 @@ def run(
             preset = preset or from_file
             overrides = merge(overrides_from_file, overrides)
         job_budget = parse_duration(budget if budget is not None else budget_from_file or "auto")
+        from nerfpipe.nerf.kernels import choice
+
+        choice()  # a wrong NERFPIPE_COMPILE fails now, not when the first render starts after training
         if skip_bad:
             if str(overrides.get("ingest", {}).get("skip_bad", "true")).strip().lower() in ("false", "0", "no", "off"):
                 raise ParamError("--skip-bad and ingest.skip_bad=false disagree; drop one of them")

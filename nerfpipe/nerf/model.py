@@ -19,6 +19,7 @@ from torch import Tensor
 
 from nerfpipe.nerf.appearance import ExposureGains
 from nerfpipe.nerf.fields.base import Field
+from nerfpipe.nerf.kernels import for_rendering
 from nerfpipe.nerf.spaces.ray_space import RaySpace
 from nerfpipe.nerf.spaces.rays import RayBatch, pixel_centers
 from nerfpipe.nerf.refinement import PoseRefinement
@@ -237,9 +238,11 @@ class _Probe:
     def __init__(self, model: RadianceModel, rays: RayBatch, density_noise: float, piece: int) -> None:
         self.model, self.rays, self.noise, self.piece = model, rays, density_noise, piece
 
-    def density_features(self, points: Tensor) -> tuple[Tensor, Tensor]:
+    def density_features(self, ray: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
         with torch.no_grad():
-            return _pieces(self.piece, self.model.coarse.density_features, points)
+            field, rays = for_rendering(self.model.coarse), self.rays
+            return _pieces(self.piece, lambda r, s: field.density_along(self.model.ray_space, rays.origins,
+                                                                        rays.directions, r, s), ray, t)
 
     def render(self, samples: RaySamples, level: int) -> RenderOutput:
         """The field of ``level`` (the last there is) at ``samples``, composited onto nothing (Eq. 3). The
@@ -248,12 +251,15 @@ class _Probe:
         fields = model.fields()
         index = min(level, len(fields) - 1)
         viewdirs = rays.viewdirs[samples.ray]
+        # without gradients (rendering), the field's functions compiled where that pays (``nerfpipe.nerf.kernels``)
+        field = fields[index] if torch.is_grad_enabled() or self.noise else for_rendering(fields[index])
         if samples.known is not None and index == 0:
             sigma, features = samples.known
-            rgb = _pieces(self.piece, fields[0].colour, features, viewdirs)[0]
+            rgb = _pieces(self.piece, field.colour, features, viewdirs)[0]
         else:
             points = model.ray_space.field_points(rays.points(samples.ray, samples.t))
-            rgb, sigma = _pieces(self.piece, lambda x, d: fields[index](x, d, self.noise), points, viewdirs)
+            rgb, sigma = _pieces(self.piece, lambda x, d: field(x, d, self.noise) if self.noise else field(x, d),
+                                 points, viewdirs)
         n = samples.n_rays
         return volume_render(sigma, rgb, samples, rays.near[:n], rays.far[:n])
 

@@ -165,6 +165,7 @@ class ExportMeshStage(Stage):
             write_mesh,
         )
         from nerfpipe.export.texture import UnchartableMeshError, colours_at, write_textured_glb, write_textured_obj
+        from nerfpipe.nerf.kernels import for_rendering
         from nerfpipe.nerf.model import RadianceModel
 
         started = time.perf_counter()
@@ -177,7 +178,7 @@ class ExportMeshStage(Stage):
         if method == "marching_cubes":
             box = model.ray_space.mesh_box(far, (tuple(lo), tuple(hi)), params.region)
             grid = Grid.over(box[0], box[1], params.resolution)
-            field = model.fine if model.fine is not None else model.coarse
+            field = for_rendering(model.fine if model.fine is not None else model.coarse)  # compiled where that pays
             predicted = timed(lambda pts: evaluate_density(field.query_density, pts, device=device), box, grid.voxel,
                               PROBE_POINTS) * float(np.prod(grid.cells)) / PROBE_POINTS
             ctx.log.info("export_mesh: marching cubes on %s voxels of %.4g at density %g, about %.0f s of density",
@@ -295,8 +296,9 @@ def write_watertight(out: Path, model: Any, grid: Any, params: ExportMeshParams,
     from nerfpipe.export.mesh import transformed, write_mesh
     from nerfpipe.export.solid import closure, watertight
     from nerfpipe.export.texture import colours_at
+    from nerfpipe.nerf.kernels import for_rendering
 
-    field = model.fine if model.fine is not None else model.coarse
+    field = for_rendering(model.fine if model.fine is not None else model.coarse)  # compiled where that pays
     try:
         mesh = watertight(field.query_density, grid, params.density_threshold, params.block, device, params.close_voxels)
     except ValueError:

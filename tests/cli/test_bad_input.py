@@ -368,3 +368,11 @@ def test_a_damaged_colmap_model_is_one_line_before_pycolmap_reads_it(in_images, 
     else:
         assert_one_clear_error(result, f"{model / 'points3D.bin'}: is cut short: its records run past its end")
     assert "imported" not in result.stderr
+
+
+def test_a_wrong_compile_switch_is_one_line_before_anything_runs(tmp_path, monkeypatch):
+    monkeypatch.setenv("NERFPIPE_COMPILE", "fast")
+    result = run_cli("run", TEMPLE, "--out", tmp_path / "r")
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+    assert result.stderr.strip().splitlines() == ["error: NERFPIPE_COMPILE=fast: must be one of auto, off (or unset, auto)"]
+    assert not (tmp_path / "r").exists()

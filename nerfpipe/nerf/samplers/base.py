@@ -31,9 +31,9 @@ Box = tuple[tuple[float, ...], tuple[float, ...]]
 class Probe(Protocol):
     """What a sampler may ask of the model while it samples (``RadianceModel.render`` hands one over)."""
 
-    def density_features(self, points: Tensor) -> tuple[Tensor, Tensor]:
-        """Densities (M,) of the first field at field coordinates (M, 3) and its features there
-        (``Field.density_features``), without gradients."""
+    def density_features(self, ray: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
+        """Densities (M,) of the first field at samples (M,) of the rays being sampled, given by ray index and t, and
+        its features there (``Field.density_features``), without gradients."""
 
     def render(self, samples: RaySamples, level: int) -> RenderOutput:
         """``samples`` rendered through field ``level`` (0: coarse, 1: fine), with gradients while training."""

@@ -19,14 +19,21 @@ from typing import Callable
 import torch
 from torch import Tensor
 
+from nerfpipe.nerf.kernels import run
 from nerfpipe.nerf.samplers.occupancy import OccupancyGrid
 from nerfpipe.nerf.spaces.rays import RayBatch
 from nerfpipe.nerf.render.volume import RaySamples, optical_depth
 
 # field coordinates (M, 3) -> densities (M,)
 DensityFn = Callable[[Tensor], Tensor]
-# field coordinates (M, 3) -> densities (M,) and the features the field's colour reads (M, F)
-FeaturesFn = Callable[[Tensor], tuple[Tensor, Tensor]]
+# samples (M,) of a batch of rays, by ray index and t -> densities (M,) and the features the field's colour reads
+# (M, F) at their points (``Probe.density_features``)
+FeaturesFn = Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]
+
+
+def at_samples(rays: RayBatch, space, fn: Callable[[Tensor], tuple[Tensor, Tensor]]) -> FeaturesFn:
+    """``fn`` of field coordinates (``Field.density_features``) as a ``FeaturesFn`` of samples of ``rays``."""
+    return lambda ray, t: fn(space.field_points(rays.points(ray, t)))
 
 
 def march(rays: RayBatch, space, grid: OccupancyGrid, steps: int, randomized: bool,
@@ -51,9 +58,8 @@ def march(rays: RayBatch, space, grid: OccupancyGrid, steps: int, randomized: bo
         u = torch.full((n_rays, 1), 0.5, device=starts.device, dtype=starts.dtype)
     # every candidate tested where it lies, then one compaction: a boolean index per array would scan the mask again
     # for each of them (the march took a fifth of a render on beer, most of it in those scans)
-    t = torch.addcmul(starts, u, (ends - starts).clamp_min(0.0))  # (R, S)
-    points = torch.addcmul(rays.origins.unsqueeze(1), t.unsqueeze(-1), rays.directions.unsqueeze(1))  # (R, S, 3)
-    keep = (starts < rays.far.unsqueeze(-1)).reshape(-1) & grid.is_occupied(space.field_points(points.reshape(-1, 3)))
+    keep, t = run(occupied_candidates, starts.numel(), starts.device, space, grid, rays.origins, rays.directions,
+                  rays.far, starts, ends, u)
     flat = keep.nonzero().squeeze(-1)  # row-major: ray after ray, k increasing
     columns = starts.shape[1]
     ray, step = flat // columns, (flat % columns).to(t.dtype)
@@ -61,10 +67,21 @@ def march(rays: RayBatch, space, grid: OccupancyGrid, steps: int, randomized: bo
     return RaySamples(ray, t, s, e, n_rays, (step / steps, (step + 1.0) / steps))
 
 
+def occupied_candidates(space, grid: OccupancyGrid, origins: Tensor, directions: Tensor, far: Tensor, starts: Tensor,
+                        ends: Tensor, u: Tensor) -> tuple[Tensor, Tensor]:
+    """``march``'s candidates: the sample a fraction ``u`` (R, 1) into each step [starts, ends] (R, S) of rays
+    (R, 3) in ``space``, and whether it lies before ``far`` (R,) in an occupied cell of ``grid``. Returns
+    (R S,) bool, row-major, and t (R, S). A pure function of its inputs, which rendering compiles
+    (``nerfpipe.nerf.kernels``): one loop over the candidates, where eagerly each step's array is written out."""
+    t = torch.addcmul(starts, u, (ends - starts).clamp_min(0.0))  # (R, S)
+    points = torch.addcmul(origins.unsqueeze(1), t.unsqueeze(-1), directions.unsqueeze(1))  # (R, S, 3)
+    return (starts < far.unsqueeze(-1)).reshape(-1) & grid.is_occupied(space.field_points(points.reshape(-1, 3))), t
+
+
 def visible(rays: RayBatch, space, samples: RaySamples, evaluate: FeaturesFn, early_stop: float,
             window: int = 0) -> RaySamples:
     """The samples a ray reaches with transmittance above ``early_stop``, from the field's density, evaluated
-    without gradients (``evaluate``: ``Field.density_features`` of field coordinates).
+    without gradients (``evaluate``: densities and features of samples given by ray index and t, ``FeaturesFn``).
 
     Samples are taken ``window`` places along each ray at first (0: all at once), on the rays still above
     ``early_stop`` only: a ray that has stopped drops the rest of its samples unevaluated. Each round after
@@ -103,7 +120,7 @@ def _visible(rays: RayBatch, space, samples: RaySamples, evaluate: FeaturesFn, e
         index = (first[active].unsqueeze(-1) + offset)[within]  # ray after ray, in order along each
         part = RaySamples(samples.ray[index], samples.t[index], samples.starts[index], samples.ends[index],
                           samples.n_rays)  # what the round reads: not the spans
-        sigma, feature = evaluate(space.field_points(rays.points(part.ray, part.t)))
+        sigma, feature = evaluate(part.ray, part.t)
         sigma = sigma.float().reshape(-1)
         if remember:
             if features is None:

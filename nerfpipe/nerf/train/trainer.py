@@ -19,6 +19,7 @@ from nerfpipe.nerf.train.checkpoints import load_latest_checkpoint, save_checkpo
 from nerfpipe.nerf.train.compiled import StaticStep, compile_mode
 from nerfpipe.nerf.train.loss import step_loss
 from nerfpipe.nerf.train.sampling import ErrorMap, image_sizes
+from nerfpipe.nerf.kernels import eager
 from nerfpipe.nerf.device import synchronize
 from nerfpipe.nerf.config import OptimParams, TrainSettings
 from nerfpipe.nerf.model import RadianceModel
@@ -332,7 +333,8 @@ class Trainer:
             # is judged once a step, right after it, and the step that spends it is the one logged last
             started = self.clock()
             while not self.finished():
-                loss, psnr = self.train_step(self.step)
+                with eager():  # the step's own rendering as its backward pass is: not compiled (``nerf.kernels``)
+                    loss, psnr = self.train_step(self.step)
                 rays = self.rays
                 if not math.isfinite(loss):
                     raise StageError(f"train: the training loss became {loss} at step {self.step}, so the field diverged; "

@@ -11,7 +11,7 @@ import torch
 
 from nerfpipe.nerf.fields.analytic import SphereField
 
-from nerfpipe.nerf.samplers.march import march, visible, within_budget
+from nerfpipe.nerf.samplers.march import at_samples, march, visible, within_budget
 from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.samplers.configs import MarchingConfig
 from nerfpipe.nerf.samplers.occupancy import OccupancyGrid
@@ -171,10 +171,10 @@ def test_early_termination_drops_only_what_is_hidden() -> None:
     # each ray keeps a prefix of its samples, every one of them reached with transmittance above 1e-3, and
     # the window that looks at a few samples at a time keeps exactly what one pass over all of them does
     samples = march(rays, SPACE, grid, 256, randomized=False)
-    kept = visible(rays, SPACE, samples, sphere.density_features, 1e-3)
+    kept = visible(rays, SPACE, samples, at_samples(rays, SPACE, sphere.density_features), 1e-3)
     counts = kept.counts()
     assert all(torch.equal(of_ray(kept, r).t, of_ray(samples, r).t[:int(counts[r])]) for r in range(len(rays)))
-    windowed = visible(rays, SPACE, samples, sphere.density_features, 1e-3, window=16)
+    windowed = visible(rays, SPACE, samples, at_samples(rays, SPACE, sphere.density_features), 1e-3, window=16)
     assert torch.equal(windowed.t, kept.t) and torch.equal(windowed.ray, kept.ray)
     sigmas = sphere.query_density(rays.points(kept.ray, kept.t))
     tau = sigmas * (kept.ends - kept.starts)
