@@ -68,6 +68,9 @@ class _Compiled:
 
     def of(self, fn: Callable) -> Callable:
         if fn not in self.functions:
+            # sizes that happen to be equal in the first call (rays and samples of a chunk) are not assumed equal
+            # in the next: one graph for every chunk (``use_duck_shape``, process-wide; fixed-shape compiles ignore it)
+            torch.fx.experimental._config.use_duck_shape = False
             self.functions[fn] = torch.compile(fn, backend=BACKEND, dynamic=True)
         return self.functions[fn]
 
@@ -113,6 +116,9 @@ def run(fn: Callable, rows: int, device: torch.device, *inputs: Any) -> Any:
     there are at least ``FEWEST_ROWS`` rows of work, unless a gradient would flow through it; else eagerly."""
     if rows < FEWEST_ROWS or (torch.is_grad_enabled() and _learns(inputs)) or not enabled(device):
         return fn(*inputs)
+    # a view (a chunk of a view's rays, a piece of the samples) is passed as a tensor of its own: the compiled graph
+    # would otherwise be guarded on its base's size and offset, and compiled again for the next chunk
+    inputs = tuple(x.clone() if isinstance(x, Tensor) and x._base is not None else x for x in inputs)
     try:
         result = COMPILED.of(fn)(*inputs)
     except Exception as err:  # a missing compiler or header, an operator inductor lacks: the same, eagerly
@@ -164,7 +170,7 @@ class RenderingField:
                       t: Tensor) -> tuple[Tensor, Tensor]:
         """``density_features`` at the points t (M,) along rays ``ray`` (M,) of (R, 3) ``origins`` and ``directions``
         in ``space`` (a ``RaySpace``): the gathers, the points and their field coordinates compiled with the field."""
-        return self._run(_density_along, ray.shape[0], space, origins, directions, ray, t)
+        return self._run(_density_along, ray.shape[0] if origins.shape[0] > 1 else 0, space, origins, directions, ray, t)
 
     def query_density(self, x: Tensor) -> Tensor:
         return self.density_features(x)[0]

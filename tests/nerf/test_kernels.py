@@ -97,11 +97,17 @@ def test_a_model_renders_the_same_compiled_as_eagerly(space, kind, traced, monke
 
 
 def test_each_function_compiles_once_for_every_model_of_its_shape(traced, monkeypatch) -> None:
-    rendered(model_of(seed=0), "auto", monkeypatch)
+    model = model_of(seed=0)
+    monkeypatch.setenv(kernels.VARIABLE, "auto")
+    model.render_rays(rays_of(model), chunk=100_000)  # the whole view in one chunk: its rays are not a view
     first = len(traced)
     assert first >= 3  # the march's candidates, the density along the rays, the colour
     other = model_of(seed=1)  # another stage loads its own model: same kind and shape, other values
     rendered(other, "auto", monkeypatch)
+    assert len(traced) == first
+    rays = rays_of(other)
+    for chunk in (137, 4096):  # other chunks: other counts of rays, samples and steps, views at other offsets
+        other.render_rays(rays.slice(5, len(rays) - 3), chunk=chunk)
     assert len(traced) == first
     with torch.no_grad():
         x = torch.rand(1000, 3) * 4 - 2

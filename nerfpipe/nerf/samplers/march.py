@@ -58,8 +58,9 @@ def march(rays: RayBatch, space, grid: OccupancyGrid, steps: int, randomized: bo
         u = torch.full((n_rays, 1), 0.5, device=starts.device, dtype=starts.dtype)
     # every candidate tested where it lies, then one compaction: a boolean index per array would scan the mask again
     # for each of them (the march took a fifth of a render on beer, most of it in those scans)
-    keep, t = run(occupied_candidates, starts.numel(), starts.device, space, grid, rays.origins, rays.directions,
-                  rays.far, starts, ends, u)
+    # one ray, or one step a ray, runs eagerly: the compiled graph would be specialized to that size of 1
+    keep, t = run(occupied_candidates, starts.numel() if min(starts.shape) > 1 else 0, starts.device, space, grid,
+                  rays.origins, rays.directions, rays.far, starts, ends, u)
     flat = keep.nonzero().squeeze(-1)  # row-major: ray after ray, k increasing
     columns = starts.shape[1]
     ray, step = flat // columns, (flat % columns).to(t.dtype)
