@@ -13,9 +13,10 @@ each step writes an array the size of the samples to memory and reads it back. T
   of the occupancy grid.
 
 The results are the eager ones to float32 rounding. Where a gradient would flow through them, within a training
-step (``eager``), with few points, or with ``NERFPIPE_COMPILE=off``, the same functions run eagerly. If compiling fails (no C++ compiler or
-Python headers, an operator inductor lacks), rendering says so once and goes on eagerly: no machine loses a render
-to it. ``NERFPIPE_COMPILE=auto`` (the default) compiles on CUDA, and on the CPU where a C++ compiler is found.
+step (``eager``), with few points, or with ``NERFPIPE_COMPILE=off``, the same functions run eagerly. If compiling
+fails (no C++ compiler or Python headers, an operator inductor lacks), rendering says so once and goes on eagerly:
+no machine loses a render to it. ``NERFPIPE_COMPILE=auto`` (the default) compiles on CUDA, and on the CPU where a
+C++ compiler is found.
 """
 
 from __future__ import annotations
@@ -70,7 +71,9 @@ class _Compiled:
         if fn not in self.functions:
             # sizes that happen to be equal in the first call (rays and samples of a chunk) are not assumed equal
             # in the next: one graph for every chunk (``use_duck_shape``, process-wide; fixed-shape compiles ignore it)
-            torch.fx.experimental._config.use_duck_shape = False
+            import torch.fx.experimental._config as shapes
+
+            shapes.use_duck_shape = False
             self.functions[fn] = torch.compile(fn, backend=BACKEND, dynamic=True)
         return self.functions[fn]
 
@@ -170,7 +173,8 @@ class RenderingField:
                       t: Tensor) -> tuple[Tensor, Tensor]:
         """``density_features`` at the points t (M,) along rays ``ray`` (M,) of (R, 3) ``origins`` and ``directions``
         in ``space`` (a ``RaySpace``): the gathers, the points and their field coordinates compiled with the field."""
-        return self._run(_density_along, ray.shape[0] if origins.shape[0] > 1 else 0, space, origins, directions, ray, t)
+        rows = ray.shape[0] if origins.shape[0] > 1 else 0  # one ray: eagerly (a graph for size 1 would be its own)
+        return self._run(_density_along, rows, space, origins, directions, ray, t)
 
     def query_density(self, x: Tensor) -> Tensor:
         return self.density_features(x)[0]
