@@ -92,7 +92,8 @@ _EAGER = [0]  # how many ``eager()`` blocks are open
 def eager() -> Iterator[None]:
     """Everything ``run`` calls inside runs eagerly: a training step's own rendering (its march, visibility pass and
     occupancy refresh), where compiling at the start would take seconds from a time budget of training that the
-    faster steps do not win back on a short training (the temple demo: 107 steps in its first 20 s, against 337)."""
+    faster steps do not win back on a short training (scripts/bench_throughput.py on the temple: 107 steps in its
+    first 20 s, against 337)."""
     _EAGER[0] += 1
     try:
         yield
