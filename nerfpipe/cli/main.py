@@ -103,7 +103,7 @@ def run(
             preset = preset or from_file
             overrides = merge(overrides_from_file, overrides)
         job_budget = parse_duration(budget if budget is not None else budget_from_file or "auto")
-        from nerfpipe.nerf.kernels import choice
+        from nerfpipe.nerf.compiling import choice
 
         choice()  # a wrong NERFPIPE_COMPILE fails now, not when the first render starts after training
         if skip_bad:

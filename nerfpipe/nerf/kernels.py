@@ -31,24 +31,15 @@ from typing import Any, Callable, Iterator
 import torch
 from torch import Tensor
 
-from nerfpipe.pipeline.errors import ParamError
+from nerfpipe.nerf.compiling import CHOICES, VARIABLE, choice
 
 log = logging.getLogger("nerfpipe.nerf.kernels")
 
-VARIABLE = "NERFPIPE_COMPILE"
-CHOICES = ("auto", "off")
+__all__ = ["CHOICES", "VARIABLE", "choice", "enabled", "eager", "for_rendering", "run", "RenderingField"]
 # fewer rows than this run eagerly: the compiler would specialize a graph for sizes 0 and 1, and a handful of
 # points costs nothing either way
 FEWEST_ROWS = 256
 BACKEND: str | Callable = "inductor"  # torch.compile's backend (a test's may trace without code generation instead)
-
-
-def choice() -> str:
-    """``NERFPIPE_COMPILE`` (auto when unset); anything else than ``CHOICES`` is a user error naming it (exit 2)."""
-    value = os.environ.get(VARIABLE, "auto").strip().lower() or "auto"
-    if value not in CHOICES:
-        raise ParamError(f"{VARIABLE}={value}: must be one of {', '.join(CHOICES)} (or unset, auto)")
-    return value
 
 
 @functools.cache

@@ -229,3 +229,14 @@ def test_a_training_step_renders_eagerly_and_after_step_compiles(traced, monkeyp
     assert rendered_after[0] == 0 and rendered_after[1] >= 3  # compiled off the training clock
     assert len(traced) == rendered_after[1]  # and never inside a step, before or after
     assert not kernels._EAGER[0]
+
+
+def test_the_switch_is_read_without_torch() -> None:
+    """The command line checks ``NERFPIPE_COMPILE`` before anything runs; a run that stops before training (a no-op
+    rerun of ingest: 0.3 s) must not pay for importing torch to do so."""
+    import subprocess
+    import sys
+
+    code = "import sys; from nerfpipe.nerf.compiling import choice; choice(); print('torch' in sys.modules)"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0 and result.stdout.strip() == "False", result.stderr
