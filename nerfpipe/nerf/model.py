@@ -251,8 +251,8 @@ class _Probe:
         fields = model.fields()
         index = min(level, len(fields) - 1)
         viewdirs = rays.viewdirs[samples.ray]
-        # without gradients (rendering), the field's functions compiled where that pays (``nerfpipe.nerf.kernels``)
-        field = fields[index] if torch.is_grad_enabled() or self.noise else for_rendering(fields[index])
+        # the field's functions compiled where that pays (``nerfpipe.nerf.kernels``)
+        field = fields[index] if self.noise else for_rendering(fields[index])  # eager where gradients flow (``run``)
         if samples.known is not None and index == 0:
             sigma, features = samples.known
             rgb = _pieces(self.piece, field.colour, features, viewdirs)[0]
