@@ -31,11 +31,10 @@ from typing import Any, Callable, Iterator
 import torch
 from torch import Tensor
 
-from nerfpipe.nerf.compiling import CHOICES, VARIABLE, choice
+from nerfpipe.nerf.compiling import choice
 
 log = logging.getLogger("nerfpipe.nerf.kernels")
 
-__all__ = ["CHOICES", "VARIABLE", "choice", "enabled", "eager", "for_rendering", "run", "RenderingField"]
 # fewer rows than this run eagerly: the compiler would specialize a graph for sizes 0 and 1, and a handful of
 # points costs nothing either way
 FEWEST_ROWS = 256

@@ -12,7 +12,8 @@ import pytest
 import torch
 
 import nerfpipe.nerf.kernels as kernels
-from nerfpipe.nerf.kernels import COMPILED, choice, for_rendering
+from nerfpipe.nerf.compiling import VARIABLE, choice
+from nerfpipe.nerf.kernels import COMPILED, for_rendering
 from nerfpipe.nerf.policy import build_model
 from nerfpipe.nerf.samplers.march import occupied_candidates
 from nerfpipe.nerf.spaces.rays import pixel_centers
@@ -34,7 +35,7 @@ def traced(monkeypatch):
         graphs.append(len(gm.graph.nodes))
         return gm.forward
 
-    monkeypatch.setenv(kernels.VARIABLE, "auto")
+    monkeypatch.setenv(VARIABLE, "auto")
     monkeypatch.setattr(kernels, "BACKEND", backend)
     COMPILED.reset()
     torch._dynamo.reset()
@@ -64,19 +65,19 @@ def rays_of(model):
 
 
 def rendered(model, mode: str, monkeypatch) -> dict[str, torch.Tensor]:
-    monkeypatch.setenv(kernels.VARIABLE, mode)
+    monkeypatch.setenv(VARIABLE, mode)
     return model.render_rays(rays_of(model), chunk=200)
 
 
 def test_the_switch_is_read_from_the_environment_and_a_wrong_value_is_a_user_error(monkeypatch) -> None:
-    monkeypatch.delenv(kernels.VARIABLE, raising=False)
+    monkeypatch.delenv(VARIABLE, raising=False)
     assert choice() == "auto"
-    monkeypatch.setenv(kernels.VARIABLE, " OFF ")
+    monkeypatch.setenv(VARIABLE, " OFF ")
     assert choice() == "off" and not kernels.enabled(CPU)
-    monkeypatch.setenv(kernels.VARIABLE, "fast")
+    monkeypatch.setenv(VARIABLE, "fast")
     with pytest.raises(ParamError, match="NERFPIPE_COMPILE=fast: must be one of auto, off"):
         choice()
-    monkeypatch.setenv(kernels.VARIABLE, "auto")
+    monkeypatch.setenv(VARIABLE, "auto")
     monkeypatch.setattr(kernels, "BACKEND", "inductor")
     monkeypatch.setattr(kernels, "cpp_compiler", lambda: None)  # a machine without g++: eager, and no warning
     assert not kernels.enabled(CPU) and kernels.enabled(torch.device("cuda"))
@@ -98,7 +99,7 @@ def test_a_model_renders_the_same_compiled_as_eagerly(space, kind, traced, monke
 
 def test_each_function_compiles_once_for_every_model_of_its_shape(traced, monkeypatch) -> None:
     model = model_of(seed=0)
-    monkeypatch.setenv(kernels.VARIABLE, "auto")
+    monkeypatch.setenv(VARIABLE, "auto")
     model.render_rays(rays_of(model), chunk=100_000)  # the whole view in one chunk: its rays are not a view
     first = len(traced)
     assert first >= 3  # the march's candidates, the density along the rays, the colour
@@ -141,7 +142,7 @@ def test_a_compiler_that_fails_leaves_eager_rendering_said_once(monkeypatch, cap
         calls.append(1)
         raise RuntimeError("no C++ compiler\nmore detail")
 
-    monkeypatch.setenv(kernels.VARIABLE, "auto")
+    monkeypatch.setenv(VARIABLE, "auto")
     monkeypatch.setattr(kernels, "BACKEND", broken)
     COMPILED.reset()
     torch._dynamo.reset()
