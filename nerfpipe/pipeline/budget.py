@@ -3,10 +3,12 @@
 Each stage takes part in one of three ways (``Stage.budget_share``, ``Stage.elastic``):
 
 - a share: the stage is allotted that fraction of the budget and sizes its work to fit it (an export
-  renders at the size its allotment affords); its allotment is also what the others reserve for it;
+  renders at the size its allotment affords); its allotment is also what the others reserve for it. What the
+  stages before it saved beyond the shares still to come (``Allotment.spare``) pays for its output at a floor
+  that does not fit its share, never for a larger one;
 - elastic: the stage gets what the job has left once the stages before it have run and the stages after
-  it have their shares reserved (training); the parameters it names in ``elastic`` turn that off when a
-  user or a preset sets one of them;
+  it have their shares reserved (training), and may give some of it back to their floors (``price_floors``);
+  the parameters it names in ``elastic`` turn that off when a user or a preset sets one of them;
 - neither: the stage takes what it takes, bounded by its own design (reading photos, SfM with given poses).
 
 A budget of ``auto`` is resolved, once per job, by a rule the caller supplies (the application knows what
@@ -91,20 +93,34 @@ class JobBudget:
         shares of the stages still to come after it (never below 0)."""
         return max(self.seconds - self.elapsed() - sum(self.share(s) for s in later_shares), 0.0)
 
+    def spare(self, own_share: float, later_shares: Iterable[float]) -> float:
+        """What a stage with ``own_share`` starting now finds unspent beyond its own share and those of the stages
+        after it: the time the stages before it saved (an elastic stage that stopped early to make room for the
+        outputs' floors), or 0 when the job is behind."""
+        return max(self.remainder([own_share, *later_shares]), 0.0)
+
 
 @dataclass(frozen=True)
 class Allotment:
     """What a running stage was given: ``seconds`` of the job's ``budget`` (both in seconds), and whether it
-    is the elastic stage that takes the remainder."""
+    is the elastic stage that takes the remainder. ``spare``: what the stages before it saved (``JobBudget.spare``),
+    which an output at its floor that does not fit ``seconds`` may take without making the job longer; an output
+    is never made larger with it."""
 
     seconds: float
     budget: float
     elastic: bool = False
+    spare: float = 0.0
 
     def describe(self) -> str:
         budget = f"the {format_duration(self.budget)} budget"
         role = f"what {budget} leaves" if self.elastic else f"{self.seconds / self.budget:.0%} of {budget}"
-        return f"{format_duration(self.seconds)} ({role})"
+        saved = f", and {format_duration(self.spare)} the stages before it saved" if self.spare >= 1.0 else ""
+        return f"{format_duration(self.seconds)} ({role}{saved})"
+
+    def record(self) -> dict[str, float]:
+        """What a stage's manifest records of it (its ``timings``)."""
+        return {"allotted": round(self.seconds, 2), "budget": self.budget, "spare": round(self.spare, 2)}
 
 
 @dataclass(frozen=True)
@@ -126,12 +142,14 @@ class Fit:
                 "--budget, or --budget off, runs it as set)")
 
 
-def fit_to_allotment(full_seconds: float, left: float | None, floor: float, fixed: float = 0.0) -> Fit:
+def fit_to_allotment(full_seconds: float, left: float | None, floor: float, fixed: float = 0.0,
+                     spare: float = 0.0) -> Fit:
     """The largest scale s in [floor, 1] of an output whose cost is ``full_seconds`` s^2 + ``fixed`` (its pixels,
     each side times s, and what it costs whatever its size) that fits the ``left`` seconds of the stage's
     allotment (None: no budget, so the size asked for, s = 1); rounded down to hundredths. Never below
     ``floor``, the scale under which the output is useless: when even the floor does not fit, the floor, and
-    ``Fit.over`` says by how much it runs past."""
+    ``Fit.over`` says by how much it runs past ``left`` and the ``spare`` seconds the job saved before the stage
+    (``Allotment.spare``), which pay for a floor but never for a larger size."""
     def cost(scale: float) -> float:
         return full_seconds * scale**2 + fixed
 
@@ -140,7 +158,7 @@ def fit_to_allotment(full_seconds: float, left: float | None, floor: float, fixe
         return Fit(1.0, cost(1.0))
     scale = (max(left - fixed, 0.0) / max(full_seconds, 1e-12)) ** 0.5
     scale = max(floor, min(1.0, float(int(scale * 100.0)) / 100.0 if scale >= 0.01 else scale))
-    return Fit(scale, cost(scale), max(cost(scale) - max(left, 0.0), 0.0) if scale <= floor else 0.0)
+    return Fit(scale, cost(scale), max(cost(scale) - max(left, 0.0) - max(spare, 0.0), 0.0) if scale <= floor else 0.0)
 
 
 @dataclass(frozen=True)
@@ -161,28 +179,57 @@ class FloorWork:
         return self.units * per_unit + self.fixed
 
 
-def floors_line(floors: Iterable[tuple[FloorWork, float]], per_unit: float | Callable[[str | None], float],
-                budget: float) -> tuple[str, float]:
-    """The one line that says whether the outputs fit the budget at their floors, and the seconds the job takes
-    beyond its budget for them (0: they fit). ``floors``: each output's ``FloorWork`` and the seconds the budget
-    keeps for it; ``per_unit``: the measured seconds a unit of work takes, or a function of a ``FloorWork.rate``
-    giving them. An output that fits its part needs nothing more, and one that does not takes the difference: none
-    of them is made smaller than its floor."""
+@dataclass(frozen=True)
+class Floors:
+    """The outputs priced at their floors (``price_floors``): they take ``need`` seconds where the ``budget`` keeps
+    ``kept`` for them, ``over`` beyond that (``parts``: each output over its part, in words). The elastic stage gives
+    them ``given`` seconds of its own time (it stops that much sooner); the job takes ``longer`` than its budget by
+    the rest. None of them is made smaller than its floor."""
+
+    need: float
+    kept: float
+    over: float
+    given: float
+    budget: float
+    parts: tuple[str, ...] = ()
+
+    @property
+    def longer(self) -> float:
+        return max(self.over - self.given, 0.0)
+
+    def line(self, elastic: str) -> str:
+        """The one line that says so; ``elastic``: what the elastic stage is called (it "gives them ...")."""
+        need, kept, budget = (format_duration(x) for x in (self.need, self.kept, self.budget))
+        if self.over < 1.0:
+            return f"budget: the outputs at their floors take about {need} of the {kept} the {budget} budget keeps for them"
+        said = (f"budget: the outputs at their floors take about {need}, where the {budget} budget keeps {kept} for them "
+                f"({'; '.join(self.parts)})")
+        gives = f"{elastic} gives them {format_duration(self.given)} of its time"
+        if self.longer < 1.0:
+            return f"{said}: {gives}, so the job keeps its budget"
+        rather = (f"the job takes about {format_duration(self.longer)} longer rather than make them smaller (a larger "
+                  "--budget, or --budget off, runs them as set)")
+        return f"{said}: {gives}, the most it gives, and {rather}" if self.given >= 1.0 else f"{said}: {rather}"
+
+
+def price_floors(floors: Iterable[tuple[FloorWork, float]], per_unit: float | Callable[[str | None], float],
+                 budget: float, spare: float = 0.0) -> Floors:
+    """The outputs at their floors against what the budget keeps for them. ``floors``: each output's ``FloorWork``
+    and the seconds the budget keeps for it; ``per_unit``: the measured seconds a unit of work takes, or a function
+    of a ``FloorWork.rate`` giving them; ``spare``: the most of its own time the elastic stage gives the outputs
+    that do not fit their parts (it gives what they need, up to that). They need what they take beyond all their
+    parts together: a part one output leaves unspent passes to those after it (``JobBudget.spare``)."""
     rate_of = per_unit if callable(per_unit) else (lambda rate: per_unit)
-    parts, over, need, kept = [], 0.0, 0.0, 0.0
+    parts, need, kept = [], 0.0, 0.0
     for work, allotted in floors:
         seconds = work.seconds(rate_of(work.rate))
         need, kept = need + seconds, kept + allotted
         if seconds > allotted:
-            over += seconds - allotted
             parts.append(f"{work.what}, {format_duration(seconds - allotted)} over")
+    over = need - kept
     if over < 1.0:
-        return (f"budget: the outputs at their floors take about {format_duration(need)} of the "
-                f"{format_duration(kept)} the {format_duration(budget)} budget keeps for them"), 0.0
-    return (f"budget: the outputs at their floors take about {format_duration(need)}, where the "
-            f"{format_duration(budget)} budget keeps {format_duration(kept)} for them ({'; '.join(parts)}): the job "
-            f"takes about {format_duration(over)} longer rather than make them smaller (a larger --budget, or "
-            "--budget off, runs them as set)"), over
+        return Floors(need, kept, 0.0, 0.0, budget)
+    return Floors(need, kept, over, min(over, max(spare, 0.0)), budget, tuple(parts))
 
 
 def takes_part(share: float, elastic_params: tuple[str, ...], chosen: Iterable[str]) -> tuple[bool, bool]:

@@ -355,7 +355,7 @@ class Pipeline:
             "upstream_contents": {up: result.content_id for up, result in upstream.items()},
             "inputs": {fp.relpath: {"size": fp.size, "sha256": fp.sha256} for fp in planned.files},
             "timings": {"started": started, "finished": finished, "seconds": round(finished - started, 4),
-                        **({"allotted": round(ctx.allotment.seconds, 2), "budget": ctx.allotment.budget} if ctx.allotment else {})},
+                        **(ctx.allotment.record() if ctx.allotment else {})},
             "libraries": library_versions(planned.stage.libraries),
             "summary": summary,
         }
@@ -368,9 +368,10 @@ class Pipeline:
         job = self._job
         if job is None or "budget" not in planned.material:
             return None
+        shares, own = [self.dag.stages[n].budget_share for n in self._pending], planned.stage.budget_share
         if planned.elastic:
-            return Allotment(job.remainder(self.dag.stages[n].budget_share for n in self._pending), job.seconds, True)
-        return Allotment(job.share(planned.stage.budget_share), job.seconds)
+            return Allotment(job.remainder(shares), job.seconds, True)
+        return Allotment(job.share(own), job.seconds, spare=job.spare(own, shares))
 
     def _later(self, planned: PlannedStage) -> tuple[LaterStage, ...]:
         """The stages with a share of the job's budget still to run after the elastic ``planned`` (none for others)."""

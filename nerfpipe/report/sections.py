@@ -267,11 +267,13 @@ def stage_times(run: RunData) -> str:
     rows = []
     for name in run.order:
         status, t = run.statuses[name], timings[name]
-        seconds, allotted = t.get("seconds"), t.get("allotted")
-        over = (f"over its allotment by {seconds - allotted:.0f} s ({seconds / allotted - 1:.0%})"
-                if seconds is not None and allotted and seconds > OVERRUN * allotted else "")
+        seconds, allotted, spare = t.get("seconds"), t.get("allotted"), t.get("spare") or 0.0
+        # what the stages before saved paid for an output at its floor (``Allotment.spare``): part of what it had
+        had = None if allotted is None else allotted + spare
+        over = (f"over its allotment by {seconds - had:.0f} s ({seconds / had - 1:.0%})"
+                if seconds is not None and had and seconds > OVERRUN * had else "")
         rows.append((name, status.state, "" if seconds is None else f"{seconds:.1f} s",
-                     "" if allotted is None else f"{allotted:.0f} s",
+                     "" if allotted is None else f"{allotted:.0f} s" + (f" + {spare:.0f} s saved before" if spare >= 1 else ""),
                      f"{seconds / total:.0%}" if name in run.results and seconds is not None and total else "",
                      "; ".join([*status.reasons, *([over] if over else [])])))
     notes = [f"total of fresh stages: {total:.0f} s"]

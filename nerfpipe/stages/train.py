@@ -153,6 +153,7 @@ class TrainSummary(Summary):
     steps: int = 0
     budget_seconds: float | None = None
     train_seconds: float = 0.0
+    given_seconds: float = 0.0  # of a job budget's training, given to the outputs at their floors (``floors.floor_hook``)
     throughput: Throughput = Throughput()
     field: str = ""
     occupancy: float | None = None
@@ -192,6 +193,9 @@ class TrainSummary(Summary):
             lines.append(f"{p['cameras']} training cameras refined: median {p['median_rotation_deg']:.2f} deg and "
                          f"{100 * p['median_translation_share']:.2f}% of the camera distance, at most "
                          f"{p['max_rotation_deg']:.2f} deg ({p['largest']}); exports and renders use the refined poses")
+        if self.given_seconds >= 1:
+            lines.append(f"training stopped {self.given_seconds:.0f} s early: the outputs at their floors needed more of "
+                         "the job's budget than it kept for them")
         if self.resumed_from:
             lines.append(f"resumed from the checkpoint at step {self.resumed_from}")
         guard = self.stall_guard
@@ -295,10 +299,11 @@ class TrainStage(Stage):
                 trainer.run(advance, None if ctx.allotment is None or params.steps > 0 else floor_hook(
                     ctx.log, ctx.allotment.budget, ctx.later, model, loader, views, params.seconds, params.chunk,
                     (evaluated_scale(params.eval_scale), params.eval_budget * params.seconds)))
-            ctx.log.info("train: %d steps drew %s rays, %.0f a second, %.3g per training pixel, at %.1f samples a ray",
+            ctx.log.info("train: %d steps drew %s rays, %.0f a second, %.3g per training pixel, at %.1f samples a ray%s",
                          trainer.step, f"{trainer.total_rays:,}", trainer.total_rays / max(trainer.elapsed, 1e-9),
                          trainer.total_rays / max(int(pixels.rgb.shape[0]), 1),
-                         trainer.total_samples / max(trainer.total_rays, 1))
+                         trainer.total_samples / max(trainer.total_rays, 1),
+                         f"; it stopped {trainer.given:.0f} s early for the outputs' floors" if trainer.given >= 1 else "")
             model.save(out)
             cameras, per_image = trained_cameras(model, loader.world, views.train)
             (out / "cameras").mkdir(exist_ok=True)
@@ -308,7 +313,8 @@ class TrainStage(Stage):
                 first = loader.world.camera_of(views.heldout[0])
                 ctx.log.info("train: evaluation: %d views at %dx%d (%s of their size), about %.0f s",
                              len(views.heldout), *scaled_size(first.width, first.height, scale), f"{scale:g}", predicted)
-                kept = params.eval_budget * trainer.elapsed
+                # what the budget keeps for scoring, and what training gave the outputs' floors (``floor_hook``)
+                kept = params.eval_budget * trainer.elapsed + trainer.given
                 if ctx.allotment is not None and params.steps == 0 and predicted > kept + 1.0:
                     ctx.log.warning("train: the evaluation at %dx%d takes about %.0f s, %.0f s more than the %.0f s kept "
                                     "for it: the job takes that much longer rather than score the views smaller (a "
@@ -319,8 +325,9 @@ class TrainStage(Stage):
         write_masks(out / "masks", loader, loader.world.frames)  # as trained and scored, for the exports
         summary = TrainSummary(
             steps=trainer.step,
-            budget_seconds=params.seconds if params.steps == 0 else None,
+            budget_seconds=round(trainer.config.seconds, 2) if params.steps == 0 else None,
             train_seconds=round(trainer.elapsed, 2),
+            given_seconds=round(trainer.given, 2),
             throughput=Throughput(
                 samples_per_s=round(trainer.total_samples / max(trainer.elapsed, 1e-9)),
                 samples_per_ray=round(trainer.total_samples / max(trainer.total_rays, 1), 2),

@@ -10,7 +10,7 @@ from typing import ClassVar
 import pytest
 
 from nerfpipe.pipeline import ParamError, Pipeline, Stage, StageError
-from nerfpipe.pipeline.budget import (Allotment, FloorWork, JobBudget, floors_line, format_duration, parse_duration,
+from nerfpipe.pipeline.budget import (Allotment, FloorWork, JobBudget, format_duration, parse_duration, price_floors,
                                       takes_part)
 from nerfpipe.stages.ingest import IngestStage
 
@@ -39,6 +39,10 @@ def test_the_elastic_stage_gets_the_budget_less_what_was_spent_and_the_later_sha
     assert job.elapsed() == 30.0 and job.remainder([0.1, 0.2]) == 40.0
     assert job.share(0.25) == 25.0
     assert JobBudget(10.0, clock=lambda: now[0], started=now[0] - 30.0).remainder([0.5]) == 0.0  # overspent: never less
+    # a stage with a share of 10 % finds 100 - 30 - (10 + 20) = 40 s saved beyond its own share and the later ones
+    assert job.spare(0.1, [0.2]) == 40.0
+    now[0] += 50.0  # 80 s spent: 20 s left, less than the 30 s the two shares keep, so nothing is spare
+    assert job.spare(0.1, [0.2]) == 0.0
 
 
 def test_auto_is_sized_once_by_the_callers_rule():
@@ -54,7 +58,9 @@ def test_a_chosen_elastic_parameter_stops_the_stage_taking_the_rest():
     assert takes_part(0.0, ("seconds", "steps"), ["steps", "lr"]) == (False, False)
     assert takes_part(0.1, (), ["scale"]) == (True, False)
     assert takes_part(0.0, (), []) == (False, False)
-    assert "of the 1 min 40 s budget" in Allotment(10.0, 100.0).describe()
+    assert Allotment(10.0, 100.0).describe() == "10 s (10% of the 1 min 40 s budget)"
+    assert Allotment(10.0, 100.0, spare=75.0).describe() == ("10 s (10% of the 1 min 40 s budget, and 1 min 15 s the "
+                                                             "stages before it saved)")
 
 
 @dataclass(frozen=True)
@@ -94,14 +100,17 @@ def test_stages_get_their_part_of_the_job_and_the_budget_enters_only_their_keys(
     pipe = Pipeline(stages(), capture, run_dir, overrides={"slow": {"seconds": "0.5"}}, budget=20.0)
     pipe.run()
     train, render, mesh = (Recorder.seen[n] for n in ("train", "render", "mesh"))
-    assert render == Allotment(2.0, 20.0) and mesh == Allotment(1.0, 20.0)
+    assert (render.seconds, render.budget, mesh.seconds, mesh.budget) == (2.0, 20.0, 1.0, 20.0)
     # 20 s less what ingest and slow spent (at least the 0.5 s slept), less render's 2 s and mesh's 1 s
     assert train.elastic and 15.0 < train.seconds <= 16.5
+    # the elastic stage here took nothing of it: the stages after it find it saved, beyond their shares, for floors
+    assert train.seconds - 0.5 < render.spare <= train.seconds and render.spare - 0.5 < mesh.spare <= render.spare + 2.0
     # the elastic stage knows the stages still to come with a share, and their seconds (to ask for their floors)
     assert Recorder.later == {"slow": (), "train": (("render", 2.0), ("mesh", 1.0)), "render": (), "mesh": ()}
     assert Recorder.seen["slow"] is None and json.loads((run_dir / "run.json").read_text())["budget"] == 20.0
     manifest = json.loads((pipe.result("render").path / "manifest.json").read_text())
     assert manifest["budget"] == 20.0 and manifest["timings"]["allotted"] == 2.0
+    assert manifest["timings"]["spare"] == round(render.spare, 2)  # what it could take for a floor, for the report
 
     other = Pipeline(stages(), capture, run_dir, overrides={"slow": {"seconds": "0.5"}}, budget=30.0)
     changed = {n for n in other.plan() if other.plan()[n].key != pipe.plan()[n].key}
@@ -114,7 +123,9 @@ def test_stages_get_their_part_of_the_job_and_the_budget_enters_only_their_keys(
     assert "budget" not in fixed.plan()["train"].material and not fixed.plan()["train"].elastic
     Recorder.seen.clear()
     fixed.run()
-    assert Recorder.seen["train"] is None and Recorder.seen["render"] == Allotment(2.0, 20.0)
+    assert Recorder.seen["train"] is None and Recorder.seen["render"].seconds == 2.0
+    # the train stage slept its 3 s: 20 s less ingest's and slow's (0.5 s and more), train's 3 s and both shares
+    assert 13.0 < Recorder.seen["render"].spare <= 14.5
 
 
 def test_auto_asks_the_rule_when_a_stage_first_needs_its_allotment(capture, tmp_path):
@@ -123,7 +134,7 @@ def test_auto_asks_the_rule_when_a_stage_first_needs_its_allotment(capture, tmp_
     pipe = Pipeline(stages(), capture, tmp_path / "run", budget="auto",
                     budget_rule=lambda p: asked.append(p.result("ingest") is not None) or 50.0)
     pipe.run()
-    assert asked == [True] and Recorder.seen["render"] == Allotment(5.0, 50.0)
+    assert asked == [True] and (Recorder.seen["render"].seconds, Recorder.seen["render"].budget) == (5.0, 50.0)
     assert pipe.plan()["render"].material["budget"] == "auto"
 
 
@@ -173,13 +184,49 @@ def test_fit_to_allotment_shrinks_to_the_allotment_and_never_below_the_floor() -
     assert fit_to_allotment(100.0, -3.0, 1.0) == Fit(1.0, 100.0, 100.0)
 
 
+def test_a_floor_takes_what_the_stages_before_saved_and_no_output_grows_with_it() -> None:
+    from nerfpipe.pipeline.budget import Fit, fit_to_allotment
+
+    # the floor's 7.25 s against 2 s of share: 4 s saved before pay for 4 of the 5.25 s over, 10 s for all of it
+    assert fit_to_allotment(100.0, 2.0, 0.25, 1.0, spare=4.0) == Fit(0.25, 7.25, 1.25)
+    assert fit_to_allotment(100.0, 2.0, 0.25, 1.0, spare=10.0) == Fit(0.25, 7.25, 0.0)
+    assert fit_to_allotment(100.0, 2.0, 0.25, 1.0, spare=10.0).longer("x", Allotment(2.0, 20.0, spare=10.0)) is None
+    # an output that fits its share above its floor is sized to the share alone, however much was saved
+    assert fit_to_allotment(100.0, 26.0, 0.25, 1.0, spare=1000.0) == Fit(0.5, 26.0)
+
+
 def test_each_floor_is_priced_at_the_rate_it_names() -> None:
     plain = FloorWork(100.0, 1.0, "the plain one")  # the elastic stage's own rate
     wide = FloorWork(100.0, 0.0, "the wide one", rate="scene")
     rates = {None: 0.01, "scene": 0.05}
-    line, over = floors_line([(plain, 5.0), (wide, 2.0)], rates.__getitem__, 60.0)
-    # 100 x 0.01 + 1 = 2 s within its 5; 100 x 0.05 = 5 s, 3 over its 2
-    assert over == 3.0
-    assert "take about 7 s, where the 1 min budget keeps 7 s for them (the wide one, 3 s over)" in line
+    priced = price_floors([(plain, 3.0), (wide, 1.0)], rates.__getitem__, 60.0)
+    # 100 x 0.01 + 1 = 2 s within its 3; 100 x 0.05 = 5 s, 4 over its 1: 7 s where 4 are kept, 3 over in all
+    assert (priced.need, priced.kept, priced.over, priced.given, priced.longer) == (7.0, 4.0, 3.0, 0.0, 3.0)
+    assert priced.line("training") == (
+        "budget: the outputs at their floors take about 7 s, where the 1 min budget keeps 4 s for them (the wide one, "
+        "4 s over): the job takes about 3 s longer rather than make them smaller (a larger --budget, or --budget off, "
+        "runs them as set)")
     # one number prices every floor alike
-    assert floors_line([(plain, 5.0), (wide, 2.0)], 0.01, 60.0)[1] == 0.0
+    fits = price_floors([(plain, 3.0), (wide, 1.0)], 0.01, 60.0)
+    assert fits.over == 0.0 and fits.line("training") == (
+        "budget: the outputs at their floors take about 3 s of the 4 s the 1 min budget keeps for them")
+    # one over its part while another leaves more of its own unspent: the time passes on, and they fit together
+    assert price_floors([(plain, 6.0), (wide, 2.0)], rates.__getitem__, 60.0).over == 0.0
+
+
+def test_the_elastic_stage_gives_the_floors_what_they_lack_up_to_what_it_can_spare() -> None:
+    video = FloorWork(1000.0, 0.0, "the video")
+    # 1000 x 0.1 = 100 s against 40 kept: 60 s over; training can spare 90 s, and gives the 60
+    enough = price_floors([(video, 40.0)], 0.1, 300.0, spare=90.0)
+    assert (enough.over, enough.given, enough.longer) == (60.0, 60.0, 0.0)
+    assert enough.line("training") == (
+        "budget: the outputs at their floors take about 1 min 40 s, where the 5 min budget keeps 40 s for them (the "
+        "video, 1 min over): training gives them 1 min of its time, so the job keeps its budget")
+    # it can spare 45 s: it gives those, and the job takes the other 15 s longer
+    short = price_floors([(video, 40.0)], 0.1, 300.0, spare=45.0)
+    assert (short.given, short.longer) == (45.0, 15.0)
+    assert short.line("training").endswith(
+        "(the video, 1 min over): training gives them 45 s of its time, the most it gives, and the job takes about "
+        "15 s longer rather than make them smaller (a larger --budget, or --budget off, runs them as set)")
+    # outputs that fit take nothing from it
+    assert price_floors([(video, 200.0)], 0.1, 300.0, spare=90.0).given == 0.0

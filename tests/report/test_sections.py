@@ -102,6 +102,10 @@ def test_stage_times_total_only_the_fresh_stages(tmp_path):
     slow = Committed(tmp_path, {"timings": {"seconds": 39.0, "allotted": 27.0, "budget": 100.0}})
     html = sections.stage_times(run_data(tmp_path / "c", {"render": slow}, {"render": StageStatus("render", "fresh", (), "k", slow)}))
     assert "<td>over its allotment by 12 s (44%)</td>" in html
+    # what the stages before saved for it (the time training gave the outputs' floors) counts as its allotment too
+    paid = Committed(tmp_path, {"timings": {"seconds": 39.0, "allotted": 27.0, "budget": 100.0, "spare": 20.0}})
+    html = sections.stage_times(run_data(tmp_path / "d", {"render": paid}, {"render": StageStatus("render", "fresh", (), "k", paid)}))
+    assert "<td>27 s + 20 s saved before</td>" in html and "over its allotment" not in html
 
 
 @pytest.mark.parametrize("caption, alt", [("", "img/a.png"), ("a <b>", "a &lt;b&gt;")])

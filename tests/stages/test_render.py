@@ -188,6 +188,12 @@ def test_frames_shrink_to_fit_a_job_budget_but_never_below_a_watchable_video(tmp
     assert re.search(r"render: 4 frames at 32x24 \(never smaller than 360 pixels on the short side, or the size asked "
                      r"for\) takes about 44 s, 33 s more than its 11 s \(10% of the 1 min 50 s budget\): the job takes "
                      r"that much longer", caplog.text)
+    # the same floor where the stages before saved 40 s beyond the shares still to come: it takes 33 of them, and
+    # the job keeps its budget
+    caplog.clear()
+    _, summary, _ = run_render(tmp_path / "saved", "inward360", allotment=Allotment(11.0, 110.0, spare=40.0))
+    assert summary["resolution"] == [32, 24] and "takes that much longer" not in caplog.text
+    assert "about 44 s to fit its 11 s (10% of the 1 min 50 s budget, and 40 s the stages before it saved)" in caplog.text
     monkeypatch.setattr(stage, "VIDEO_FLOOR_SIDE", 12)  # a floor of half each side of these tiny frames
     caplog.clear()
     _, summary, _ = run_render(tmp_path / "roomy", "inward360", allotment=Allotment(600.0, 6000.0))
@@ -197,6 +203,9 @@ def test_frames_shrink_to_fit_a_job_budget_but_never_below_a_watchable_video(tmp
     # 22 s of 44 s: 0.7 of each side (sqrt 0.5, rounded down to hundredths), less the milliseconds of loading
     assert summary["resolution"] == [22, 16] and "32x24 would take 44 s" in caplog.text
     assert "takes that much longer" not in caplog.text
+    # what the stages before saved pays for a floor, never for a larger video
+    _, summary, _ = run_render(tmp_path / "tight_saved", "inward360", allotment=Allotment(22.0, 220.0, spare=1000.0))
+    assert summary["resolution"] == [22, 16]
     _, summary, _ = run_render(tmp_path / "starved", "inward360", allotment=Allotment(0.001, 100.0))
     assert summary["resolution"] == [16, 12]  # the floor, not smaller
     assert re.search(r"render: 4 frames at 16x12 \(never smaller than 12 pixels on the short side, or the size asked "

@@ -6,8 +6,11 @@ share affords, never below its floor. What rendering costs is a property of the 
 follow what the occupancy grid has learned), so it cannot be timed before training; it can once the grid has seen
 the field and the field has left its first fog (``Calibration``: the grid has begun to free cells and the samples a
 ray have settled). Then ``floor_check`` renders a held-out view at a quarter of its side
-and says, in one line, whether the outputs fit what the budget keeps for them, or how much longer the job will take:
-before the rest of training, not after it. Each stage still times its own work when it runs, and says again if it goes over.
+and says, in one line, whether the outputs fit what the budget keeps for them. When they do not, training, the
+elastic stage, gives them the time they lack, up to half its own (``KEEP_TRAINING``), and stops that much sooner; the
+line says how much it gave and how much longer the job will take for the rest: before the rest of training, not after
+it. Each stage still times its own work when it runs, takes what training saved for its floor, and says again if it
+goes over.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.throughput import seconds_per_view
 from nerfpipe.nerf.train.evaluation import scaled_size
 from nerfpipe.nerf.train.images import ImageLoader, Views
-from nerfpipe.pipeline.budget import FloorWork, floors_line
+from nerfpipe.pipeline.budget import Floors, FloorWork, price_floors
 from nerfpipe.pipeline.errors import NerfpipeError
 from nerfpipe.pipeline.stage import LaterStage
 
@@ -37,6 +40,10 @@ SETTLED_WINDOW = 64
 SETTLED_CHANGE = 0.1
 LATEST_SHARE = 0.3  # whatever the field does, the line comes by this share of the training time
 PROBE_SCALE = 0.25  # the share of the view's side timed: whole neighbourhoods of rays, as the exports render them
+# The least share of its time training keeps when the outputs' floors need more than the budget keeps for them. Beer's
+# held-out score is at its best after 2 of 20 minutes of training and the cup's within 0.3 dB of its 5-minute mark
+# after 2 (``nerfpipe bench``, docs/benchmarks.md): half of a main job's 4-5 minutes costs little; less would cost more.
+KEEP_TRAINING = 0.5
 
 
 class Calibration:
@@ -80,12 +87,12 @@ def evaluation_floor(loader: ImageLoader, heldout: Sequence, scale: float) -> Fl
 
 
 def floor_check(model: RadianceModel, loader: ImageLoader, views: Views, evaluation: tuple[float, float],
-                later: Sequence[LaterStage], budget: float, chunk: int) -> tuple[str, float]:
-    """The line that says whether the outputs fit the budget at their floors, and the seconds the job will take
-    beyond it (0: they fit), with rendering timed on ``model`` as it is now: the first held-out view (else the first
-    training view) rendered whole at ``PROBE_SCALE`` of its side (``seconds_per_view``), per ray, over its own depth
-    range, and over the bounds' whole range for work priced there (``FloorWork.rate`` "scene": the render stage's own
-    camera paths, which render every frame over it; the cup's frames cost 1.3x its photos' rays).
+                later: Sequence[LaterStage], budget: float, chunk: int, spare: float = 0.0) -> Floors:
+    """The outputs priced at their floors against what the budget keeps for them (``price_floors``; ``spare``: the
+    most of its time training gives them), with rendering timed on ``model`` as it is now: the first held-out view
+    (else the first training view) rendered whole at ``PROBE_SCALE`` of its side (``seconds_per_view``), per ray, over
+    its own depth range, and over the bounds' whole range for work priced there (``FloorWork.rate`` "scene": the
+    render stage's own camera paths, which render every frame over it; the cup's frames cost 1.3x its photos' rays).
 
     Args:
         evaluation: (scale, seconds kept): the held-out views' scale and the seconds the budget keeps for scoring
@@ -123,14 +130,16 @@ def floor_check(model: RadianceModel, loader: ImageLoader, views: Views, evaluat
             work = None
         if work is not None:
             floors.append((work, stage.seconds))
-    return floors_line(floors, per_ray, budget)
+    return price_floors(floors, per_ray, budget, spare)
 
 
 def floor_hook(log: logging.Logger, budget: float, later: Sequence[LaterStage], model: RadianceModel,
                loader: ImageLoader, views: Views, seconds: float, chunk: int,
                evaluation: tuple[float, float]) -> Callable[..., bool]:
-    """A ``Trainer.run`` step hook that, once ``Calibration`` says so, logs ``floor_check``'s line: a warning when
-    the job will take longer than its ``budget``. It never stops training."""
+    """A ``Trainer.run`` step hook that, once ``Calibration`` says so, prices the outputs at their floors
+    (``floor_check``), has training give them what they lack of its remaining time, keeping at least ``KEEP_TRAINING``
+    of its ``seconds`` (``Trainer.shorten``), and logs the line: a warning when the job will still take longer than its
+    ``budget``. It never stops training itself."""
     pending = [True]
     calibrated = Calibration(seconds)
 
@@ -138,8 +147,10 @@ def floor_hook(log: logging.Logger, budget: float, later: Sequence[LaterStage], 
         if pending and calibrated(trainer.step, trainer.elapsed, trainer.samples, trainer.rays,
                                   model.sampler.stats().get("occupancy")):
             pending.clear()
-            line, over = floor_check(model, loader, views, evaluation, later, budget, chunk)
-            (log.warning if over else log.info)(line)
+            spare = max(trainer.config.seconds - max(KEEP_TRAINING * seconds, trainer.elapsed), 0.0)
+            priced = floor_check(model, loader, views, evaluation, later, budget, chunk, spare)
+            trainer.shorten(priced.given)
+            (log.warning if priced.longer >= 1.0 else log.info)(priced.line("training"))
         return False
 
     return check

@@ -39,33 +39,38 @@ def test_a_slow_machine_is_told_how_much_longer_the_job_takes_at_the_floors(job,
     model, loader, views, later = job
     # the injected cost model: a microsecond a ray (a machine 50x slower than this one renders beer)
     monkeypatch.setattr(floors, "seconds_per_view", per_ray(1e-6))
-    line, over = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
+    priced = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
+    line, over = priced.line("training"), priced.over
     # the video: 360 px on the short side of 12x8 photos is 540x360, 45 frames, 1.1 x the rays plus 0.01 s a frame:
     # 1.1 x 45 x 540 x 360 x 1e-6 + 0.45 = 10.07 s, 5.07 s over its 5 s; the evaluation (one view at 6x4, 24 rays) and
     # the depth maps (three at a quarter of 12x8, 3x2, 1.15 x 18 rays) cost microseconds and fit their 1 s and 3 s
-    assert over == pytest.approx(1.1 * 45 * 540 * 360 * 1e-6 + 0.45 - 5.0 + 0.0, rel=1e-9)
+    # the 4 s the other two leave of their parts pass on to the video: over by 10.07 s less the 9 s kept for all three
+    assert over == pytest.approx(1.1 * 45 * 540 * 360 * 1e-6 + 0.45 + (24 + 3 * 1.15 * 6) * 1e-6 - 9.0, rel=1e-9)
     assert line == ("budget: the outputs at their floors take about 10 s, where the 1 min 40 s budget keeps 9 s for "
-                    "them (the video, 45 frames at 540x360, 5 s over): the job takes about 5 s longer rather than make "
+                    "them (the video, 45 frames at 540x360, 5 s over): the job takes about 1 s longer rather than make "
                     "them smaller (a larger --budget, or --budget off, runs them as set)")
 
 
 def test_a_fast_machine_hears_that_the_outputs_fit(job, monkeypatch) -> None:
     model, loader, views, later = job
     monkeypatch.setattr(floors, "seconds_per_view", per_ray(1e-7))  # the video: 0.96 s + 0.45 s of its 5 s
-    line, over = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
+    priced = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
+    line, over = priced.line("training"), priced.over
     assert over == 0.0
     assert line == "budget: the outputs at their floors take about 1 s of the 9 s the 1 min 40 s budget keeps for them"
 
 
-def test_each_output_over_its_part_is_named_and_the_overs_add_up(job, monkeypatch) -> None:
+def test_each_output_over_its_part_is_named_and_all_take_what_they_need_beyond_all_their_parts(job, monkeypatch) -> None:
     model, loader, views, later = job
     monkeypatch.setattr(floors, "seconds_per_view", per_ray(0.1))  # a tenth of a second a ray
-    _, over = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
+    over = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096).over
     video = 1.1 * 45 * 540 * 360 * 0.1 + 0.45
-    assert over == pytest.approx((24 * 0.1 - 1.0) + (video - 5.0))  # the depth maps' 2.07 s fit their 3 s
-    line, _ = floors.floor_check(model, loader, views, (0.5, 1.0), later[1:], 100.0, 4096)
-    # 2.4 s for one view at 6x4 (1.4 s over 1 s), 2.07 s for the depth maps (within 3 s)
-    assert "(the held-out evaluation, 1 view at 6x4, 1 s over)" in line and "depth maps" not in line
+    # the depth maps' 2.07 s leave 0.93 s of their 3 s to the others: over by what all take beyond all three parts
+    assert over == pytest.approx((24 * 0.1 - 1.0) + (video - 5.0) + (3 * 1.15 * 6 * 0.1 - 3.0))
+    line = floors.floor_check(model, loader, views, (0.5, 0.1), later[1:], 100.0, 4096).line("training")
+    # 2.4 s for one view at 6x4 (2.3 s over its 0.1 s), 2.07 s for the depth maps (within their 3 s): 1.37 s over
+    assert "(the held-out evaluation, 1 view at 6x4, 2 s over): the job takes about 1 s longer" in line
+    assert "depth maps" not in line
 
 
 def test_a_video_along_the_capture_is_priced_over_the_scenes_whole_depth_range(job, monkeypatch) -> None:
@@ -76,10 +81,12 @@ def test_a_video_along_the_capture_is_priced_over_the_scenes_whole_depth_range(j
     own = loader.near_far[views.heldout[0].name]
     scene = (loader.bounds.near, loader.bounds.far)
     assert own == (1.0, 5.0) and scene == (2.0, 9.0)  # the held-out photo sees a part of the scene's range
-    line, over = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
+    priced = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
+    line, over = priced.line("training"), priced.over
     # the render stage's own path renders over the bounds' 7 units (``RenderStage._run``), not the probe photo's 4
     video = 1.1 * 45 * 540 * 360 * 1e-6 * 7.0 + 0.45
-    assert over == pytest.approx(video - 5.0, rel=1e-9)
+    others = (24 + 3 * 1.15 * 6) * 1e-6 * 4.0  # the evaluation and the depth maps over the photo's own 4 units
+    assert over == pytest.approx(video + others - 9.0, rel=1e-9)  # all three, less the 1 + 3 + 5 s kept for them
     assert f"the video, 45 frames at 540x360, {format_duration(video - 5.0)} over" in line
 
 
@@ -115,27 +122,61 @@ def test_the_line_waits_until_the_grid_has_freed_cells_and_the_samples_a_ray_hav
     assert settle(plain, 0, 2 * window + 256, 64.0, None) == 256
 
 
+class Training(SimpleNamespace):
+    """What the hook reads of a trainer, and what it asks of one: ``shorten``, recorded."""
+
+    def shorten(self, seconds: float) -> None:
+        self.given = getattr(self, "given", 0.0) + seconds
+
+
 def test_the_line_comes_once_when_training_has_found_the_scene(job, monkeypatch, caplog) -> None:
     model, loader, views, later = job
-    monkeypatch.setattr(floors, "seconds_per_view", per_ray(1e-6))
+    monkeypatch.setattr(floors, "seconds_per_view", per_ray(1e-5))
     caplog.set_level(logging.INFO, "test.floors")
     hook = floors.floor_hook(logging.getLogger("test.floors"), 100.0, later, model, loader, views, 300.0, 4096,
                              (0.5, 30.0))
+    config = SimpleNamespace(seconds=300.0)
     model.sampler.grid.occupied[:10] = False  # the grid has begun to free cells before the first look
     for step in range(256):  # steady samples a ray, but not 256 steps yet
-        assert not hook(SimpleNamespace(step=step, elapsed=31.0, samples=3000, rays=100))
+        assert not hook(Training(step=step, elapsed=31.0, samples=3000, rays=100, config=config))
     assert not caplog.records
     for step in range(256, 400):  # nor a tenth of the 300 s
-        assert not hook(SimpleNamespace(step=step, elapsed=29.0, samples=3000, rays=100))
+        assert not hook(Training(step=step, elapsed=29.0, samples=3000, rays=100, config=config))
     assert not caplog.records
     model.sampler.grid.occupied[:20] = False  # then it frees more: the samples a ray are counted again from here
     for step in range(400, 400 + 2 * floors.SETTLED_WINDOW - 1):
-        assert not hook(SimpleNamespace(step=step, elapsed=30.0, samples=3000, rays=100))
+        assert not hook(Training(step=step, elapsed=30.0, samples=3000, rays=100, config=config))
     assert not caplog.records
-    assert not hook(SimpleNamespace(step=527, elapsed=30.0, samples=3000, rays=100))  # it speaks, and never stops
-    assert [r.levelname for r in caplog.records] == ["WARNING"] and "5 s longer" in caplog.text
-    hook(SimpleNamespace(step=800, elapsed=100.0, samples=3000, rays=100))
+    trainer = Training(step=527, elapsed=30.0, samples=3000, rays=100, config=config)
+    assert not hook(trainer)  # it speaks, and never stops training itself
+    # the video's 97 s against its 5, the evaluation and the depth maps far under their 30 s and 3 s: 59 s over in
+    # all. Training, 30 s into its 300, can give up to 150 s (keeping half), and gives those 59 s
+    over = 1.1 * 45 * 540 * 360 * 1e-5 + 0.45 + (24 + 3 * 1.15 * 6) * 1e-5 - 38.0
+    assert trainer.given == pytest.approx(over, rel=1e-9)
+    assert [r.levelname for r in caplog.records] == ["INFO"]
+    assert caplog.records[0].getMessage().endswith("training gives them 59 s of its time, so the job keeps its budget")
+    hook(Training(step=800, elapsed=100.0, samples=3000, rays=100, config=config))
     assert len(caplog.records) == 1  # once
+
+
+def test_training_gives_the_floors_at_most_half_its_time_and_the_job_says_how_much_longer_it_takes(job, monkeypatch,
+                                                                                                  caplog) -> None:
+    model, loader, views, later = job
+    monkeypatch.setattr(floors, "seconds_per_view", per_ray(1e-4))  # the video: 962.7 s, 957.7 s over its 5 s
+    caplog.set_level(logging.INFO, "test.floors")
+    hook = floors.floor_hook(logging.getLogger("test.floors"), 100.0, later, model, loader, views, 300.0, 4096,
+                             (0.5, 30.0))
+    # 90 s of 300 (``LATEST_SHARE``): it prices the floors now, whatever the field does
+    trainer = Training(step=0, elapsed=90.0, samples=3000, rays=100, config=SimpleNamespace(seconds=300.0))
+    assert not hook(trainer)
+    # it keeps 150 s of its 300 and gives the other 150; the rest of what the floors need makes the job longer
+    over = 1.1 * 45 * 540 * 360 * 1e-4 + 0.45 + (24 + 3 * 1.15 * 6) * 1e-4 - 38.0  # all three, less all they keep
+    assert trainer.given == 150.0
+    assert [r.levelname for r in caplog.records] == ["WARNING"]
+    assert caplog.records[0].getMessage().endswith(
+        f"training gives them 2 min 30 s of its time, the most it gives, and the job takes about "
+        f"{format_duration(over - 150.0)} longer rather than make them smaller (a larger --budget, or --budget "
+        "off, runs them as set)")
 
 
 def test_a_model_probed_mid_training_goes_on_training(job) -> None:

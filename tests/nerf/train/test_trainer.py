@@ -213,6 +213,36 @@ def test_a_time_budget_trains_until_it_is_spent_with_the_learning_rate_decaying_
     assert again.resume() == trainer.step and again.finished()
 
 
+def test_a_training_that_gives_time_to_the_outputs_ends_sooner_its_learning_rate_decaying_on_to_the_end(
+        tmp_path, monkeypatch) -> None:
+    import itertools
+    import json
+
+    from nerfpipe.nerf.train import trainer as trainer_module
+
+    monkeypatch.setattr(trainer_module, "LOG_EVERY", 4)
+    config = train_settings(steps=0, seconds=3.0, batch_rays=256, batch_samples=2000, lr=1e-2, lr_final=1e-3)
+    ticks = itertools.count()
+    trainer = Trainer(marching_model(), pixels_of_one_view(), config, tmp_path, torch.device("cpu"),
+                      clock=lambda: next(ticks) / 16)  # a step takes 1/16 s
+
+    def give_at_half_a_second(t: Trainer) -> bool:
+        if t.step == 8:  # 0.5 s of 3 s: a sixth of the decay done; the outputs take 1.5 s of the rest
+            t.shorten(1.5)
+        return False
+
+    trainer.run(after_step=give_at_half_a_second)
+    assert trainer.step == 24 and trainer.elapsed == pytest.approx(1.5) and trainer.given == pytest.approx(1.5)
+    assert trainer.config.seconds == pytest.approx(1.5) and trainer.finished()
+    log = {r["step"]: r["lr"] for r in map(json.loads, (tmp_path / "metrics.jsonl").read_text().splitlines())}
+    # before: 1e-2 * 0.1 ** (elapsed / 3); after: from a sixth of the way at 0.5 s to all of it at 1.5 s
+    assert log[4] == pytest.approx(1e-2 * 0.1 ** (0.25 / 3.0))
+    assert log[16] == pytest.approx(1e-2 * 0.1 ** (1 / 6 + 5 / 6 * (1.0 - 0.5) / 1.0))
+    assert log[24] == pytest.approx(1e-3)
+    trainer.shorten(100.0)  # never before now: it has stopped, and gave nothing more
+    assert trainer.config.seconds == pytest.approx(1.5) and trainer.given == pytest.approx(1.5)
+
+
 def test_each_group_decays_to_its_own_final_rate_and_the_cameras_far_below_the_field() -> None:
     from types import SimpleNamespace
 
