@@ -141,8 +141,8 @@ class ExportDepthStage(Stage):
                                                    *near_far[frames[0].name], params.chunk) / (width * height)
         rays = sum(w * h for w, h in (scaled_size(c.width, c.height, params.scale) for c in map(world.camera_of, frames)))
         left = None if ctx.allotment is None else ctx.allotment.seconds - (time.perf_counter() - began)
-        fit = fit_to_allotment(per_ray * rays, left, min(1.0, DEPTH_FLOOR / params.scale), 0.0,
-                               0.0 if ctx.allotment is None else ctx.allotment.spare)
+        fit = fit_to_allotment(per_ray * rays, left, min(1.0, DEPTH_FLOOR / params.scale),
+                               spare=0.0 if ctx.allotment is None else ctx.allotment.spare)
         scale, fits = params.scale * fit.scale, ""
         if ctx.allotment is not None:
             fits = f" to fit its {ctx.allotment.describe()}"

@@ -242,7 +242,7 @@ class RenderStage(Stage):
         wanted = (width, height)
         left = None if ctx.allotment is None else ctx.allotment.seconds - (time.perf_counter() - began)
         fit = fit_to_allotment(per_ray * len(poses) * width * height, left, min(1.0, VIDEO_FLOOR_SIDE / min(wanted)),
-                               FRAME_SECONDS * len(poses), 0.0 if ctx.allotment is None else ctx.allotment.spare)
+                               FRAME_SECONDS * len(poses), spare=0.0 if ctx.allotment is None else ctx.allotment.spare)
         width, height = (max(2, 2 * round(side * fit.scale / 2)) for side in wanted)
         scaled = camera.scaled(width / camera.width, height / camera.height)
         check_affordable(ctx.allotment, fit.seconds, f"render: {len(poses)} frames, even at {width}x{height},",
