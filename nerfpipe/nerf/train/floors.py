@@ -1,4 +1,4 @@
-"""Whether a job's outputs fit its budget at their floors, said once, early in training.
+"""Whether a job's outputs fit its budget at their floors, said early in training and again halfway to its end.
 
 Under a job budget every output has a floor below which it is useless (held-out scores at half the photos' side,
 depth maps at a quarter, a video of 360 pixels on its short side), and each export stage renders at the size its
@@ -9,8 +9,9 @@ ray have settled). Then ``floor_check`` renders a held-out view at a quarter of 
 and says, in one line, whether the outputs fit what the budget keeps for them. When they do not, training, the
 elastic stage, gives them the time they lack, up to half its own (``KEEP_TRAINING``), and stops that much sooner; the
 line says how much it gave and how much longer the job will take for the rest: before the rest of training, not after
-it. Each stage still times its own work when it runs, takes what training saved for its floor, and says again if it
-goes over.
+it. A young field renders slower than it will, so halfway from there to training's end the outputs are priced again
+and training gives what that says instead, in a second line. Each stage still times its own work when it runs, takes
+what training saved for its floor, and says again if it goes over.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.throughput import seconds_per_view
 from nerfpipe.nerf.train.evaluation import scaled_size
 from nerfpipe.nerf.train.images import ImageLoader, Views
-from nerfpipe.pipeline.budget import Floors, FloorWork, price_floors
+from nerfpipe.pipeline.budget import Floors, FloorWork, format_duration, price_floors
 from nerfpipe.pipeline.errors import NerfpipeError
 from nerfpipe.pipeline.stage import LaterStage
 
@@ -44,6 +45,11 @@ PROBE_SCALE = 0.25  # the share of the view's side timed: whole neighbourhoods o
 # held-out score is at its best after 2 of 20 minutes of training and the cup's within 0.3 dB of its 5-minute mark
 # after 2 (``nerfpipe bench``, docs/benchmarks.md): half of a main job's 4-5 minutes costs little; less would cost more.
 KEEP_TRAINING = 0.5
+# A young field renders slower than a trained one (beer's, rendering the probe view: 40-46 k rays a second after 25 s of
+# training, 55-60 k after 60 s, 62 k trained; the first line, said at 25 s, priced its outputs 1.4x what they took), so
+# the outputs are priced again this share of the way from the first line to training's end, and training gives what
+# that says: less where the field got faster, so that it trains longer, or more.
+RETIME_SHARE = 0.5
 
 
 class Calibration:
@@ -137,20 +143,31 @@ def floor_hook(log: logging.Logger, budget: float, later: Sequence[LaterStage], 
                loader: ImageLoader, views: Views, seconds: float, chunk: int,
                evaluation: tuple[float, float]) -> Callable[..., bool]:
     """A ``Trainer.run`` step hook that, once ``Calibration`` says so, prices the outputs at their floors
-    (``floor_check``), has training give them what they lack of its remaining time, keeping at least ``KEEP_TRAINING``
-    of its ``seconds`` (``Trainer.shorten``), and logs the line: a warning when the job will still take longer than its
-    ``budget``. It never stops training itself."""
-    pending = [True]
+    (``floor_check``), has training give them what they lack, keeping at least ``KEEP_TRAINING`` of its ``seconds``
+    (``Trainer.give``), and logs the line: a warning when the job will still take longer than its ``budget``. It prices
+    them once more ``RETIME_SHARE`` of the way from there to training's end, where the field renders about as fast as
+    it will, and training gives what that says instead (less, or more), with a second line. It never stops training
+    itself."""
     calibrated = Calibration(seconds)
+    said: list[float] = []  # how far into training each pricing came
+
+    def price(trainer) -> Floors:
+        most = max(seconds - max(KEEP_TRAINING * seconds, trainer.elapsed), 0.0)
+        priced = floor_check(model, loader, views, evaluation, later, budget, chunk, most)
+        trainer.give(priced.given)
+        said.append(trainer.elapsed)
+        return priced
 
     def check(trainer) -> bool:
-        if pending and calibrated(trainer.step, trainer.elapsed, trainer.samples, trainer.rays,
-                                  model.sampler.stats().get("occupancy")):
-            pending.clear()
-            spare = max(trainer.config.seconds - max(KEEP_TRAINING * seconds, trainer.elapsed), 0.0)
-            priced = floor_check(model, loader, views, evaluation, later, budget, chunk, spare)
-            trainer.shorten(priced.given)
+        if not said and calibrated(trainer.step, trainer.elapsed, trainer.samples, trainer.rays,
+                                   model.sampler.stats().get("occupancy")):
+            priced = price(trainer)
             (log.warning if priced.longer >= 1.0 else log.info)(priced.line("training"))
+        elif len(said) == 1 and trainer.elapsed >= said[0] + RETIME_SHARE * (trainer.config.seconds - said[0]):
+            priced = price(trainer)
+            line = priced.line("training").removeprefix("budget: ")
+            (log.warning if priced.longer >= 1.0 else log.info)(
+                "budget: timed again %s into training, its field rendering as it will: %s", format_duration(said[-1]), line)
         return False
 
     return check

@@ -133,8 +133,8 @@ class Trainer:
             image_sizes(self.pixels.image, self.pixels.uv, len(self.pixels.intrinsics))).to(device)
         self.step = 0
         self.elapsed = 0.0
-        self.given = 0.0  # seconds of a time budget given to the outputs' floors (``shorten``)
-        self._decay_from: tuple[float, float] | None = None  # (elapsed, progress) where ``shorten`` was called
+        self.given = 0.0  # seconds of a time budget given to the outputs' floors (``give``)
+        self._decay_from: tuple[float, float] | None = None  # (elapsed, progress) where ``give`` last moved the end
         self.resumed_from: int | None = None
         self.background = model.background_tensor()
         self.rays_per_batch = float(config.optim.batch_rays)  # adapted to ``batch_samples`` while marching
@@ -301,7 +301,7 @@ class Trainer:
                         "decisions (nerfpipe status)", self.guard.ema, floor, self.step)
 
     def progress(self, step: int | None = None) -> float:
-        """The share of training done: step / steps, or with a time budget elapsed / seconds (after ``shorten``,
+        """The share of training done: step / steps, or with a time budget elapsed / seconds (after ``give``,
         from where it was then to 1 at the new end)."""
         if self.config.steps > 0:
             return (self.step if step is None else step) / self.config.steps
@@ -310,15 +310,16 @@ class Trainer:
             return done + (1.0 - done) * (self.elapsed - at) / max(self.config.seconds - at, 1e-9)
         return self.elapsed / max(self.config.seconds, 1e-9)
 
-    def shorten(self, seconds: float) -> None:
-        """Stop a time budget's training ``seconds`` sooner (never before now): the outputs after it need them.
-        The learning rate goes on decaying from where it is and reaches its final value at the new end."""
-        if self.config.steps > 0 or seconds <= 0:
+    def give(self, seconds: float) -> None:
+        """Give the outputs after training ``seconds`` of a time budget's training in all, in place of what it gave
+        before: it ends that much before the end it was set (never before now), sooner or later than it was to. The
+        learning rate goes on decaying from where it is and reaches its final value at the new end."""
+        if self.config.steps > 0 or self.finished():
             return
-        end = max(self.config.seconds - seconds, self.elapsed)
-        self._decay_from = (self.elapsed, self.progress())
-        self.given += self.config.seconds - end
-        self.config = replace(self.config, seconds=end)
+        end = max(self.config.seconds + self.given - max(seconds, 0.0), self.elapsed)
+        if end != self.config.seconds:
+            self._decay_from = (self.elapsed, self.progress())
+            self.given, self.config = self.config.seconds + self.given - end, replace(self.config, seconds=end)
 
     def finished(self) -> bool:
         return self.progress() >= 1.0

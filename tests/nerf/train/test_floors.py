@@ -123,10 +123,11 @@ def test_the_line_waits_until_the_grid_has_freed_cells_and_the_samples_a_ray_hav
 
 
 class Training(SimpleNamespace):
-    """What the hook reads of a trainer, and what it asks of one: ``shorten``, recorded."""
+    """What the hook reads of a trainer, and what it asks of one: ``give``, which moves the end of its time budget."""
 
-    def shorten(self, seconds: float) -> None:
-        self.given = getattr(self, "given", 0.0) + seconds
+    def give(self, seconds: float) -> None:
+        planned = self.config.seconds + getattr(self, "given", 0.0)
+        self.given, self.config = seconds, SimpleNamespace(seconds=planned - seconds)
 
 
 def test_the_line_comes_once_when_training_has_found_the_scene(job, monkeypatch, caplog) -> None:
@@ -156,7 +157,7 @@ def test_the_line_comes_once_when_training_has_found_the_scene(job, monkeypatch,
     assert [r.levelname for r in caplog.records] == ["INFO"]
     assert caplog.records[0].getMessage().endswith("training gives them 59 s of its time, so the job keeps its budget")
     hook(Training(step=800, elapsed=100.0, samples=3000, rays=100, config=config))
-    assert len(caplog.records) == 1  # once
+    assert len(caplog.records) == 1  # once, until halfway from there to the end of training
 
 
 def test_training_gives_the_floors_at_most_half_its_time_and_the_job_says_how_much_longer_it_takes(job, monkeypatch,
@@ -186,3 +187,35 @@ def test_a_model_probed_mid_training_goes_on_training(job) -> None:
         f.train()
     floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
     assert all(f.training for f in model.fields())
+
+
+def test_the_outputs_are_priced_again_halfway_to_the_end_and_training_takes_back_what_a_faster_field_saves(
+        job, monkeypatch, caplog) -> None:
+    model, loader, views, later = job
+    cost = [1e-5]  # seconds a ray: a young field's, then a trained one's at half of it
+    monkeypatch.setattr(floors, "seconds_per_view", lambda model, k, c2w, width, height, *rest: cost[0] * width * height)
+    caplog.set_level(logging.INFO, "test.floors")
+    hook = floors.floor_hook(logging.getLogger("test.floors"), 100.0, later, model, loader, views, 300.0, 4096,
+                             (0.5, 30.0))
+    trainer = Training(step=0, elapsed=90.0, samples=3000, rays=100, config=SimpleNamespace(seconds=300.0))
+    hook(trainer)  # 90 s of 300 (``LATEST_SHARE``): priced now
+    rays = 1.1 * 45 * 540 * 360, (24 + 3 * 1.15 * 6)  # the video's, and the evaluation's and depth maps' together
+    first = rays[0] * 1e-5 + 0.45 + rays[1] * 1e-5 - 38.0  # 58.7 s over what the three keep: training gives it
+    assert trainer.given == pytest.approx(first, rel=1e-9) and trainer.config.seconds == pytest.approx(300.0 - first)
+    cost[0] = 0.5e-5
+    halfway = 90.0 + 0.5 * (300.0 - first - 90.0)  # 165.6 s
+    trainer.elapsed = halfway - 0.1
+    hook(trainer)
+    assert len(caplog.records) == 1 and trainer.given == pytest.approx(first, rel=1e-9)  # not yet
+    trainer.elapsed = halfway
+    hook(trainer)
+    second = rays[0] * 0.5e-5 + 0.45 + rays[1] * 0.5e-5 - 38.0  # 10.6 s: training takes back 48 s and ends later
+    assert trainer.given == pytest.approx(second, rel=1e-9) and trainer.config.seconds == pytest.approx(300.0 - second)
+    assert [r.levelname for r in caplog.records] == ["INFO", "INFO"]
+    assert caplog.records[1].getMessage() == (
+        f"budget: timed again {format_duration(halfway)} into training, its field rendering as it will: the outputs "
+        "at their floors take about 49 s, where the 1 min 40 s budget keeps 38 s for them (the video, 45 frames at "
+        "540x360, 44 s over): training gives them 11 s of its time, so the job keeps its budget")
+    trainer.elapsed = 280.0
+    hook(trainer)
+    assert len(caplog.records) == 2  # twice in all

@@ -226,21 +226,27 @@ def test_a_training_that_gives_time_to_the_outputs_ends_sooner_its_learning_rate
     trainer = Trainer(marching_model(), pixels_of_one_view(), config, tmp_path, torch.device("cpu"),
                       clock=lambda: next(ticks) / 16)  # a step takes 1/16 s
 
-    def give_at_half_a_second(t: Trainer) -> bool:
+    def give(t: Trainer) -> bool:
         if t.step == 8:  # 0.5 s of 3 s: a sixth of the decay done; the outputs take 1.5 s of the rest
-            t.shorten(1.5)
+            t.give(1.5)
+            assert t.config.seconds == pytest.approx(1.5) and t.given == pytest.approx(1.5)
+        if t.step == 16:  # 1 s in, they are found to need 1 s in all: training takes the other half second back
+            t.give(1.0)
         return False
 
-    trainer.run(after_step=give_at_half_a_second)
-    assert trainer.step == 24 and trainer.elapsed == pytest.approx(1.5) and trainer.given == pytest.approx(1.5)
-    assert trainer.config.seconds == pytest.approx(1.5) and trainer.finished()
+    trainer.run(after_step=give)
+    assert trainer.step == 32 and trainer.elapsed == pytest.approx(2.0) and trainer.given == pytest.approx(1.0)
+    assert trainer.config.seconds == pytest.approx(2.0) and trainer.finished()
     log = {r["step"]: r["lr"] for r in map(json.loads, (tmp_path / "metrics.jsonl").read_text().splitlines())}
-    # before: 1e-2 * 0.1 ** (elapsed / 3); after: from a sixth of the way at 0.5 s to all of it at 1.5 s
+    # before: 1e-2 * 0.1 ** (elapsed / 3); then from a sixth of the way at 0.5 s to all of it at 1.5 s, which at 1 s
+    # is 7/12 of the way; then from there to all of it at 2 s
     assert log[4] == pytest.approx(1e-2 * 0.1 ** (0.25 / 3.0))
     assert log[16] == pytest.approx(1e-2 * 0.1 ** (1 / 6 + 5 / 6 * (1.0 - 0.5) / 1.0))
-    assert log[24] == pytest.approx(1e-3)
-    trainer.shorten(100.0)  # never before now: it has stopped, and gave nothing more
-    assert trainer.config.seconds == pytest.approx(1.5) and trainer.given == pytest.approx(1.5)
+    assert log[24] == pytest.approx(1e-2 * 0.1 ** (7 / 12 + 5 / 12 * (1.5 - 1.0) / 1.0))
+    assert log[32] == pytest.approx(1e-3)
+    trainer.give(0.0)  # never after it has stopped: it gave what it gave
+    trainer.give(100.0)  # nor before now
+    assert trainer.config.seconds == pytest.approx(2.0) and trainer.given == pytest.approx(1.0)
 
 
 def test_each_group_decays_to_its_own_final_rate_and_the_cameras_far_below_the_field() -> None:
