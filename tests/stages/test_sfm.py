@@ -128,8 +128,12 @@ def test_exif_focal_prior_and_gps_reach_colmap(tmp_path):
         camera = db.read_all_cameras()[0]
         assert camera.has_prior_focal_length
         assert camera.params[0] == pytest.approx(83 / 35 * 640)  # COLMAP's 35 mm rule at 640 px
-        priors = db.read_all_pose_priors()
-        assert len(priors) == 4 and np.allclose(priors[0].position[:2], [48 + 51 / 60 + 1 / 3600, 2 + 17 / 60 + 40 / 3600])
+        # COLMAP numbers the images in the order its threads finish them: find each photo's prior by its id.
+        names = {image.image_id: image.name for image in db.read_all_images()}
+        priors = {names[p.corr_data_id.id]: p.position[:2] for p in db.read_all_pose_priors()}
+        assert sorted(priors) == ["t1.png", "t2.png", "t3.png", "t4.png"]
+        for i in (1, 2, 3, 4):
+            assert np.allclose(priors[f"t{i}.png"], [48 + 51 / 60 + i / 3600, 2 + 17 / 60 + 40 / 3600])
         assert db.num_matched_image_pairs() > 0
 
 
