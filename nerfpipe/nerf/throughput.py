@@ -55,12 +55,21 @@ def seconds_per_view(model: RadianceModel, intrinsics: tuple[float, float, float
     that many, its time scaled by the pixels). Dearer than ``seconds_per_ray`` by the view's size, and closer:
     a chunk of neighbouring pixels marches alike, where a probe of pixels spread over the view pays for the
     ray with the most samples in each chunk."""
+    return timed_view(model, intrinsics, c2w, width, height, near, far, chunk)[0]
+
+
+def timed_view(model: RadianceModel, intrinsics: tuple[float, float, float, float], c2w: np.ndarray, width: int,
+               height: int, near: float, far: float, chunk: int) -> tuple[float, dict[str, torch.Tensor] | None]:
+    """``seconds_per_view``'s seconds, and the view it rendered (``RadianceModel.render_image``'s maps) where it
+    rendered the whole view at its size, else None: a stage that renders that view anyway keeps it rather than
+    render it twice."""
     model.render_rays(_probe(model, intrinsics, c2w, width, height, near, far, WARM_UP_RAYS), chunk)
     synchronize(model.device)
     shrink = min(1.0, (VIEW_RAYS / max(width * height, 1)) ** 0.5)  # timing a huge view would cost what it predicts
     small = (max(1, round(width * shrink)), max(1, round(height * shrink)))
     sx, sy = small[0] / width, small[1] / height
     started = time.perf_counter()
-    model.render_image((intrinsics[0] * sx, intrinsics[1] * sy, intrinsics[2] * sx, intrinsics[3] * sy), c2w, *small,
-                       near, far, chunk)
-    return (time.perf_counter() - started) * (width * height) / (small[0] * small[1])
+    rendered = model.render_image((intrinsics[0] * sx, intrinsics[1] * sy, intrinsics[2] * sx, intrinsics[3] * sy),
+                                  c2w, *small, near, far, chunk)
+    seconds = (time.perf_counter() - started) * (width * height) / (small[0] * small[1])
+    return seconds, rendered if small == (width, height) else None

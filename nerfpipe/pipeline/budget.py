@@ -161,6 +161,15 @@ def fit_to_allotment(full_seconds: float, left: float | None, floor: float, fixe
     return Fit(scale, cost(scale), max(cost(scale) - max(left, 0.0) - max(spare, 0.0), 0.0) if scale <= floor else 0.0)
 
 
+def fit_within(allotment: Allotment | None, spent: float, full_seconds: float, floor: float,
+               fixed: float = 0.0) -> Fit:
+    """``fit_to_allotment`` for a stage that has spent ``spent`` seconds of its ``allotment`` (None: no budget)
+    already, with what the stages before it saved."""
+    if allotment is None:
+        return fit_to_allotment(full_seconds, None, floor, fixed)
+    return fit_to_allotment(full_seconds, allotment.seconds - spent, floor, fixed, allotment.spare)
+
+
 @dataclass(frozen=True)
 class FloorWork:
     """What a budgeted stage's outputs cost at their floors (``Stage.floor_work``), before it has run: ``units`` of

@@ -16,9 +16,9 @@ from pathlib import Path
 from typing import Any, Literal, Mapping
 
 from nerfpipe.artifacts import BOUNDS, CAMERAS, VIEWS, ViewSplit, view_file_stem
-from nerfpipe.geometry.cameras import CameraSet
+from nerfpipe.geometry.cameras import Camera, CameraSet
 from nerfpipe.nerf.presets import gpu_preset
-from nerfpipe.pipeline.budget import FloorWork, fit_to_allotment
+from nerfpipe.pipeline.budget import FloorWork, fit_within
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
@@ -50,6 +50,12 @@ VIEW_OVERHEAD = 1.15
 
 def scaled_size(width: int, height: int, scale: float) -> tuple[int, int]:
     return max(1, round(width * scale)), max(1, round(height * scale))
+
+
+def view_intrinsics(camera: Camera, width: int, height: int) -> tuple[float, float, float, float]:
+    """fx, fy, cx, cy of ``camera``'s view rendered at ``width`` x ``height``."""
+    sx, sy = width / camera.width, height / camera.height
+    return camera.fx * sx, camera.fy * sy, camera.cx * sx, camera.cy * sy
 
 
 def wanted_views(split: ViewSplit, params: ExportDepthParams) -> list[tuple[str, str]]:
@@ -127,22 +133,23 @@ class ExportDepthStage(Stage):
 
     @staticmethod
     def _fitting_scale(model, frames, world: CameraSet, near_far, params: ExportDepthParams, ctx: StageContext,
-                       began: float) -> float:
+                       began: float) -> tuple[float, dict[str, Any] | None]:
         """``params.scale``, or less where the views at that scale would not fit the stage's allotment, never below
-        ``DEPTH_FLOOR``; logs the size and the predicted seconds, and a warning when the floor takes longer."""
-        from nerfpipe.nerf.throughput import seconds_per_view
+        ``DEPTH_FLOOR``; logs the size and the predicted seconds, and a warning when the floor takes longer. Timed on
+        the first view at the least size it may take (the floor, or the scale asked for when smaller), which is
+        returned beside the scale where the views take that size (``RadianceModel.render_image``'s maps), else None."""
+        from nerfpipe.nerf.throughput import timed_view
 
         if not frames:
-            return params.scale
+            return params.scale, None
         first = world.camera_of(frames[0])
-        width, height = scaled_size(first.width, first.height, params.scale)
-        k = first.scaled(width / first.width, height / first.height)
-        per_ray = VIEW_OVERHEAD * seconds_per_view(model, (k.fx, k.fy, k.cx, k.cy), frames[0].c2w, width, height,
-                                                   *near_far[frames[0].name], params.chunk) / (width * height)
+        least = min(params.scale, DEPTH_FLOOR)
+        width, height = scaled_size(first.width, first.height, least)
+        seconds, timed = timed_view(model, view_intrinsics(first, width, height), frames[0].c2w, width, height,
+                                    *near_far[frames[0].name], params.chunk)
+        per_ray = VIEW_OVERHEAD * seconds / (width * height)
         rays = sum(w * h for w, h in (scaled_size(c.width, c.height, params.scale) for c in map(world.camera_of, frames)))
-        left = None if ctx.allotment is None else ctx.allotment.seconds - (time.perf_counter() - began)
-        fit = fit_to_allotment(per_ray * rays, left, min(1.0, DEPTH_FLOOR / params.scale),
-                               spare=0.0 if ctx.allotment is None else ctx.allotment.spare)
+        fit = fit_within(ctx.allotment, time.perf_counter() - began, per_ray * rays, min(1.0, DEPTH_FLOOR / params.scale))
         scale, fits = params.scale * fit.scale, ""
         if ctx.allotment is not None:
             fits = f" to fit its {ctx.allotment.describe()}"
@@ -156,7 +163,7 @@ class ExportDepthStage(Stage):
                             ctx.allotment)
         if longer is not None:
             ctx.log.warning(longer)
-        return scale
+        return scale, timed if size == (width, height) else None
 
     def run(self, inputs: StageInputs, out: Path, params: ExportDepthParams, ctx: StageContext) -> ExportDepthSummary:
         from nerfpipe.nerf.device import rendering_device
@@ -183,7 +190,7 @@ class ExportDepthStage(Stage):
             raise StageError(f"export_depth: views {missing[:3]} of the trained model are not in the world cameras; "
                              "rerun with --force train")
 
-        scale = self._fitting_scale(model, [by_name[n] for _, n in wanted], world, near_far, params, ctx, began)
+        scale, timed = self._fitting_scale(model, [by_name[n] for _, n in wanted], world, near_far, params, ctx, began)
         folder = out / "depth"
         folder.mkdir()
         png_scale = png_scale_for(max(far for _, far in near_far.values()))
@@ -194,11 +201,12 @@ class ExportDepthStage(Stage):
                 frame = by_name[name]
                 camera = world.camera_of(frame)
                 width, height = scaled_size(camera.width, camera.height, scale)
-                sx, sy = width / camera.width, height / camera.height
-                intrinsics = (camera.fx * sx, camera.fy * sy, camera.cx * sx, camera.cy * sy)
+                intrinsics = view_intrinsics(camera, width, height)
                 near, far = near_far[name]
-                rendered = {k: v.numpy() for k, v in
-                            model.render_image(intrinsics, frame.c2w, width, height, near, far, params.chunk).items()}
+                # the first view was rendered at this size to time them all: kept, not rendered again
+                image = timed if timed is not None and name == wanted[0][1] else \
+                    model.render_image(intrinsics, frame.c2w, width, height, near, far, params.chunk)
+                rendered = {k: v.numpy() for k, v in image.items()}
                 view = DepthView(name, view_file_stem(name), role, width, height, intrinsics,
                                  tuple(map(tuple, np.asarray(frame.c2w).tolist())), near, far)
                 write_view(folder, view, rendered, png_scale, params.acc_threshold, bounds.to_sfm)

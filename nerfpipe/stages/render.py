@@ -29,7 +29,7 @@ from nerfpipe.artifacts import BOUNDS, CAMERAS, SCENE
 from nerfpipe.geometry.cameras import Camera, CameraSet
 from nerfpipe.imaging.png import read_png, srgb_encode, write_png
 from nerfpipe.nerf.presets import gpu_preset
-from nerfpipe.pipeline.budget import FloorWork, check_affordable, fit_to_allotment
+from nerfpipe.pipeline.budget import FloorWork, check_affordable, fit_within
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
@@ -201,7 +201,7 @@ class RenderStage(Stage):
         from nerfpipe.geometry.normalize import Similarity
         from nerfpipe.export.video import write_mp4
         from nerfpipe.nerf.model import RadianceModel
-        from nerfpipe.nerf.throughput import seconds_per_view
+        from nerfpipe.nerf.throughput import timed_view
 
         began = time.perf_counter()
         model = RadianceModel.load(inputs["model"].parent, device)
@@ -237,12 +237,12 @@ class RenderStage(Stage):
         width, height = render_size(camera, params.scale, params.max_side, params.short_side)
         scaled = camera.scaled(width / camera.width, height / camera.height)
         middle = len(poses) // 2  # timed on the path's middle frame: its first may look away from the scene
-        per_ray = FRAME_OVERHEAD * seconds_per_view(model, (scaled.fx, scaled.fy, scaled.cx, scaled.cy), poses[middle],
-                                                    width, height, *ranges[middle], params.chunk) / (width * height)
+        seconds, timed = timed_view(model, (scaled.fx, scaled.fy, scaled.cx, scaled.cy), poses[middle], width, height,
+                                    *ranges[middle], params.chunk)
+        per_ray = FRAME_OVERHEAD * seconds / (width * height)
         wanted = (width, height)
-        left = None if ctx.allotment is None else ctx.allotment.seconds - (time.perf_counter() - began)
-        fit = fit_to_allotment(per_ray * len(poses) * width * height, left, min(1.0, VIDEO_FLOOR_SIDE / min(wanted)),
-                               FRAME_SECONDS * len(poses), spare=0.0 if ctx.allotment is None else ctx.allotment.spare)
+        fit = fit_within(ctx.allotment, time.perf_counter() - began, per_ray * len(poses) * width * height,
+                         min(1.0, VIDEO_FLOOR_SIDE / min(wanted)), FRAME_SECONDS * len(poses))
         width, height = (max(2, 2 * round(side * fit.scale / 2)) for side in wanted)
         scaled = camera.scaled(width / camera.width, height / camera.height)
         check_affordable(ctx.allotment, fit.seconds, f"render: {len(poses)} frames, even at {width}x{height},",
@@ -259,7 +259,9 @@ class RenderStage(Stage):
 
         cameras = [scaled] * len(poses) if fovs is None else [with_fov(scaled, fov) for fov in fovs]
         started = time.perf_counter()
-        depth_range = render_frames(model, poses, cameras, ranges, out / "frames", params.chunk, ctx)
+        # the frame timed is a frame of the video where its size and lens stayed: not rendered again
+        done = {middle: timed} if timed is not None and (width, height) == wanted and fovs is None else {}
+        depth_range = render_frames(model, poses, cameras, ranges, out / "frames", params.chunk, ctx, done)
         seconds = time.perf_counter() - started
         count = write_mp4(read_frames(out / "frames", "rgb", len(poses)), out / "render.mp4", fps)
         write_mp4(read_frames(out / "frames", "depth", len(poses)), out / "depth.mp4", fps)
@@ -291,10 +293,12 @@ def with_fov(camera: Camera, fov: float) -> Camera:
 
 
 def render_frames(model, poses: np.ndarray, cameras: Sequence[Camera], ranges: Sequence[tuple[float, float]],
-                  folder: Path, chunk: int, ctx: StageContext) -> tuple[float, float] | None:
+                  folder: Path, chunk: int, ctx: StageContext,
+                  done: Mapping[int, Mapping[str, Any]] | None = None) -> tuple[float, float] | None:
     """Render each pose (N, 4, 4) with its camera of ``cameras`` (N, all of one size) and its (near, far) of
     ``ranges`` into ``folder/rgb_NNNN.png`` and a coloured ``depth_NNNN.png``; returns the depth colour
-    range, fixed by the first frame (None without frames)."""
+    range, fixed by the first frame (None without frames). ``done``: frames already rendered, by index
+    (``RadianceModel.render_image``'s maps), written as they are."""
     from nerfpipe.export.video import colorize_depth
 
     linear = model.info.get("photometric") == "linear_raw"
@@ -304,7 +308,8 @@ def render_frames(model, poses: np.ndarray, cameras: Sequence[Camera], ranges: S
         for i, (c2w, camera, near_far) in enumerate(zip(poses, cameras, ranges)):
             began = time.perf_counter()
             intrinsics = (camera.fx, camera.fy, camera.cx, camera.cy)
-            result = model.render_image(intrinsics, c2w, camera.width, camera.height, *near_far, chunk)
+            result = (done or {}).get(i) or model.render_image(intrinsics, c2w, camera.width, camera.height, *near_far,
+                                                               chunk)
             rgb = result["rgb"].clamp(0.0, 1.0).numpy()
             depth, acc = result["depth"].numpy(), result["acc"].numpy()
             if depth_range is None:

@@ -37,8 +37,8 @@ def test_the_probe_times_at_least_one_chunk_of_the_views_rays(size, chunk, rays,
 def test_a_view_is_timed_whole_up_to_a_size_and_at_that_size_beyond(size, timed, monkeypatch) -> None:
     model, _ = build_model(TrainParams(), scene_of("inward360"), world_of_one_camera(), bounds_of(), torch.device("cpu"))
     seen = []
-    monkeypatch.setattr(model, "render_image", lambda k, c2w, w, h, *rest: seen.append((k, w, h)))
-    clock = iter([10.0, 12.5])  # each view takes 2.5 s on this clock
+    monkeypatch.setattr(model, "render_image", lambda k, c2w, w, h, *rest: seen.append((k, w, h)) or {"size": (w, h)})
+    clock = iter([10.0, 12.5, 20.0, 22.5])  # each view takes 2.5 s on this clock
     monkeypatch.setattr(throughput.time, "perf_counter", lambda: next(clock))
     w, h = size
     c2w = look_at(np.array([0.0, -3.0, 0.5]), np.zeros(3))
@@ -47,3 +47,7 @@ def test_a_view_is_timed_whole_up_to_a_size_and_at_that_size_beyond(size, timed,
     assert (tw, th) == timed and tw * th <= throughput.VIEW_RAYS
     assert k == pytest.approx((tw / 1.2, tw / 1.2, tw / 2, th / 2), rel=1e-3)  # the same field of view
     assert seconds == pytest.approx(2.5 * w * h / (tw * th))
+    # the view it rendered comes back where it is the view asked for, whole, for the caller to keep
+    again, image = throughput.timed_view(model, (w / 1.2, w / 1.2, w / 2, h / 2), c2w, w, h, 1.0, 5.0, 4096)
+    assert again == seconds and seen[1] == seen[0]
+    assert image == ({"size": (w, h)} if timed == size else None)

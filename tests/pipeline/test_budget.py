@@ -195,6 +195,14 @@ def test_a_floor_takes_what_the_stages_before_saved_and_no_output_grows_with_it(
     assert fit_to_allotment(100.0, 26.0, 0.25, 1.0, spare=1000.0) == Fit(0.5, 26.0)
 
 
+def test_a_stage_fits_what_is_left_of_its_allotment_and_what_was_saved_before_it() -> None:
+    from nerfpipe.pipeline.budget import Fit, fit_within
+
+    assert fit_within(None, 5.0, 100.0, 0.25, 1.0) == Fit(1.0, 101.0)  # no budget: as asked, whatever it spent
+    assert fit_within(Allotment(30.0, 300.0), 4.0, 100.0, 0.25, 1.0) == Fit(0.5, 26.0)  # 26 s left of 30
+    assert fit_within(Allotment(6.0, 60.0, spare=4.0), 4.0, 100.0, 0.25, 1.0) == Fit(0.25, 7.25, 1.25)
+
+
 def test_each_floor_is_priced_at_the_rate_it_names() -> None:
     plain = FloorWork(100.0, 1.0, "the plain one")  # the elastic stage's own rate
     wide = FloorWork(100.0, 0.0, "the wide one", rate="scene")

@@ -180,7 +180,7 @@ def test_frames_shrink_to_fit_a_job_budget_but_never_below_a_watchable_video(tmp
     import nerfpipe.nerf.throughput as throughput
     from nerfpipe.stages import render as stage
 
-    monkeypatch.setattr(throughput, "seconds_per_view", lambda *args: 10.0)  # 4 frames of 32 x 24: 44 s
+    monkeypatch.setattr(throughput, "timed_view", lambda *args: (10.0, None))  # 4 frames of 32 x 24: 44 s
     caplog.set_level(logging.INFO, "test")
     _, summary, _ = run_render(tmp_path / "big", "inward360", allotment=Allotment(11.0, 110.0))
     # the real floor, 360 pixels on the short side, is above these frames' 24: they are not shrunk at all
@@ -320,13 +320,13 @@ def test_depth_maps_shrink_to_a_job_budget_but_never_below_a_quarter_of_the_phot
     from tests.nerf.scenes import world_of_one_camera
 
     world = world_of_one_camera()  # one 40 x 30 camera
-    monkeypatch.setattr(throughput, "seconds_per_view", lambda *args: 1.0 * (args[3] * args[4]) / (40 * 30))
+    monkeypatch.setattr(throughput, "timed_view", lambda *args: (1.0 * (args[3] * args[4]) / (40 * 30), None))
     caplog.set_level(logging.INFO, "test")
 
     def scale(seconds: float, asked: float = 1.0) -> float:
         ctx = StageContext(log=logging.getLogger("test"), progress=count_progress([]), allotment=Allotment(seconds, 10 * seconds))
         return ExportDepthStage._fitting_scale(None, world.frames, world, {"a.png": (1.0, 5.0)},
-                                               ExportDepthParams(scale=asked), ctx, time.perf_counter())
+                                               ExportDepthParams(scale=asked), ctx, time.perf_counter())[0]
 
     assert scale(100.0) == 1.0  # 1.15 s fits
     assert 0.5 <= scale(0.3) < 0.52  # sqrt(0.3 / 1.15) = 0.51
@@ -335,3 +335,46 @@ def test_depth_maps_shrink_to_a_job_budget_but_never_below_a_quarter_of_the_phot
     assert re.search(r"export_depth: 1 views at 10x8 \(never smaller than a quarter of the photos' side\) takes about "
                      r"0 s, 0 s more than its 0 s .*the job takes that much longer", caplog.text)
     assert scale(0.001, asked=0.1) == 0.1  # asked smaller than the floor: as asked, never shrunk
+
+
+def test_depth_maps_are_timed_at_their_floor_and_keep_that_view_where_they_take_that_size(monkeypatch, caplog) -> None:
+    """The first view is timed at the least size the maps may take (its render kept where they take it): at the
+    floor where the scale asked for is larger, at the scale asked for where that is smaller."""
+    import time
+
+    import nerfpipe.nerf.throughput as throughput
+    from nerfpipe.stages.export_depth import ExportDepthParams, ExportDepthStage
+    from tests.nerf.scenes import world_of_one_camera
+
+    world = world_of_one_camera()  # one 40 x 30 camera
+    timed: list = []
+    monkeypatch.setattr(throughput, "timed_view", lambda *args: timed.append(args[3:5]) or (1e-3 * args[3] * args[4],
+                                                                                             {"view": args[3:5]}))
+
+    def fit(seconds: float, asked: float) -> tuple:
+        ctx = StageContext(log=logging.getLogger("test"), progress=count_progress([]), allotment=Allotment(seconds, 10 * seconds))
+        return ExportDepthStage._fitting_scale(None, world.frames, world, {"a.png": (1.0, 5.0)},
+                                               ExportDepthParams(scale=asked), ctx, time.perf_counter())
+
+    assert fit(0.001, 1.0) == (0.25, {"view": (10, 8)}) and timed == [(10, 8)]  # at the floor: the view timed
+    assert fit(100.0, 1.0) == (1.0, None) and timed[-1] == (10, 8)  # 40 x 30 fits: timed at the floor, not kept
+    assert fit(100.0, 0.1) == (0.1, {"view": (4, 3)}) and timed[-1] == (4, 3)  # asked below the floor
+
+
+def test_the_frame_timed_is_a_frame_of_the_video_not_rendered_again(tmp_path: Path, monkeypatch) -> None:
+    """The render stage times its path's middle frame at the video's size: that render is the frame, so four
+    frames cost four renders; where the frames then shrink to fit a budget, the timed one is not theirs."""
+    from nerfpipe.nerf.model import RadianceModel
+    from nerfpipe.stages import render as stage
+
+    sizes: list = []
+    render_image = RadianceModel.render_image
+    monkeypatch.setattr(RadianceModel, "render_image",
+                        lambda self, k, c2w, w, h, *rest: sizes.append((w, h)) or render_image(self, k, c2w, w, h, *rest))
+    out, summary, calls = run_render(tmp_path / "kept", "inward360")
+    assert sizes == [(32, 24)] * 4
+    check_outputs(out, summary, calls, COLOUR)  # the middle frame (2) as right as the others
+    sizes.clear()
+    monkeypatch.setattr(stage, "VIDEO_FLOOR_SIDE", 12)
+    _, summary, _ = run_render(tmp_path / "shrunk", "inward360", allotment=Allotment(0.001, 100.0))
+    assert summary["resolution"] == [16, 12] and sizes == [(32, 24)] + [(16, 12)] * 4

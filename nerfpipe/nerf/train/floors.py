@@ -151,23 +151,23 @@ def floor_hook(log: logging.Logger, budget: float, later: Sequence[LaterStage], 
     calibrated = Calibration(seconds)
     said: list[float] = []  # how far into training each pricing came
 
-    def price(trainer) -> Floors:
+    def price(trainer) -> None:
         most = max(seconds - max(KEEP_TRAINING * seconds, trainer.elapsed), 0.0)
         priced = floor_check(model, loader, views, evaluation, later, budget, chunk, most)
         trainer.give(priced.given)
         said.append(trainer.elapsed)
-        return priced
+        line = priced.line("training")
+        if len(said) > 1:
+            line = line.replace("budget: ", f"budget: timed again {format_duration(said[-1])} into training, its field "
+                                "rendering as it will: ", 1)
+        (log.warning if priced.longer >= 1.0 else log.info)(line)
 
     def check(trainer) -> bool:
         if not said and calibrated(trainer.step, trainer.elapsed, trainer.samples, trainer.rays,
                                    model.sampler.stats().get("occupancy")):
-            priced = price(trainer)
-            (log.warning if priced.longer >= 1.0 else log.info)(priced.line("training"))
+            price(trainer)
         elif len(said) == 1 and trainer.elapsed >= said[0] + RETIME_SHARE * (trainer.config.seconds - said[0]):
-            priced = price(trainer)
-            line = priced.line("training").removeprefix("budget: ")
-            (log.warning if priced.longer >= 1.0 else log.info)(
-                "budget: timed again %s into training, its field rendering as it will: %s", format_duration(said[-1]), line)
+            price(trainer)
         return False
 
     return check
