@@ -110,10 +110,11 @@ def field_box(ray_space: RaySpace, layout: str, bounds: Bounds) -> Box | None:
     return box
 
 
-def field_for(params: TrainSettings, box: Box | None) -> tuple[FieldConfig, str | None]:
-    """The field ``train.field`` configures over ``box``, and its sentence. A field that spans a box falls back
+def field_for(params: TrainSettings, box: Box | None, contracted: bool) -> tuple[FieldConfig, str | None]:
+    """The field ``train.field`` configures over ``box``, with what it leaves to the space decided (``contracted``:
+    whether the space beyond the scene box is contracted), and its sentence. A field that spans a box falls back
     to the MLP of Fig. 7 where the scene has none (unbounded and not contracted)."""
-    field = params.field
+    field = params.field.for_space(contracted)
     if box is None and field.needs_box:
         return MlpConfig(), f"unbounded 360: the {field.kind} field needs a bounded box, so the MLP (Fig. 7) is trained"
     return field, field.describe()
@@ -243,7 +244,7 @@ def resolve_spec(params: TrainSettings, scene: SceneDecisions, world: CameraSet,
                      "silhouettes (alpha or a backdrop) and a scene box that is not contracted")
     ray_space, ray_said = build_ray_space(params, scene, world, bounds)
     box = field_box(ray_space, layout, bounds)
-    field, field_said = field_for(params, box)
+    field, field_said = field_for(params, box, contracts(params, scene))
     sampler, sampler_said = sampler_for(params, box, layout)
     two = field.two_fields and sampler.fields() == 2
     background, background_said = build_background(scene)

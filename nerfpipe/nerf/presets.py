@@ -50,7 +50,9 @@ PRESETS = {
     "draft": {"steps": 500, "field.levels": 1, "field.max_resolution": 64, "sampler.occupancy_resolution": 32,
               "optim.batch_samples": 32768, "optim.lr": 1e-2, "optim.lr_final": 1e-3, "optim.mlp_lr_share": 1.0,
               "field.dir_freqs": 4},
-    # the default: 32^3, 64^3 and 128^3 grids, trained for train.seconds (120 s) as fast as the machine goes
+    # the default: 32^3, 64^3 and 128^3 grids, MLPs as wide as the space calls for (field.hidden), trained for
+    # train.seconds (120 s) as fast as the machine goes. The presets below were measured with 64-wide MLPs, Instant-NGP's
+    # width, and keep them in every space
     "fast": {},
     # the 4x128 MLP (Fig. 7's shape, smaller) marching the occupancy grid: 6000 steps, about half an hour there
     "balanced": {**MLP_CPU, "sampler.kind": "marching", "steps": 6000, "optim.batch_rays": 1024,
@@ -60,14 +62,14 @@ PRESETS = {
     # the grid field with Instant-NGP's hashed fine levels: 12 levels of 16 to 1024 cells a side, the finest
     # 8 hashed into 2^17 rows of 2 features each: 2.5 M parameters, where the dense default has 9.8 M
     "hash": {"field.kind": "hash", "field.levels": 12, "field.min_resolution": 16, "field.max_resolution": 1024,
-             "field.features": 2, "field.log2_table": 17},
+             "field.features": 2, "field.log2_table": 17, "field.hidden": 64},
     # a CUDA device's (``TrainStage.machine_preset``): Instant-NGP's batch of 2^18 samples and hash field, 16 levels of
     # 16 to 2048 cells a side in tables of 2^19 rows, its step compiled (train.compile=auto)
     "gpu": {"field.kind": "hash", "field.levels": 16, "field.min_resolution": 16, "field.max_resolution": 2048,
-            "field.features": 2, "field.log2_table": 19, "optim.batch_samples": 262144, "chunk": 65536,
-            "eval_scale": "1"},
+            "field.features": 2, "field.log2_table": 19, "field.hidden": 64, "optim.batch_samples": 262144,
+            "chunk": 65536, "eval_scale": "1"},
     # three factorized planes a level (K-Planes): levels of 32, 102, 323 and 1024 cells a side, 4 features
     # each, 14 M values, where a 1024^3 dense grid would need 4.3 G
     "planes": {"field.kind": "planes", "field.levels": 4, "field.min_resolution": 32, "field.max_resolution": 1024,
-               "field.features": 4},
+               "field.features": 4, "field.hidden": 64},
 }

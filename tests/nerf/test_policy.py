@@ -136,6 +136,11 @@ def test_the_default_grid_field_marches_the_box_or_the_ndc_frustum() -> None:
     unbounded, said = build_model(TrainParams(), scene_of("unbounded360"), world, bounds, CPU)
     assert isinstance(unbounded.coarse, GridField) and "occupancy" in unbounded.sampler.stats()  # no MLP fallback
     assert unbounded.coarse.lo.tolist() == [-2] * 3 and unbounded.coarse.hi.tolist() == [2] * 3
+    # contracted, a ray crosses the shell's fog: MLPs half as wide, saved so (the spec holds 32, not "by the space")
+    assert said[1].endswith("and a 32-wide MLP") and unbounded.coarse.color_net[2].in_features == 32
+    assert unbounded.spec.field.hidden == 32 and inward.spec.field.hidden == 64
+    wide, said = build_model(train_params({"field.hidden": 48}), scene_of("unbounded360"), world, bounds, CPU)
+    assert wide.coarse.density_net[0].out_features == 48 and said[1].endswith("and a 48-wide MLP")  # as set
     uncontracted, said = build_model(train_params({"space.contract": "off"}), scene_of("unbounded360"), world, bounds, CPU)
     assert isinstance(uncontracted.coarse, NerfField) and uncontracted.sampler.stats() == {}
     assert "unbounded 360: the grid field needs a bounded box, so the MLP (Fig. 7) is trained" in said

@@ -152,11 +152,12 @@ class GridField(nn.Module):
         self.register_buffer("offsets", torch.tensor([0, *sizes[:-1]]).cumsum(0), persistent=False)
         self.register_buffer("sizes", torch.tensor(sizes), persistent=False)
         width = config.levels * config.features
-        self.density_net = nn.Sequential(nn.Linear(width, config.hidden), nn.ReLU(), nn.Linear(config.hidden, 1 + config.geo_features))
+        hidden = config.width
+        self.density_net = nn.Sequential(nn.Linear(width, hidden), nn.ReLU(), nn.Linear(hidden, 1 + config.geo_features))
         dir_dim = encoded_size(config.dir_freqs, True) if config.view_dependence else 0
         self.color_net = nn.Sequential(
-            nn.Linear(config.geo_features + dir_dim, config.hidden), nn.ReLU(),
-            nn.Linear(config.hidden, config.hidden), nn.ReLU(), nn.Linear(config.hidden, 3),
+            nn.Linear(config.geo_features + dir_dim, hidden), nn.ReLU(),
+            nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 3),
         )
 
     def feature_tables(self) -> list[nn.Parameter]:

@@ -93,7 +93,7 @@ def test_the_step_traces_to_one_graph_that_later_steps_reuse(tmp_path: Path, mon
         return graph.forward
 
     monkeypatch.setattr(compiled, "BACKEND", counting)
-    trainer, losses, rays = train({"compile": "kernels"}, tmp_path / "static", 12)
+    trainer, losses, rays = train({"compile": "kernels"}, tmp_path / "static", 14)
     assert trainer.static is not None and len(graphs) == 1  # no graph break, no recompile
     assert len(set(rays)) > 3  # though the rays a step kept changed from step to step
     eager, eager_losses, _ = train({"compile": "off"}, tmp_path / "eager", 1)
