@@ -29,7 +29,7 @@ from nerfpipe.artifacts import BOUNDS, CAMERAS, SCENE
 from nerfpipe.geometry.cameras import Camera, CameraSet
 from nerfpipe.imaging.png import read_png, srgb_encode, write_png
 from nerfpipe.nerf.presets import gpu_preset
-from nerfpipe.pipeline.budget import FloorWork, check_affordable, fit_within
+from nerfpipe.pipeline.budget import Fit, FloorWork, check_affordable, fit_within
 from nerfpipe.pipeline.errors import StageError
 from nerfpipe.pipeline.summary import Summary
 from nerfpipe.pipeline.stage import Stage, StageContext, StageInputs
@@ -103,10 +103,15 @@ class RenderParams:
 # The default is the floor of a video worth watching: 3 s (45 frames at 15 fps) of 360 pixels on the short side
 # (480 x 360 for 4:3 photos, 360 x 640 for portrait phone photos). The preview: 12 frames of at most 96 x 72.
 # Under a job budget the frames shrink to fit the stage's share, never below that floor (or the size asked for,
-# when that is smaller); when even that does not fit, the job takes longer and says so. What a frame costs
-# beside rendering its rays (two PNGs, the videos) is about this fraction of the rays' time.
-FRAME_SECONDS = 0.01  # a frame's cost whatever its size: the render call, two PNGs written and read back
-FRAME_OVERHEAD = 1.1
+# when that is smaller); when even that does not fit, the job takes longer and says so. A frame costs its rays,
+# timed, and this much beside: two PNGs written, read back and encoded into the videos (21 ms measured at 480x360
+# and 360x640; until 2026-12-06 a tenth of the rays' time was added instead, which priced the cup's video at 146 s
+# where it took 126).
+FRAME_SECONDS = 0.025
+# The frames timed to price the video, spread along its path: its middle frame alone, the far end of a sweep out
+# and back along the photos, priced beer's video at 173 s where it took 148 s. The cup's 45 frames, each timed
+# (docs/benchmarks.md): 2.58 s on average, and 2.50-2.60 s over these four.
+TIMED_FRAMES = 4
 PREVIEW = {"frames": 12, "short_side": 0, "scale": 0.25, "max_side": 96}
 FULL = {"frames": 120, "short_side": 0, "scale": 1.0, "max_side": 0}
 
@@ -182,11 +187,10 @@ class RenderStage(Stage):
         if not world.frames:
             return None
         frames = params.frames if params.path in PATH_KINDS else CameraPath.load(Path(params.path)).frames
-        wanted = render_size(world.camera_of(world.frames[0]), params.scale, params.max_side, params.short_side)
-        floor = min(1.0, VIDEO_FLOOR_SIDE / min(wanted))
-        width, height = (max(2, 2 * round(side * floor / 2)) for side in wanted)
+        width, height = floor_size(render_size(world.camera_of(world.frames[0]), params.scale, params.max_side,
+                                               params.short_side))
         # a path of its own renders over the bounds' whole depth range (``_run``): priced at that range's rate
-        return FloorWork(FRAME_OVERHEAD * frames * width * height, FRAME_SECONDS * frames,
+        return FloorWork(float(frames * width * height), FRAME_SECONDS * frames,
                          f"the video, {frames} frames at {width}x{height}", "scene" if params.path in PATH_KINDS else None)
 
     def run(self, inputs: StageInputs, out: Path, params: RenderParams, ctx: StageContext) -> RenderSummary:
@@ -234,17 +238,30 @@ class RenderStage(Stage):
         # a path along the photos' cameras has their depth range; keyframes anywhere, each its own around the scene
         ranges = [(bounds.near, bounds.far) if fovs is None else view_range(c2w, bounds.far) for c2w in poses]
 
-        width, height = render_size(camera, params.scale, params.max_side, params.short_side)
-        scaled = camera.scaled(width / camera.width, height / camera.height)
-        middle = len(poses) // 2  # timed on the path's middle frame: its first may look away from the scene
-        seconds, timed = timed_view(model, (scaled.fx, scaled.fy, scaled.cx, scaled.cy), poses[middle], width, height,
-                                    *ranges[middle], params.chunk)
-        per_ray = FRAME_OVERHEAD * seconds / (width * height)
-        wanted = (width, height)
-        fit = fit_within(ctx.allotment, time.perf_counter() - began, per_ray * len(poses) * width * height,
-                         min(1.0, VIDEO_FLOOR_SIDE / min(wanted)), FRAME_SECONDS * len(poses))
-        width, height = (max(2, 2 * round(side * fit.scale / 2)) for side in wanted)
-        scaled = camera.scaled(width / camera.width, height / camera.height)
+        def lens(width: int, height: int) -> list[Camera]:
+            """Each frame's camera at ``width`` x ``height``: the first training camera's, zoomed to each keyframe's."""
+            scaled = camera.scaled(width / camera.width, height / camera.height)
+            return [scaled] * len(poses) if fovs is None else [with_fov(scaled, fov) for fov in fovs]
+
+        # priced on a few frames spread along the path, at the least size the video may take: kept where it does
+        wanted = render_size(camera, params.scale, params.max_side, params.short_side)
+        least, timed = floor_size(wanted), {}
+        views, loaded = lens(*least), time.perf_counter() - began  # the frames timed are priced among the others
+        for i in spread(len(poses)):
+            timed[i] = timed_view(model, (views[i].fx, views[i].fy, views[i].cx, views[i].cy), poses[i], *least,
+                                  *ranges[i], params.chunk)
+            per_ray = sum(spent for spent, _ in timed.values()) / (len(timed) * least[0] * least[1])
+            # a video the whole job could not afford even at its floor is refused at once, not timed further
+            check_affordable(ctx.allotment, per_ray * len(poses) * least[0] * least[1] + FRAME_SECONDS * len(poses),
+                             f"render: {len(poses)} frames, even at {least[0]}x{least[1]},", "lower render.frames")
+        def fitting(spent: float) -> tuple[Fit, tuple[int, int]]:
+            fit = fit_within(ctx.allotment, spent, per_ray * len(poses) * wanted[0] * wanted[1],
+                             min(1.0, VIDEO_FLOOR_SIDE / min(wanted)), FRAME_SECONDS * len(poses))
+            return fit, tuple(max(2, 2 * round(side * fit.scale / 2)) for side in wanted)
+
+        fit, (width, height) = fitting(loaded)
+        if (width, height) != least:  # larger: the frames timed are not the video's, and their time is spent
+            fit, (width, height) = fitting(time.perf_counter() - began)
         check_affordable(ctx.allotment, fit.seconds, f"render: {len(poses)} frames, even at {width}x{height},",
                          "lower render.frames")
         fits = "" if ctx.allotment is None else f" to fit its {ctx.allotment.describe()}" + (
@@ -257,12 +274,12 @@ class RenderStage(Stage):
                      width, height, world.frames[0].name, width / camera.width, device,
                      per_ray * len(poses) * width * height, fits)
 
-        cameras = [scaled] * len(poses) if fovs is None else [with_fov(scaled, fov) for fov in fovs]
+        cameras = lens(width, height)
         started = time.perf_counter()
-        # the frame timed is a frame of the video where its size and lens stayed: not rendered again
-        done = {middle: timed} if timed is not None and (width, height) == wanted and fovs is None else {}
+        # the frames timed are frames of the video where it takes their size: not rendered again
+        done = {i: view for i, (_, view) in timed.items() if view is not None and (width, height) == least}
         depth_range = render_frames(model, poses, cameras, ranges, out / "frames", params.chunk, ctx, done)
-        seconds = time.perf_counter() - started
+        seconds = time.perf_counter() - started + sum(timed[i][0] for i in done)  # the kept frames' renders too
         count = write_mp4(read_frames(out / "frames", "rgb", len(poses)), out / "render.mp4", fps)
         write_mp4(read_frames(out / "frames", "depth", len(poses)), out / "depth.mp4", fps)
 
@@ -282,6 +299,20 @@ class RenderStage(Stage):
             device=str(device),
             depth_range=[round(v, 6) for v in depth_range] if depth_range is not None else None,
         )
+
+
+def floor_size(wanted: tuple[int, int]) -> tuple[int, int]:
+    """(width, height) of the least video worth watching of frames ``wanted`` (``VIDEO_FLOOR_SIDE`` on the short
+    side, or ``wanted`` where that is smaller): even sides, the aspect kept."""
+    floor = min(1.0, VIDEO_FLOOR_SIDE / min(wanted))
+    width, height = (max(2, 2 * round(side * floor / 2)) for side in wanted)
+    return width, height
+
+
+def spread(count: int, k: int = TIMED_FRAMES) -> list[int]:
+    """Up to ``k`` frames of a path of ``count``, at the middles of ``k`` equal stretches of it: the frames that
+    price a video. For even ``k`` they pair up as frame i and frame count - 1 - i, as a sweep out and back does."""
+    return sorted({min(count - 1, (2 * j + 1) * count // (2 * k)) for j in range(k)})
 
 
 def with_fov(camera: Camera, fov: float) -> Camera:

@@ -180,36 +180,37 @@ def test_frames_shrink_to_fit_a_job_budget_but_never_below_a_watchable_video(tmp
     import nerfpipe.nerf.throughput as throughput
     from nerfpipe.stages import render as stage
 
-    monkeypatch.setattr(throughput, "timed_view", lambda *args: (10.0, None))  # 4 frames of 32 x 24: 44 s
+    # 10 s a frame of 32 x 24, whatever size a frame is timed at, and 0.025 s each beside: 4 frames of 32 x 24, 40.1 s
+    monkeypatch.setattr(throughput, "timed_view", lambda *args: (10.0 * args[3] * args[4] / (32 * 24), None))
     caplog.set_level(logging.INFO, "test")
     _, summary, _ = run_render(tmp_path / "big", "inward360", allotment=Allotment(11.0, 110.0))
     # the real floor, 360 pixels on the short side, is above these frames' 24: they are not shrunk at all
     assert summary["resolution"] == [32, 24]
     assert re.search(r"render: 4 frames at 32x24 \(never smaller than 360 pixels on the short side, or the size asked "
-                     r"for\) takes about 44 s, 33 s more than its 11 s \(10% of the 1 min 50 s budget\): the job takes "
+                     r"for\) takes about 40 s, 29 s more than its 11 s \(10% of the 1 min 50 s budget\): the job takes "
                      r"that much longer", caplog.text)
-    # the same floor where the stages before saved 40 s beyond the shares still to come: it takes 33 of them, and
+    # the same floor where the stages before saved 40 s beyond the shares still to come: it takes 29 of them, and
     # the job keeps its budget
     caplog.clear()
     _, summary, _ = run_render(tmp_path / "saved", "inward360", allotment=Allotment(11.0, 110.0, spare=40.0))
     assert summary["resolution"] == [32, 24] and "takes that much longer" not in caplog.text
-    assert "about 44 s to fit its 11 s (10% of the 1 min 50 s budget, and 40 s the stages before it saved)" in caplog.text
+    assert "about 40 s to fit its 11 s (10% of the 1 min 50 s budget, and 40 s the stages before it saved)" in caplog.text
     monkeypatch.setattr(stage, "VIDEO_FLOOR_SIDE", 12)  # a floor of half each side of these tiny frames
     caplog.clear()
     _, summary, _ = run_render(tmp_path / "roomy", "inward360", allotment=Allotment(600.0, 6000.0))
     assert summary["resolution"] == [32, 24] and "takes that much longer" not in caplog.text
-    assert "about 44 s to fit its 10 min (10% of the 100 min budget)" in caplog.text
+    assert "about 40 s to fit its 10 min (10% of the 100 min budget)" in caplog.text
     _, summary, _ = run_render(tmp_path / "tight", "inward360", allotment=Allotment(22.0, 220.0))
-    # 22 s of 44 s: 0.7 of each side (sqrt 0.5, rounded down to hundredths), less the milliseconds of loading
-    assert summary["resolution"] == [22, 16] and "32x24 would take 44 s" in caplog.text
+    # 22 s of 40.1 s: 0.73 of each side (sqrt 21.9 / 40, rounded down to hundredths), less the milliseconds of loading
+    assert summary["resolution"] == [24, 18] and "32x24 would take 40 s" in caplog.text
     assert "takes that much longer" not in caplog.text
     # what the stages before saved pays for a floor, never for a larger video
     _, summary, _ = run_render(tmp_path / "tight_saved", "inward360", allotment=Allotment(22.0, 220.0, spare=1000.0))
-    assert summary["resolution"] == [22, 16]
+    assert summary["resolution"] == [24, 18]
     _, summary, _ = run_render(tmp_path / "starved", "inward360", allotment=Allotment(0.001, 100.0))
     assert summary["resolution"] == [16, 12]  # the floor, not smaller
     assert re.search(r"render: 4 frames at 16x12 \(never smaller than 12 pixels on the short side, or the size asked "
-                     r"for\) takes about 11 s, 11 s more than its 0 s .*: the job takes that much longer", caplog.text)
+                     r"for\) takes about 10 s, 10 s more than its 0 s .*: the job takes that much longer", caplog.text)
     # and when even that costs more than the whole job's budget, the stage says so instead of overrunning it
     with pytest.raises(StageError, match=r"render: 4 frames, even at 16x12, would take about \d+ s, more than the job's "
                                          r"whole budget of 0 s; lower render.frames, or pass --budget off"):
@@ -361,9 +362,10 @@ def test_depth_maps_are_timed_at_their_floor_and_keep_that_view_where_they_take_
     assert fit(100.0, 0.1) == (0.1, {"view": (4, 3)}) and timed[-1] == (4, 3)  # asked below the floor
 
 
-def test_the_frame_timed_is_a_frame_of_the_video_not_rendered_again(tmp_path: Path, monkeypatch) -> None:
-    """The render stage times its path's middle frame at the video's size: that render is the frame, so four
-    frames cost four renders; where the frames then shrink to fit a budget, the timed one is not theirs."""
+def test_the_frames_timed_are_frames_of_the_video_not_rendered_again(tmp_path: Path, monkeypatch) -> None:
+    """The render stage prices its video on frames spread along the path, timed at the least size the video may
+    take: where it takes that size, those renders are its frames (four frames cost four renders); where it is
+    larger, they are not theirs."""
     from nerfpipe.nerf.model import RadianceModel
     from nerfpipe.stages import render as stage
 
@@ -372,9 +374,21 @@ def test_the_frame_timed_is_a_frame_of_the_video_not_rendered_again(tmp_path: Pa
     monkeypatch.setattr(RadianceModel, "render_image",
                         lambda self, k, c2w, w, h, *rest: sizes.append((w, h)) or render_image(self, k, c2w, w, h, *rest))
     out, summary, calls = run_render(tmp_path / "kept", "inward360")
-    assert sizes == [(32, 24)] * 4
-    check_outputs(out, summary, calls, COLOUR)  # the middle frame (2) as right as the others
+    assert sizes == [(32, 24)] * 4  # the floor (360 pixels) is above these frames: timed at their size, all kept
+    check_outputs(out, summary, calls, COLOUR)  # the frames timed as right as the others would be
     sizes.clear()
     monkeypatch.setattr(stage, "VIDEO_FLOOR_SIDE", 12)
-    _, summary, _ = run_render(tmp_path / "shrunk", "inward360", allotment=Allotment(0.001, 100.0))
-    assert summary["resolution"] == [16, 12] and sizes == [(32, 24)] + [(16, 12)] * 4
+    _, summary, _ = run_render(tmp_path / "floor", "inward360", allotment=Allotment(0.001, 100.0))
+    assert summary["resolution"] == [16, 12] and sizes == [(16, 12)] * 4  # at the floor: timed there and kept
+    sizes.clear()
+    _, summary, _ = run_render(tmp_path / "roomy", "inward360", allotment=Allotment(600.0, 6000.0))
+    assert summary["resolution"] == [32, 24] and sizes == [(16, 12)] * 4 + [(32, 24)] * 4
+
+
+def test_a_video_is_priced_on_frames_spread_along_its_path() -> None:
+    """Four frames at the middles of four equal stretches of the path (or every frame of a shorter one): a sweep
+    out and back mirrors frame i in frame n - 1 - i, and so do they."""
+    from nerfpipe.stages.render import spread
+
+    assert spread(45) == [5, 16, 28, 39] and all(44 - i in spread(45) for i in spread(45))
+    assert spread(120) == [15, 45, 75, 105] and spread(4) == [0, 1, 2, 3] and spread(3) == [0, 1, 2] and spread(1) == [0]

@@ -37,34 +37,34 @@ def job(tmp_path: Path):
 
 def test_a_slow_machine_is_told_how_much_longer_the_job_takes_at_the_floors(job, monkeypatch) -> None:
     model, loader, views, later = job
-    # the injected cost model: a microsecond a ray (a machine 50x slower than this one renders beer)
-    monkeypatch.setattr(floors, "seconds_per_view", per_ray(1e-6))
+    # the injected cost model: 1.2 microseconds a ray
+    monkeypatch.setattr(floors, "seconds_per_view", per_ray(1.2e-6))
     priced = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
     line, over = priced.line("training"), priced.over
-    # the video: 360 px on the short side of 12x8 photos is 540x360, 45 frames, 1.1 x the rays plus 0.01 s a frame:
-    # 1.1 x 45 x 540 x 360 x 1e-6 + 0.45 = 10.07 s, 5.07 s over its 5 s; the evaluation (one view at 6x4, 24 rays) and
+    # the video: 360 px on the short side of 12x8 photos is 540x360, 45 frames, their rays plus 0.025 s a frame:
+    # 45 x 540 x 360 x 1.2e-6 + 1.125 = 11.62 s, 6.62 s over its 5 s; the evaluation (one view at 6x4, 24 rays) and
     # the depth maps (three at a quarter of 12x8, 3x2, 1.15 x 18 rays) cost microseconds and fit their 1 s and 3 s
-    # the 4 s the other two leave of their parts pass on to the video: over by 10.07 s less the 9 s kept for all three
-    assert over == pytest.approx(1.1 * 45 * 540 * 360 * 1e-6 + 0.45 + (24 + 3 * 1.15 * 6) * 1e-6 - 9.0, rel=1e-9)
-    assert line == ("budget: the outputs at their floors take about 10 s, where the 1 min 40 s budget keeps 9 s for "
-                    "them (the video, 45 frames at 540x360, 5 s over): the job takes about 1 s longer rather than make "
+    # the 4 s the other two leave of their parts pass on to the video: over by 11.62 s less the 9 s kept for all three
+    assert over == pytest.approx(45 * 540 * 360 * 1.2e-6 + 1.125 + (24 + 3 * 1.15 * 6) * 1.2e-6 - 9.0, rel=1e-9)
+    assert line == ("budget: the outputs at their floors take about 12 s, where the 1 min 40 s budget keeps 9 s for "
+                    "them (the video, 45 frames at 540x360, 7 s over): the job takes about 3 s longer rather than make "
                     "them smaller (a larger --budget, or --budget off, runs them as set)")
 
 
 def test_a_fast_machine_hears_that_the_outputs_fit(job, monkeypatch) -> None:
     model, loader, views, later = job
-    monkeypatch.setattr(floors, "seconds_per_view", per_ray(1e-7))  # the video: 0.96 s + 0.45 s of its 5 s
+    monkeypatch.setattr(floors, "seconds_per_view", per_ray(1e-7))  # the video: 0.87 s + 1.125 s of its 5 s
     priced = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
     line, over = priced.line("training"), priced.over
     assert over == 0.0
-    assert line == "budget: the outputs at their floors take about 1 s of the 9 s the 1 min 40 s budget keeps for them"
+    assert line == "budget: the outputs at their floors take about 2 s of the 9 s the 1 min 40 s budget keeps for them"
 
 
 def test_each_output_over_its_part_is_named_and_all_take_what_they_need_beyond_all_their_parts(job, monkeypatch) -> None:
     model, loader, views, later = job
     monkeypatch.setattr(floors, "seconds_per_view", per_ray(0.1))  # a tenth of a second a ray
     over = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096).over
-    video = 1.1 * 45 * 540 * 360 * 0.1 + 0.45
+    video = 45 * 540 * 360 * 0.1 + 1.125
     # the depth maps' 2.07 s leave 0.93 s of their 3 s to the others: over by what all take beyond all three parts
     assert over == pytest.approx((24 * 0.1 - 1.0) + (video - 5.0) + (3 * 1.15 * 6 * 0.1 - 3.0))
     line = floors.floor_check(model, loader, views, (0.5, 0.1), later[1:], 100.0, 4096).line("training")
@@ -84,7 +84,7 @@ def test_a_video_along_the_capture_is_priced_over_the_scenes_whole_depth_range(j
     priced = floors.floor_check(model, loader, views, (0.5, 1.0), later, 100.0, 4096)
     line, over = priced.line("training"), priced.over
     # the render stage's own path renders over the bounds' 7 units (``RenderStage._run``), not the probe photo's 4
-    video = 1.1 * 45 * 540 * 360 * 1e-6 * 7.0 + 0.45
+    video = 45 * 540 * 360 * 1e-6 * 7.0 + 1.125
     others = (24 + 3 * 1.15 * 6) * 1e-6 * 4.0  # the evaluation and the depth maps over the photo's own 4 units
     assert over == pytest.approx(video + others - 9.0, rel=1e-9)  # all three, less the 1 + 3 + 5 s kept for them
     assert f"the video, 45 frames at 540x360, {format_duration(video - 5.0)} over" in line
@@ -150,12 +150,12 @@ def test_the_line_comes_once_when_training_has_found_the_scene(job, monkeypatch,
     assert not caplog.records
     trainer = Training(step=527, elapsed=30.0, samples=3000, rays=100, config=config)
     assert not hook(trainer)  # it speaks, and never stops training itself
-    # the video's 97 s against its 5, the evaluation and the depth maps far under their 30 s and 3 s: 59 s over in
-    # all. Training, 30 s into its 300, can give up to 150 s (keeping half), and gives those 59 s
-    over = 1.1 * 45 * 540 * 360 * 1e-5 + 0.45 + (24 + 3 * 1.15 * 6) * 1e-5 - 38.0
+    # the video's 89 s against its 5, the evaluation and the depth maps far under their 30 s and 3 s: 51 s over in
+    # all. Training, 30 s into its 300, can give up to 150 s (keeping half), and gives those 51 s
+    over = 45 * 540 * 360 * 1e-5 + 1.125 + (24 + 3 * 1.15 * 6) * 1e-5 - 38.0
     assert trainer.given == pytest.approx(over, rel=1e-9)
     assert [r.levelname for r in caplog.records] == ["INFO"]
-    assert caplog.records[0].getMessage().endswith("training gives them 59 s of its time, so the job keeps its budget")
+    assert caplog.records[0].getMessage().endswith("training gives them 51 s of its time, so the job keeps its budget")
     hook(Training(step=800, elapsed=100.0, samples=3000, rays=100, config=config))
     assert len(caplog.records) == 1  # once, until halfway from there to the end of training
 
@@ -163,7 +163,7 @@ def test_the_line_comes_once_when_training_has_found_the_scene(job, monkeypatch,
 def test_training_gives_the_floors_at_most_half_its_time_and_the_job_says_how_much_longer_it_takes(job, monkeypatch,
                                                                                                   caplog) -> None:
     model, loader, views, later = job
-    monkeypatch.setattr(floors, "seconds_per_view", per_ray(1e-4))  # the video: 962.7 s, 957.7 s over its 5 s
+    monkeypatch.setattr(floors, "seconds_per_view", per_ray(1e-4))  # the video: 875.9 s, 870.9 s over its 5 s
     caplog.set_level(logging.INFO, "test.floors")
     hook = floors.floor_hook(logging.getLogger("test.floors"), 100.0, later, model, loader, views, 300.0, 4096,
                              (0.5, 30.0))
@@ -171,7 +171,7 @@ def test_training_gives_the_floors_at_most_half_its_time_and_the_job_says_how_mu
     trainer = Training(step=0, elapsed=90.0, samples=3000, rays=100, config=SimpleNamespace(seconds=300.0))
     assert not hook(trainer)
     # it keeps 150 s of its 300 and gives the other 150; the rest of what the floors need makes the job longer
-    over = 1.1 * 45 * 540 * 360 * 1e-4 + 0.45 + (24 + 3 * 1.15 * 6) * 1e-4 - 38.0  # all three, less all they keep
+    over = 45 * 540 * 360 * 1e-4 + 1.125 + (24 + 3 * 1.15 * 6) * 1e-4 - 38.0  # all three, less all they keep
     assert trainer.given == 150.0
     assert [r.levelname for r in caplog.records] == ["WARNING"]
     assert caplog.records[0].getMessage().endswith(
@@ -199,23 +199,23 @@ def test_the_outputs_are_priced_again_halfway_to_the_end_and_training_takes_back
                              (0.5, 30.0))
     trainer = Training(step=0, elapsed=90.0, samples=3000, rays=100, config=SimpleNamespace(seconds=300.0))
     hook(trainer)  # 90 s of 300 (``LATEST_SHARE``): priced now
-    rays = 1.1 * 45 * 540 * 360, (24 + 3 * 1.15 * 6)  # the video's, and the evaluation's and depth maps' together
-    first = rays[0] * 1e-5 + 0.45 + rays[1] * 1e-5 - 38.0  # 58.7 s over what the three keep: training gives it
+    rays = 45 * 540 * 360, (24 + 3 * 1.15 * 6)  # the video's, and the evaluation's and depth maps' together
+    first = rays[0] * 1e-5 + 1.125 + rays[1] * 1e-5 - 38.0  # 50.6 s over what the three keep: training gives it
     assert trainer.given == pytest.approx(first, rel=1e-9) and trainer.config.seconds == pytest.approx(300.0 - first)
     cost[0] = 0.5e-5
-    halfway = 90.0 + 0.5 * (300.0 - first - 90.0)  # 165.6 s
+    halfway = 90.0 + 0.5 * (300.0 - first - 90.0)  # 169.7 s
     trainer.elapsed = halfway - 0.1
     hook(trainer)
     assert len(caplog.records) == 1 and trainer.given == pytest.approx(first, rel=1e-9)  # not yet
     trainer.elapsed = halfway
     hook(trainer)
-    second = rays[0] * 0.5e-5 + 0.45 + rays[1] * 0.5e-5 - 38.0  # 10.6 s: training takes back 48 s and ends later
+    second = rays[0] * 0.5e-5 + 1.125 + rays[1] * 0.5e-5 - 38.0  # 6.9 s: training takes back 43.7 s and ends later
     assert trainer.given == pytest.approx(second, rel=1e-9) and trainer.config.seconds == pytest.approx(300.0 - second)
     assert [r.levelname for r in caplog.records] == ["INFO", "INFO"]
     assert caplog.records[1].getMessage() == (
         f"budget: timed again {format_duration(halfway)} into training, its field rendering as it will: the outputs "
-        "at their floors take about 49 s, where the 1 min 40 s budget keeps 38 s for them (the video, 45 frames at "
-        "540x360, 44 s over): training gives them 11 s of its time, so the job keeps its budget")
+        "at their floors take about 45 s, where the 1 min 40 s budget keeps 38 s for them (the video, 45 frames at "
+        "540x360, 40 s over): training gives them 7 s of its time, so the job keeps its budget")
     trainer.elapsed = 280.0
     hook(trainer)
     assert len(caplog.records) == 2  # twice in all
