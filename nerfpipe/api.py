@@ -109,7 +109,7 @@ class Run:
         c2w = to_sfm.inverse().apply_c2w(c2w_sfm)
         near, far = self._bounds.near_far().get(name) or view_range(c2w, self._bounds.far)
         with torch.no_grad():
-            out = self._model.render_image((scaled.fx, scaled.fy, scaled.cx, scaled.cy), c2w, width, height, near, far,
+            out = self._model.render_image(scaled.intrinsics, c2w, width, height, near, far,
                                            chunk)
         rgb = out["rgb"].clamp(0.0, 1.0).numpy()
         if self._linear:

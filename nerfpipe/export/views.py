@@ -56,7 +56,7 @@ class ViewCamera:
     @staticmethod
     def from_camera(camera: Camera, c2w: np.ndarray) -> ViewCamera:
         """The pinhole part of a calibrated camera; lens distortion is left out (it only bends the picture)."""
-        return ViewCamera((camera.fx, camera.fy, camera.cx, camera.cy), c2w, camera.width, camera.height)
+        return ViewCamera(camera.intrinsics, c2w, camera.width, camera.height)
 
     @property
     def center(self) -> np.ndarray:

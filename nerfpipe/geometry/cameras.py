@@ -73,6 +73,11 @@ class Camera:
         return self.param("cy")
 
     @property
+    def intrinsics(self) -> tuple[float, float, float, float]:
+        """(fx, fy, cx, cy): what a pinhole render of this camera takes."""
+        return self.fx, self.fy, self.cx, self.cy
+
+    @property
     def is_fisheye(self) -> bool:
         return self.model in FISHEYE_MODELS
 

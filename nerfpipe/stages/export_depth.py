@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Literal, Mapping
 
 from nerfpipe.artifacts import BOUNDS, CAMERAS, VIEWS, ViewSplit, view_file_stem
-from nerfpipe.geometry.cameras import Camera, CameraSet
+from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.nerf.presets import gpu_preset
 from nerfpipe.pipeline.budget import FloorWork, fit_within
 from nerfpipe.pipeline.errors import StageError
@@ -50,12 +50,6 @@ VIEW_OVERHEAD = 1.15
 
 def scaled_size(width: int, height: int, scale: float) -> tuple[int, int]:
     return max(1, round(width * scale)), max(1, round(height * scale))
-
-
-def view_intrinsics(camera: Camera, width: int, height: int) -> tuple[float, float, float, float]:
-    """fx, fy, cx, cy of ``camera``'s view rendered at ``width`` x ``height``."""
-    sx, sy = width / camera.width, height / camera.height
-    return camera.fx * sx, camera.fy * sy, camera.cx * sx, camera.cy * sy
 
 
 def wanted_views(split: ViewSplit, params: ExportDepthParams) -> list[tuple[str, str]]:
@@ -145,7 +139,7 @@ class ExportDepthStage(Stage):
         first = world.camera_of(frames[0])
         least = min(params.scale, DEPTH_FLOOR)
         width, height = scaled_size(first.width, first.height, least)
-        seconds, timed = timed_view(model, view_intrinsics(first, width, height), frames[0].c2w, width, height,
+        seconds, timed = timed_view(model, first.scaled(width / first.width, height / first.height).intrinsics, frames[0].c2w, width, height,
                                     *near_far[frames[0].name], params.chunk)
         per_ray = VIEW_OVERHEAD * seconds / (width * height)
         rays = sum(w * h for w, h in (scaled_size(c.width, c.height, params.scale) for c in map(world.camera_of, frames)))
@@ -201,7 +195,7 @@ class ExportDepthStage(Stage):
                 frame = by_name[name]
                 camera = world.camera_of(frame)
                 width, height = scaled_size(camera.width, camera.height, scale)
-                intrinsics = view_intrinsics(camera, width, height)
+                intrinsics = camera.scaled(width / camera.width, height / camera.height).intrinsics
                 near, far = near_far[name]
                 # the first view was rendered at this size to time them all: kept, not rendered again
                 image = timed if timed is not None and name == wanted[0][1] else \

@@ -126,7 +126,7 @@ def render_size(camera: Camera, scale: float, max_side: int = 0, short_side: int
     if max_side and max(width, height) > max_side:
         shrink = max_side / max(width, height)
         width, height = width * shrink, height * shrink
-    return (max(2, 2 * round(width / 2)), max(2, 2 * round(height / 2)))
+    return even(width), even(height)
 
 
 @dataclass(frozen=True)
@@ -248,8 +248,7 @@ class RenderStage(Stage):
         least, timed = floor_size(wanted), {}
         views, loaded = lens(*least), time.perf_counter() - began  # the frames timed are priced among the others
         for i in spread(len(poses)):
-            timed[i] = timed_view(model, (views[i].fx, views[i].fy, views[i].cx, views[i].cy), poses[i], *least,
-                                  *ranges[i], params.chunk)
+            timed[i] = timed_view(model, views[i].intrinsics, poses[i], *least, *ranges[i], params.chunk)
             per_ray = sum(spent for spent, _ in timed.values()) / (len(timed) * least[0] * least[1])
             # a video the whole job could not afford even at its floor is refused at once, not timed further
             check_affordable(ctx.allotment, per_ray * len(poses) * least[0] * least[1] + FRAME_SECONDS * len(poses),
@@ -257,13 +256,11 @@ class RenderStage(Stage):
         def fitting(spent: float) -> tuple[Fit, tuple[int, int]]:
             fit = fit_within(ctx.allotment, spent, per_ray * len(poses) * wanted[0] * wanted[1],
                              min(1.0, VIDEO_FLOOR_SIDE / min(wanted)), FRAME_SECONDS * len(poses))
-            return fit, tuple(max(2, 2 * round(side * fit.scale / 2)) for side in wanted)
+            return fit, (even(wanted[0] * fit.scale), even(wanted[1] * fit.scale))
 
         fit, (width, height) = fitting(loaded)
         if (width, height) != least:  # larger: the frames timed are not the video's, and their time is spent
             fit, (width, height) = fitting(time.perf_counter() - began)
-        check_affordable(ctx.allotment, fit.seconds, f"render: {len(poses)} frames, even at {width}x{height},",
-                         "lower render.frames")
         fits = "" if ctx.allotment is None else f" to fit its {ctx.allotment.describe()}" + (
             f"; {wanted[0]}x{wanted[1]} would take {per_ray * len(poses) * wanted[0] * wanted[1]:.0f} s"
             if (width, height) != wanted else "")
@@ -305,8 +302,12 @@ def floor_size(wanted: tuple[int, int]) -> tuple[int, int]:
     """(width, height) of the least video worth watching of frames ``wanted`` (``VIDEO_FLOOR_SIDE`` on the short
     side, or ``wanted`` where that is smaller): even sides, the aspect kept."""
     floor = min(1.0, VIDEO_FLOOR_SIDE / min(wanted))
-    width, height = (max(2, 2 * round(side * floor / 2)) for side in wanted)
-    return width, height
+    return even(wanted[0] * floor), even(wanted[1] * floor)
+
+
+def even(side: float) -> int:
+    """A side of a video frame: the nearest even number of pixels (MPEG-4 encodes 2x2 chroma blocks), at least 2."""
+    return max(2, 2 * round(side / 2))
 
 
 def spread(count: int, k: int = TIMED_FRAMES) -> list[int]:
@@ -338,9 +339,8 @@ def render_frames(model, poses: np.ndarray, cameras: Sequence[Camera], ranges: S
     with ctx.progress(len(poses), "render") as advance:
         for i, (c2w, camera, near_far) in enumerate(zip(poses, cameras, ranges)):
             began = time.perf_counter()
-            intrinsics = (camera.fx, camera.fy, camera.cx, camera.cy)
-            result = (done or {}).get(i) or model.render_image(intrinsics, c2w, camera.width, camera.height, *near_far,
-                                                               chunk)
+            result = (done or {}).get(i) or model.render_image(camera.intrinsics, c2w, camera.width, camera.height,
+                                                               *near_far, chunk)
             rgb = result["rgb"].clamp(0.0, 1.0).numpy()
             depth, acc = result["depth"].numpy(), result["acc"].numpy()
             if depth_range is None:

@@ -117,7 +117,7 @@ def floor_check(model: RadianceModel, loader: ImageLoader, views: Views, evaluat
         if rate not in timed:
             was_training = [f.training for f in model.fields()]
             try:
-                timed[rate] = seconds_per_view(model, (k.fx, k.fy, k.cx, k.cy), first.c2w, width, height,
+                timed[rate] = seconds_per_view(model, k.intrinsics, first.c2w, width, height,
                                                *ranges[rate], chunk) / (width * height)
             finally:
                 for f, mode in zip(model.fields(), was_training):

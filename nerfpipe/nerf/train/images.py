@@ -143,8 +143,7 @@ class ImageLoader:
 
     def intrinsics(self, frame: Frame) -> tuple[float, float, float, float]:
         """(fx, fy, cx, cy) of the frame's pinhole camera."""
-        c = self.world.camera_of(frame)
-        return (c.fx, c.fy, c.cx, c.cy)
+        return self.world.camera_of(frame).intrinsics
 
     def pixel_set(self, frames: list[Frame]) -> PixelSet:
         """Every pixel of ``frames``, with its image's camera and near/far: what the trainer draws rays from;
