@@ -47,7 +47,7 @@ LOCK_NAME = ".lock"  # ``RunLock``'s file
 FAILED = "failed.json"  # in stages/<stage>/: the key and error of the last failed attempt
 # the folders of a run directory that nerfpipe writes, and replaces whole (exports/, report/): a capture
 # inside one of them would be read while it is being replaced
-MANAGED = ("stages", ".work", BROKEN, ".cache", "logs", "exports", "report", "bench")
+MANAGED = ("stages", ".work", BROKEN, ".cache", "logs", "exports", "report", "report.earlier", "bench")
 
 
 def is_run_dir(folder: Path) -> bool:

@@ -3,9 +3,11 @@ the run's current settings, and the SfM cameras (drawn by two sections)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import hashlib
+import os
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from nerfpipe.geometry.cameras import CameraSet
 from nerfpipe.pipeline import Committed, Stage, StageStatus
@@ -17,7 +19,8 @@ class RunData:
 
     ``order``: every stage name in pipeline order; ``statuses``: name -> its status; ``results``: name ->
     its committed result, only for stages fresh for the current settings; ``folder``: the report's folder,
-    whose ``img/`` the sections write their pictures into.
+    whose ``img/`` the sections write their pictures into; ``previous``: the ``img/`` of the report this one
+    replaces, whose pictures ``picture`` takes again where what they show has not changed.
     """
 
     run_dir: Path
@@ -28,10 +31,31 @@ class RunData:
     statuses: Mapping[str, StageStatus]
     results: Mapping[str, Committed]
     sfm_cameras: CameraSet | None = None
+    previous: Path | None = None
+    previous_keys: Mapping[str, str] = field(default_factory=dict)
+    drawn: dict[str, str] = field(default_factory=dict)  # picture name -> its key, as ``picture`` made them
 
     @property
     def img(self) -> Path:
         return self.folder / "img"
+
+    def picture(self, name: str, key: str, draw: Callable[[Path], object]) -> bool:
+        """Put ``img/name`` in place: taken from the previous report where it was drawn under the same ``key``
+        (what it shows: the commits of the results it is drawn from; the report's code is added here), else
+        drawn by ``draw(path)``, which returns False where it could not draw it. False where there is none."""
+        key = hashlib.sha256(f"{key}\n{CODE}".encode()).hexdigest()
+        path = self.img / name
+        old = None if self.previous is None else self.previous / name
+        if old is not None and old.is_file() and self.previous_keys.get(name) == key:
+            os.replace(old, path)
+        elif draw(path) is False:
+            return False
+        self.drawn[name] = key
+        return True
+
+    def commit(self, stage: str) -> str:
+        """What identifies the fresh result of ``stage``: a result computed again gets a new one."""
+        return self.results[stage].commit_id
 
     def artifact(self, stage: str, name: str) -> Path:
         """The path of artifact ``name`` in the fresh result of ``stage``."""
@@ -41,6 +65,31 @@ class RunData:
         """The lines ``nerfpipe status`` prints about the fresh result of ``stage``."""
         result = self.results[stage]
         return self.stages[stage].describe(result.path, result.manifest)
+
+
+KEYS = "pictures.json"  # in img/: each picture's key, written once all are drawn
+
+
+def picture_keys(img: Path) -> dict[str, str]:
+    """The keys of the pictures in a report's ``img/``; none where it was not finished."""
+    import json
+
+    try:
+        keys = json.loads((img / KEYS).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return keys if isinstance(keys, dict) else {}
+
+
+def _code() -> str:
+    """A hash of the report's own sources: a picture drawn by other code is drawn again."""
+    digest = hashlib.sha256()
+    for source in sorted(Path(__file__).parent.glob("*.py")):
+        digest.update(source.read_bytes())
+    return digest.hexdigest()
+
+
+CODE = _code()
 
 
 def gather(run_dir: Path, stages: Sequence[Any] | None, folder: Path) -> RunData:

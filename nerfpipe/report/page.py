@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import html
+import json
+import os
 import shutil
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Sequence
 
 from nerfpipe.pipeline.store import require_run_dir
-from nerfpipe.report.data import gather
+from nerfpipe.report.data import KEYS, gather, picture_keys
 from nerfpipe.report.sections import SECTIONS
 
 STYLE = """
@@ -37,15 +40,23 @@ def page(run_dir: Path, sections: Sequence[str]) -> str:
 
 def write_report(run_dir: Path, stages: Sequence[Any] | None = None) -> Path:
     """Write ``run_dir/report/index.html`` and its images, replacing any earlier report; return the page's path.
+    A picture of the earlier report is kept where what it shows has not changed (``RunData.picture``): a rerun
+    that changed nothing rewrites the page in a fraction of a second.
 
     ``stages``: the pipeline's stages, by default ``nerfpipe.stages.default_stages()``.
     """
     require_run_dir(run_dir, "the report")
-    folder = run_dir / "report"
+    folder, earlier = run_dir / "report", run_dir / "report.earlier"
     run = gather(run_dir, stages, folder)
+    if earlier.exists():  # left by a report that was interrupted
+        shutil.rmtree(earlier)
     if folder.exists():
-        shutil.rmtree(folder)
+        os.replace(folder, earlier)
+        run = replace(run, previous=earlier / "img", previous_keys=picture_keys(earlier / "img"))
     run.img.mkdir(parents=True)
     built = (build(run) for build in SECTIONS)
     (folder / "index.html").write_text(page(run_dir, [s for s in built if s is not None]), encoding="utf-8")
+    (run.img / KEYS).write_text(json.dumps(run.drawn, indent=1), encoding="utf-8")  # last: the pictures are whole
+    if earlier.exists():
+        shutil.rmtree(earlier)
     return folder / "index.html"

@@ -34,9 +34,9 @@ def capture(run: RunData) -> str | None:
     photos = run.artifact("ingest", "images")
     figures = []
     for i, record in enumerate(records[:MAX_THUMBS]):
-        target = run.img / f"thumb_{i:03d}.png"
-        if thumbnail(photos / record.name, target):
-            figures.append(figure(f"img/{target.name}", record.name))
+        name, source = f"thumb_{i:03d}.png", photos / record.name
+        if run.picture(name, f"{run.commit('ingest')} {record.name}", lambda path: thumbnail(source, path)):
+            figures.append(figure(f"img/{name}", record.name))
     more = f"<p>and {len(records) - MAX_THUMBS} more</p>" if len(records) > MAX_THUMBS else ""
     return section("Capture", f"<p>{len(records)} photos from <code>{html.escape(str(run.source))}</code></p>"
                    f"{grid(figures)}{more}")
@@ -56,7 +56,7 @@ def structure_from_motion(run: RunData) -> str | None:
             points = np.asarray(cameras.points.xyz)
             rgb = np.asarray(cameras.points.rgb, dtype=np.float64)
             colors = rgb / 255.0 if rgb.max() > 1 else rgb
-        plot_cameras(run.img / "sfm.png", centers, axes, points, colors)
+        run.picture("sfm.png", run.commit("sfm"), lambda path: plot_cameras(path, centers, axes, points, colors))
         body += figure("img/sfm.png", "camera centres, viewing axes and sparse points (SfM frame)")
     return section("Structure from motion", body)
 
@@ -78,12 +78,12 @@ def training(run: RunData) -> str | None:
     log = run.results["train"].path / "metrics.jsonl"
     records = [json.loads(line) for line in log.read_text(encoding="utf-8").splitlines() if line.strip()] if log.exists() else []
     if records:
-        plot_training(run.img / "training.png", records)
+        run.picture("training.png", run.commit("train"), lambda path: plot_training(path, records))
         body += figure("img/training.png", "training loss and PSNR against wall time")
     cameras = run.results["train"].path / "cameras" / "cameras.json"
     per_image = json.loads(cameras.read_text(encoding="utf-8")).get("extra", {}).get("per_image") if cameras.exists() else None
     if per_image:
-        plot_per_image(run.img / "per_image.png", per_image)
+        run.picture("per_image.png", run.commit("train"), lambda path: plot_per_image(path, per_image))
         body += figure("img/per_image.png", "per training photo: how far refinement moved its camera, and the "
                        "exposure learned for it")
     pairs = heldout_pairs(run)
@@ -163,7 +163,7 @@ def depth(run: RunData) -> str | None:
 
     to_sfm = np.asarray(Bounds.load(run.artifact("bounds", "bounds")).to_sfm) if "bounds" in run.results else np.eye(4)
     scale = Similarity.from_matrix(to_sfm).scale
-    plot_depth_scale(run.img / "depth_scale.png")
+    run.picture("depth_scale.png", "", plot_depth_scale)
     figures = [f.replace("</figcaption>", f", red {v.near * scale:.3g} to blue {v.far * scale:.3g} SfM units</figcaption>")
                for f, v in zip(figures, shown)]
     return section("Depth", paragraphs(run.describe("export_depth"))
@@ -193,15 +193,20 @@ def geometry_shot(run: RunData, stage: str, artifact: str, label: str, cameras: 
     from nerfpipe.export.screenshot import load_mesh, load_points, screenshot
     from nerfpipe.export.views import auto_view, photo_view
 
-    path = run.artifact(stage, artifact)
-    geometry = {"mesh": load_mesh(path)} if artifact == "mesh" else {"points": load_points(path)}
-    # framed on the geometry (framing the camera ring too leaves the object tiny), seen as the first photo saw it,
-    # so the picture can be held against the photos
-    aabb = next(iter(geometry.values())).get_axis_aligned_bounding_box()
-    box = np.asarray(aabb.min_bound), np.asarray(aabb.max_bound)
-    view = photo_view(*box, cameras[0], SHOT_WIDTH, SHOT_HEIGHT) if cameras else auto_view(*box, [], SHOT_WIDTH, SHOT_HEIGHT)
-    # no frusta: in this close view they are the few cameras behind the object, drawn over it
-    write_png(run.img / f"{artifact}.png", screenshot(view=view, **geometry))
+    def draw(target: Path) -> None:
+        path = run.artifact(stage, artifact)
+        geometry = {"mesh": load_mesh(path)} if artifact == "mesh" else {"points": load_points(path)}
+        # framed on the geometry (framing the camera ring too leaves the object tiny), seen as the first photo saw
+        # it, so the picture can be held against the photos
+        aabb = next(iter(geometry.values())).get_axis_aligned_bounding_box()
+        box = np.asarray(aabb.min_bound), np.asarray(aabb.max_bound)
+        view = (photo_view(*box, cameras[0], SHOT_WIDTH, SHOT_HEIGHT) if cameras
+                else auto_view(*box, [], SHOT_WIDTH, SHOT_HEIGHT))
+        # no frusta: in this close view they are the few cameras behind the object, drawn over it
+        write_png(target, screenshot(view=view, **geometry))
+
+    seen_from = run.commit("sfm") if cameras else ""
+    run.picture(f"{artifact}.png", f"{run.commit(stage)} {seen_from}", draw)
     return figure(f"img/{artifact}.png", f"{label}: " + "; ".join(run.describe(stage)))
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import queue
 import re
 import shutil
 import threading
@@ -28,9 +29,11 @@ from tests.helpers import REPO, temple_subset
 DOC = REPO / "docs" / "parameters.md"
 LIMIT = 2 << 30  # bytes a run may allocate
 SECONDS = 30  # a run still going after this is hung
-# the tiny job every run repeats: 6 photos of 100 px, 8 training steps of 256 rays, small exports
+# the tiny job every run repeats: 6 photos of 100 px, 8 training steps of 256 rays on a field of at most 32 cells a
+# side, small exports
 BASE = {"ingest.max_size": "100", "train.steps": "8", "train.optim.batch_rays": "256",
-        "train.optim.batch_samples": "2048", "export_points.acc_threshold": "0.0", "export_mesh.texture": "0",
+        "train.optim.batch_samples": "2048", "train.field.min_resolution": "16", "train.field.max_resolution": "32",
+        "export_points.acc_threshold": "0.0", "export_mesh.texture": "0",
         "export_mesh.resolution": "32", "render.frames": "4", "render.short_side": "0"}
 BUDGET = "30s"
 
@@ -144,16 +147,19 @@ RUN_EXTREMES = ("-1", "nan")  # outside every parameter's bounds (status takes a
 
 @pytest.mark.slow
 def test_a_run_until_the_stage_survives_each_parameter_at_its_bounds(prepared, tmp_path) -> None:
-    """Two fork servers, one a core, take the cases in turn."""
+    """Two fork servers, one a core, each taking the next case when it is done with its last; the last stages'
+    first (they take longest), so that the two end together."""
     capture, run = prepared
-    cases = run_cases()
+    order = [s.name for s in default_stages()]
+    cases = queue.SimpleQueue()
+    for case in sorted(run_cases(), key=lambda case: -order.index(first_stage(case[0]))):
+        cases.put(case)
     failures: list[str] = []
 
     def work(lane: int) -> None:
         with ForkServer() as server:
-            for i, (name, value) in enumerate(cases):
-                if i % LANES != lane:
-                    continue
+            while not cases.empty():
+                name, value = cases.get()
                 folder = tmp_path / f"run{lane}"
                 if value not in RUN_EXTREMES or not folder.exists():  # a refused run writes nothing: no fresh copy
                     shutil.rmtree(folder, ignore_errors=True)

@@ -26,10 +26,13 @@ ray = pytest.importorskip("ray", reason="the Ray executor's tests need `pip inst
 pytestmark = pytest.mark.slow
 
 DETERMINISTIC = ("ingest", "sfm", "undistort", "bounds", "scene")
+# a field and a texture the size of 40 px photos (the defaults, 128 cells and 1024 texels a side, took two thirds of
+# the batch's time and showed nothing more)
 SMALL = {
     "ingest": {"max_size": 40},
-    "train": {"steps": 150, "batch_rays": 512, "checkpoint_every": 50, "eval_stride": 25, "keep_checkpoints": 0},
-    "export_mesh": {"resolution": 48, "density_threshold": 2},
+    "train": {"steps": 150, "optim.batch_rays": 512, "checkpoint_every": 50, "eval_stride": 25, "keep_checkpoints": 0,
+              "field.min_resolution": 16, "field.max_resolution": 32},
+    "export_mesh": {"resolution": 48, "density_threshold": 2, "texture": 256},
     "export_points": {"acc_threshold": 0.5},
     "render": {"frames": 3, "short_side": 0},
 }
