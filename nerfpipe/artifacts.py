@@ -87,6 +87,11 @@ def view_file_stem(name: str) -> str:
     return Path(name).with_suffix("").as_posix().replace("/", "__")
 
 
+def mask_file(name: str) -> str:
+    """The file a frame's mask is written to, in the train stage's ``masks/``."""
+    return f"{Path(name).stem}.png"
+
+
 # -- ingest: images.json ---------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class PhotoRecord:

@@ -50,7 +50,7 @@ def captured_views(pipe: Pipeline) -> CapturedViews | None:
 def masks(pipe: Pipeline, trained) -> dict[str, Path] | None:
     """Each trained frame's mask as the train stage wrote it (``masks/``: alpha, or the pixels off the constant
     backdrop), by frame name; None when it wrote none."""
-    from nerfpipe.nerf.train.images import mask_file
+    from nerfpipe.artifacts import mask_file
 
     folder = pipe.optional_artifact("masks")
     if folder is None or not folder.is_dir():

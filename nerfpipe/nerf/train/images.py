@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from nerfpipe.artifacts import BOUNDS, SCENE, WORLD, Bounds, SceneDecisions, frame_image_path
+from nerfpipe.artifacts import BOUNDS, SCENE, WORLD, Bounds, SceneDecisions, frame_image_path, mask_file
 from nerfpipe.geometry.cameras import CameraSet, Frame
 from nerfpipe.geometry.hull import Silhouettes
 from nerfpipe.imaging.masks import object_mask
@@ -166,11 +166,6 @@ class ImageLoader:
             far=torch.tensor([self.near_far[f.name][1] for f in frames], dtype=torch.float32),
             alpha=torch.cat(alpha) if alpha else None,
         )
-
-
-def mask_file(name: str) -> str:
-    """The file a frame's mask is written to, in ``masks/``."""
-    return f"{Path(name).stem}.png"
 
 
 def write_masks(folder: Path, loader: ImageLoader, frames: list[Frame]) -> int:
