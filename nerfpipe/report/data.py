@@ -4,8 +4,10 @@ the run's current settings, and the SfM cameras (drawn by two sections)."""
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -32,7 +34,6 @@ class RunData:
     results: Mapping[str, Committed]
     sfm_cameras: CameraSet | None = None
     previous: Path | None = None
-    previous_keys: Mapping[str, str] = field(default_factory=dict)
     drawn: dict[str, str] = field(default_factory=dict)  # picture name -> its key, as ``picture`` made them
 
     @property
@@ -53,6 +54,11 @@ class RunData:
         self.drawn[name] = key
         return True
 
+    @cached_property
+    def previous_keys(self) -> dict[str, str]:
+        """The keys the previous report's pictures were drawn under."""
+        return {} if self.previous is None else picture_keys(self.previous)
+
     def commit(self, stage: str) -> str:
         """What identifies the fresh result of ``stage``: a result computed again gets a new one."""
         return self.results[stage].commit_id
@@ -72,8 +78,6 @@ KEYS = "pictures.json"  # in img/: each picture's key, written once all are draw
 
 def picture_keys(img: Path) -> dict[str, str]:
     """The keys of the pictures in a report's ``img/``; none where it was not finished."""
-    import json
-
     try:
         keys = json.loads((img / KEYS).read_text(encoding="utf-8"))
     except (OSError, ValueError):

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from nerfpipe.pipeline.store import require_run_dir
-from nerfpipe.report.data import KEYS, gather, picture_keys
+from nerfpipe.report.data import KEYS, gather
 from nerfpipe.report.sections import SECTIONS
 
 STYLE = """
@@ -52,7 +52,7 @@ def write_report(run_dir: Path, stages: Sequence[Any] | None = None) -> Path:
         shutil.rmtree(earlier)
     if folder.exists():
         os.replace(folder, earlier)
-        run = replace(run, previous=earlier / "img", previous_keys=picture_keys(earlier / "img"))
+        run = replace(run, previous=earlier / "img")
     run.img.mkdir(parents=True)
     built = (build(run) for build in SECTIONS)
     (folder / "index.html").write_text(page(run_dir, [s for s in built if s is not None]), encoding="utf-8")
