@@ -1,4 +1,4 @@
-"""The grid field's table gradient, eight ways: the scatter-add that is a fifth of a training step on beer.
+"""The grid field's table gradient, ten ways: the scatter-add that is a fifth of a training step on beer.
 
 Run by hand from the repository root:
 
@@ -8,8 +8,11 @@ Run by hand from the repository root:
 Samples along random rays through the unit cube (``--rays`` x ``--samples``), their trilinear corners on the
 default field's levels (32^3, 64^3 and 128^3 cells, one stacked table of 2,457,251 rows of 4 features), and a
 random gradient of their features; then each way of summing the corners' contributions into the table's
-gradient, in milliseconds per call (best of ``--repeat`` after one untimed call). The field's own is
-``index_add_`` (``nerfpipe.nerf.fields.grid._Trilinear.backward``).
+gradient, in milliseconds per call (best of ``--repeat`` after one untimed call). The first nine (zeroing alone
+among them) are given the corners' contributions (gradient times weight) computed; the last two compute them too:
+``index_add_`` as the field did before the native kernel, and the native kernel
+(``nerfpipe.nerf.native.scatter_bags``), the field's own on a CPU with a C compiler
+(``nerfpipe.nerf.fields.grid._Trilinear.backward``).
 """
 
 from __future__ import annotations
@@ -27,7 +30,8 @@ def main() -> None:
 
     import torch
 
-    from nerfpipe.nerf.config import level_resolutions
+    from nerfpipe.nerf import native
+    from nerfpipe.nerf.fields.configs import level_resolutions
     from nerfpipe.nerf.fields.grid import trilinear_corners
 
     torch.manual_seed(0)
@@ -85,10 +89,22 @@ def main() -> None:
     def zero_only() -> None:
         table_grad.zero_()
 
+    bags = index.permute(2, 0, 1).reshape(-1, corners).contiguous()
+    bag_weights = weights.permute(2, 0, 1).reshape(-1, corners).contiguous()
+
+    def products_then_index_add() -> None:  # what the field did before the native kernel: the products, then index_add
+        table_grad.zero_()
+        table_grad.index_add_(0, flat, (grad.unsqueeze(1) * bag_weights.unsqueeze(-1)).reshape(-1, features))
+
+    def native_scatter_bags() -> None:  # the field's own on a CPU with a C compiler (products included)
+        table_grad.zero_()
+        if not native.scatter_bags(table_grad, bags, bag_weights, grad):
+            raise SystemExit("no native kernel here (no C compiler, or NERFPIPE_COMPILE=off)")
+
     print(f"{m} samples x {levels} levels x {corners} corners into {rows:,} rows of {features}, "
           f"{torch.get_num_threads()} threads")
     for way in (index_add, scatter_add, index_put, flat_index_add, sorted_index_add, bincount, unique_then_add,
-                embedding_dense_backward, zero_only):
+                embedding_dense_backward, zero_only, products_then_index_add, native_scatter_bags):
         way()
         best = float("inf")
         for _ in range(args.repeat):

@@ -20,8 +20,10 @@ settings.load_profile("nerfpipe")
 set_hypothesis_home_dir(tempfile.mkdtemp(prefix="nerfpipe-tests-hypothesis-"))
 
 # rendering evaluates its fields eagerly in tests (``nerfpipe.nerf.kernels``): compiling a graph for each of the
-# suite's many small models would cost more than it saves; tests/nerf/test_kernels.py compiles them on purpose
-os.environ.setdefault("NERFPIPE_COMPILE", "off")
+# suite's many small models would cost more than it saves; tests/nerf/test_kernels.py compiles them on purpose.
+# The native C kernels (``nerfpipe.nerf.native``) are built once, into a temporary folder, and used
+os.environ.setdefault("NERFPIPE_COMPILE", "native")
+os.environ.setdefault("NERFPIPE_CACHE_DIR", tempfile.mkdtemp(prefix="nerfpipe-tests-cache-"))
 
 # what the tests may write in the checkout: caches of Python and pytest
 _SCRATCH = ("__pycache__", ".pytest_cache", ".egg-info", ".git")

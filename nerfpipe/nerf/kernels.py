@@ -13,7 +13,7 @@ each step writes an array the size of the samples to memory and reads it back. T
   of the occupancy grid.
 
 The results are the eager ones to float32 rounding. Where a gradient would flow through them, within a training
-step (``eager``), with few points, or with ``NERFPIPE_COMPILE=off``, the same functions run eagerly. If compiling
+step (``eager``), with few points, or with ``NERFPIPE_COMPILE`` other than auto, the same functions run eagerly. If compiling
 fails (no C++ compiler or Python headers, an operator inductor lacks), rendering says so once and goes on eagerly:
 no machine loses a render to it. ``NERFPIPE_COMPILE=auto`` (the default) compiles on CUDA, and on the CPU where a
 C++ compiler is found.
@@ -92,9 +92,9 @@ def eager() -> Iterator[None]:
 
 
 def enabled(device: torch.device) -> bool:
-    """Whether ``run`` compiles on ``device``: outside ``eager()``, ``NERFPIPE_COMPILE`` is not off, compiling has not
+    """Whether ``run`` compiles on ``device``: outside ``eager()``, ``NERFPIPE_COMPILE`` is auto, compiling has not
     failed in this process, and there is something to compile with (CUDA's Triton, a C++ compiler on the CPU)."""
-    if _EAGER[0] or COMPILED.working is False or choice() == "off":
+    if _EAGER[0] or COMPILED.working is False or choice() != "auto":
         return False
     return device.type == "cuda" or BACKEND != "inductor" or cpp_compiler() is not None
 

@@ -374,5 +374,5 @@ def test_a_wrong_compile_switch_is_one_line_before_anything_runs(tmp_path, monke
     monkeypatch.setenv("NERFPIPE_COMPILE", "fast")
     result = run_cli("run", TEMPLE, "--out", tmp_path / "r")
     assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
-    assert result.stderr.strip().splitlines() == ["error: NERFPIPE_COMPILE=fast: must be one of auto, off (or unset, auto)"]
+    assert result.stderr.strip().splitlines() == ["error: NERFPIPE_COMPILE=fast: must be one of auto, native, off (or unset, auto)"]
     assert not (tmp_path / "r").exists()

@@ -74,8 +74,10 @@ def test_the_switch_is_read_from_the_environment_and_a_wrong_value_is_a_user_err
     assert choice() == "auto"
     monkeypatch.setenv(VARIABLE, " OFF ")
     assert choice() == "off" and not kernels.enabled(CPU)
+    monkeypatch.setenv(VARIABLE, "native")  # the native C kernels alone: rendering stays eager
+    assert choice() == "native" and not kernels.enabled(CPU)
     monkeypatch.setenv(VARIABLE, "fast")
-    with pytest.raises(ParamError, match="NERFPIPE_COMPILE=fast: must be one of auto, off"):
+    with pytest.raises(ParamError, match="NERFPIPE_COMPILE=fast: must be one of auto, native, off"):
         choice()
     monkeypatch.setenv(VARIABLE, "auto")
     monkeypatch.setattr(kernels, "BACKEND", "inductor")
