@@ -114,7 +114,7 @@ def test_without_a_compiler_or_with_compile_off_torch_adds_instead(fresh, monkey
         field(torch.rand(50, 3), torch.nn.functional.normalize(torch.randn(50, 3), dim=-1))[1].sum().backward()
     assert field.table.grad is not None and bool(torch.isfinite(field.table.grad).all())
     lines = [r.getMessage() for r in caplog.records]
-    assert len(lines) == 1 and "building the native table-gradient kernel failed" in lines[0]
+    assert len(lines) == 1 and "building the native kernels" in lines[0] and "false" in lines[0]
 
 
 @needs_compiler

@@ -76,8 +76,8 @@ def library() -> ctypes.CDLL | None:
     try:
         lib = ctypes.CDLL(str(build(compiler, cache_dir())))
     except (OSError, RuntimeError, subprocess.SubprocessError) as err:
-        log.warning("training: building the native table-gradient kernel failed (%s: %s); using torch's index_add_ "
-                    "(slower)", type(err).__name__, err)
+        log.warning("building the native kernels (the table gradient, the contracted march's steps) failed (%s: %s); "
+                    "using torch's operators (slower)", type(err).__name__, err)
         return None
     p, i64 = ctypes.c_void_p, ctypes.c_int64
     lib.nerfpipe_scatter_bags.argtypes = [p, i64, i64, p, p, p, i64, i64]
