@@ -1,8 +1,8 @@
-"""``NERFPIPE_COMPILE``: what is compiled on this machine at run time. ``auto`` (the default): rendering's hot functions
-(``nerfpipe.nerf.kernels``, by torch.compile, seconds once a process) and the native C kernels (``nerfpipe.nerf.native``,
-a second once a machine); ``native``: the native kernels alone (the test suite's choice: its many short processes
-would each compile rendering again); ``off``: neither. Read without torch, so that the command line checks it before
-anything runs and a run that stops before training never imports torch."""
+"""``NERFPIPE_COMPILE``: what is compiled on this machine at run time. ``auto`` (the default): rendering's hot
+functions (``nerfpipe.nerf.kernels``, by torch.compile, seconds once a process) and the native C kernels
+(``nerfpipe.nerf.native``, a second once a machine); ``native``: the native kernels alone (the test suite's choice:
+its many short processes would each compile rendering again); ``off``: neither. Read without torch, so that the
+command line checks it before anything runs and a run that stops before training never imports torch."""
 
 from __future__ import annotations
 

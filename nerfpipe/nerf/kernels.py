@@ -13,8 +13,8 @@ each step writes an array the size of the samples to memory and reads it back. T
   of the occupancy grid.
 
 The results are the eager ones to float32 rounding. Where a gradient would flow through them, within a training
-step (``eager``), with few points, or with ``NERFPIPE_COMPILE`` other than auto, the same functions run eagerly. If compiling
-fails (no C++ compiler or Python headers, an operator inductor lacks), rendering says so once and goes on eagerly:
+step (``eager``), with few points, or with ``NERFPIPE_COMPILE`` other than auto, the same functions run eagerly. If
+compiling fails (no C++ compiler or Python headers, an operator inductor lacks), rendering says so once and goes on eagerly:
 no machine loses a render to it. ``NERFPIPE_COMPILE=auto`` (the default) compiles on CUDA, and on the CPU where a
 C++ compiler is found.
 """

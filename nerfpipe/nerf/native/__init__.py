@@ -3,12 +3,14 @@
 Two loops that torch runs as many small operations (``scatter.c`` says how each differs; the figures are in
 docs/benchmarks.md): ``scatter_bags``, the grid fields' table gradient (``nerfpipe.nerf.fields.grid._Trilinear``),
 the largest share of a training step on a CPU; ``contracted_steps``, the steps of a march in contracted space
-(``nerfpipe.nerf.spaces.ray_space.ContractedSpace.steps``), eight operations over every ray for each step. The library is built once a machine, in about a second, into the user's cache
-(``cache_dir``) under a name that hashes its source, the
-compiler's identity and the machine's architecture, so that a changed source or a home shared by other machines
-never loads a stale or foreign build; it is written beside and renamed into place, so that two processes building
-at once each load a whole one. Without a C compiler, with ``NERFPIPE_COMPILE=off``, or where the build fails
-(said once), callers get None and use torch's operators: the same sums, in another order.
+(``nerfpipe.nerf.spaces.ray_space.ContractedSpace.steps``), eight operations over every ray for each step.
+
+The library is built once a machine, in about a second, into the user's cache (``cache_dir``) under a name that
+hashes its source, the compiler's identity and the machine's architecture, so that a changed source or a home
+shared by other machines never loads a stale or foreign build; it is written beside and renamed into place, so
+that two processes building at once each load a whole one. Without a C compiler, with ``NERFPIPE_COMPILE=off``,
+or where the build fails (said once), callers get None and use torch's operators: the same results to float
+rounding.
 """
 
 from __future__ import annotations
@@ -38,7 +40,9 @@ FLAGS = ("-O3", "-shared", "-fPIC", "-std=c99")  # no -march=native: a shared ho
 def cache_dir() -> Path:
     """``$NERFPIPE_CACHE_DIR/native``, else the user's cache (``$XDG_CACHE_HOME``, else ``~/.cache``)."""
     named = os.environ.get("NERFPIPE_CACHE_DIR")
-    return Path(named) / "native" if named else Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nerfpipe" / "native"
+    if named:
+        return Path(named) / "native"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nerfpipe" / "native"
 
 
 def c_compiler() -> str | None:
