@@ -4,9 +4,9 @@
  * (a point on one level) and corner c, the backward pass of the trilinear gather (nerfpipe/nerf/fields/grid.py).
  * torch's index_add_ first writes every corner's contribution to memory (points x levels x 8 rows of features) and
  * sorts the rows to add them in parallel; here one loop reads each bag once and adds its corners in place, in the
- * bags' order. On this project's 2-core machine: 3.6-4.1 ms where index_add_ takes 10.7 ms on one thread and 7.3
- * on two (beer's 16,384 samples a step; its serial share, about 3.9 ms, bounds it on any number of threads); two
- * threads of this loop were slower than one, next to torch's own (docs/benchmarks.md).
+ * bags' order. On this project's 2-core machine: 3.6-4.1 ms where the products and index_add_ take 10.7 ms on one
+ * thread and 7.3 on two (beer's 16,384 samples a step; their serial share, about 3.9 ms, bounds them on any number
+ * of threads); two threads of this loop were slower than one, next to torch's own (docs/benchmarks.md).
  *
  * It returns how many corners named a row outside [0, rows); those are added nowhere.
  *
