@@ -115,16 +115,15 @@ def contracted_steps(x0: Tensor, dx: Tensor, base: Tensor, near: Tensor, far: Te
     """The edges (R, K + 1) of the steps ``ContractedSpace.steps`` takes along R rays, x0 + t dx (R, 3) in the
     box's units, from ``near`` to ``far`` (R,) with steps ``base`` (R,) times the squared clamped norm, K the most
     any ray took (at least 1, at most ``most``). None where the kernel cannot run: no library, tensors not float32
-    on the CPU, a gradient to carry, or a value that is not finite (torch's operators carry NaN as this loop would
-    not)."""
+    on the CPU, a gradient to carry, or a value that is not finite (the kernel says so; torch's operators carry NaN
+    as its loop would not)."""
     lib = library()
     inputs = (x0, dx, base, near, far)
-    if (lib is None or any(t.device.type != "cpu" or t.dtype != torch.float32 or t.requires_grad for t in inputs)
-            or not all(bool(torch.isfinite(t).all()) for t in inputs)):
+    if lib is None or any(t.device.type != "cpu" or t.dtype != torch.float32 or t.requires_grad for t in inputs):
         return None
     x0, dx, base, near, far = (t.contiguous() for t in inputs)
     edges = torch.empty(len(near), most + 1)
     counts = torch.empty(len(near), dtype=torch.int64)
     longest = lib.nerfpipe_contracted_steps(x0.data_ptr(), dx.data_ptr(), base.data_ptr(), near.data_ptr(),
                                             far.data_ptr(), len(near), most, edges.data_ptr(), counts.data_ptr())
-    return edges[:, :longest + 1]
+    return None if longest < 0 else edges[:, :longest + 1]

@@ -40,9 +40,15 @@ int64_t nerfpipe_scatter_bags(float *out, int64_t rows, int64_t features, const 
 /* Edges (rays, most + 1) of each ray's steps from near to far: t_0 = near, t_{k+1} = min(t_k + base * s^2, far)
  * with s the L-infinity norm of x0 + t_k dx clamped to [1, 1e6] (Contraction.step_scale_at). Returns how many steps
  * the longest ray took (at least 1, at most ``most``); every ray's edges are written that far, those after it
- * reached far (or stopped at NaN) repeating its last. */
+ * reached far repeating its last. Returns -1, writing nothing, if an input is not finite: torch's operators carry
+ * NaN along a ray, as fminf and fmaxf here would not. */
 int64_t nerfpipe_contracted_steps(const float *x0, const float *dx, const float *base, const float *near,
                                   const float *far, int64_t rays, int64_t most, float *edges, int64_t *counts) {
+    for (int64_t r = 0; r < rays; ++r) {
+        float all = base[r] + near[r] + far[r];
+        for (int64_t a = 0; a < 3; ++a) all += x0[3 * r + a] + dx[3 * r + a];
+        if (!isfinite(all)) return -1;  /* a sum of finite floats may overflow to inf too: then torch's loop runs */
+    }
     int64_t longest = 1;
     const int64_t columns = most + 1;
     for (int64_t r = 0; r < rays; ++r) {
