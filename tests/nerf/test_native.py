@@ -89,7 +89,7 @@ def test_the_library_is_built_once_and_again_for_a_changed_source(fresh, monkeyp
     stamp = built[0].stat().st_mtime_ns
     native.library.cache_clear()
     assert native.library() is not None and built[0].stat().st_mtime_ns == stamp  # reused, not rebuilt
-    changed = tmp_path / "scatter.c"
+    changed = tmp_path / "kernels.c"
     changed.write_text(native.SOURCE.read_text() + "\n/* changed */\n")
     monkeypatch.setattr(native, "SOURCE", changed)
     native.library.cache_clear()
@@ -179,3 +179,152 @@ def test_contracted_steps_leave_what_is_not_finite_to_torch(fresh, monkeypatch) 
     (starts, ends), (s_ref, e_ref) = steps_both_ways(monkeypatch, origins, directions, torch.zeros(2), far, 0.05, 400)
     torch.testing.assert_close(ends, e_ref, equal_nan=True)
     assert bool(torch.isnan(ends[0]).any()) and not bool(torch.isnan(ends[1]).any())
+
+
+def torch_features(field: GridField, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The grid's features (M, L, F) and inside (M,) as torch's operators compute them."""
+    from nerfpipe.nerf.fields.grid import gather_corners
+
+    u = (x - field.lo) / (field.hi - field.lo)
+    index, weights = field.corners(u)
+    return gather_corners(field.table, index, weights), ((u >= 0) & (u <= 1)).all(dim=-1)
+
+
+def edge_points(g: torch.Generator) -> torch.Tensor:
+    """Random points in and around the box (-1, -2, -0.5)-(1, 2, 1.5), and points on its faces, corners and a level's
+    vertices, at infinities and far beyond it."""
+    lo, hi = torch.tensor([-1.0, -2.0, -0.5]), torch.tensor([1.0, 2.0, 1.5])
+    inside = lo + (hi - lo) * torch.rand(3000, 3, generator=g)
+    around = lo + (hi - lo) * (torch.rand(500, 3, generator=g) * 1.6 - 0.3)
+    vertices = lo + (hi - lo) * torch.randint(0, 9, (200, 3), generator=g) / 8.0  # on every level's vertices
+    extremes = torch.tensor([[float("inf"), 0.0, 0.0], [0.0, -float("inf"), 1.0], [1e30, -1e30, 0.0], [-1.0, -2.0, -0.5],
+                             [1.0, 2.0, 1.5], [1.0, -2.0, 1.5]])
+    return torch.cat([inside, around, vertices, extremes])
+
+
+@needs_compiler
+def test_the_grid_kernels_are_torch_s_corners_and_sums(fresh) -> None:
+    """The native gather: torch's features to float rounding and the same inside flags, for points in, on and around
+    the box and at infinities; its scatter: torch's table gradient, computed from the same points."""
+    from nerfpipe.nerf.fields.grid import native_features
+
+    torch.manual_seed(0)
+    field = GridField((-1.0, -2.0, -0.5), (1.0, 2.0, 1.5), GridConfig(levels=3, min_resolution=8, max_resolution=32))
+    x = edge_points(torch.Generator().manual_seed(0))
+    features, inside = native_features(field, x)
+    expected, expected_inside = torch_features(field, x)
+    torch.testing.assert_close(features, expected, atol=1e-6, rtol=1e-5)
+    assert torch.equal(inside, expected_inside) and bool(inside[:3000].all()) and bool(inside[3500:3700].all())
+    assert inside[-6:].tolist() == [False, False, False, True, True, True]  # the faces are inside
+    grad = torch.randn_like(features)
+    native_grad, = torch.autograd.grad((features * grad).sum(), field.table)
+    torch_grad, = torch.autograd.grad((expected * grad).sum(), field.table)
+    torch.testing.assert_close(native_grad, torch_grad, atol=1e-5, rtol=1e-5)
+
+
+@needs_compiler
+def test_the_grid_gather_by_hand(fresh) -> None:
+    """One level of one cell over the box [0, 2]^3, vertex (i, j, k) holding 4 i + 2 j + k: the centre reads their
+    mean, 3.5; (0.5, 1, 2) reads 4 (0.25) + 2 (0.5) + 1 = 3; a point past a face reads the face; the gradient of the
+    centre's feature is 1/8 on every vertex."""
+    from nerfpipe.nerf.fields.grid import native_features
+
+    field = GridField((0.0,) * 3, (2.0,) * 3, GridConfig(levels=1, min_resolution=1, max_resolution=1, features=1))
+    with torch.no_grad():
+        field.table.copy_(torch.arange(8.0).view(8, 1))
+    x = torch.tensor([[1.0, 1.0, 1.0], [0.5, 1.0, 2.0], [5.0, 1.0, 1.0]])
+    features, inside = native_features(field, x)
+    assert features.flatten().tolist() == [3.5, 3.0, 5.5] and inside.tolist() == [True, True, False]
+    grad, = torch.autograd.grad(features[0].sum(), field.table)
+    assert grad.flatten().tolist() == [0.125] * 8
+
+
+@needs_compiler
+def test_the_grid_kernels_serve_only_where_they_compute_the_same(fresh, monkeypatch) -> None:
+    """The dense grid field goes through the native gather; a hashed field (whose corners differ), points that take a
+    gradient (camera refinement) and NaN points go through torch's operators, NaN failing as torch's does; a scatter
+    that cannot run leaves the gradient to ``index_add_``, the same gradient."""
+    from nerfpipe.nerf.fields import grid
+    from nerfpipe.nerf.fields.configs import HashConfig
+    from nerfpipe.nerf.fields.hash import HashGridField
+
+    served = []
+    gather = native.grid_gather
+    monkeypatch.setattr(native, "grid_gather", lambda *a: served.append(len(a[1])) or gather(*a))
+    torch.manual_seed(0)
+    box = ((-1.0,) * 3, (1.0,) * 3)
+    field = GridField(*box, GridConfig(levels=2, min_resolution=4, max_resolution=16))
+    x = torch.rand(300, 3) * 2 - 1
+    field.encode(x)
+    assert served == [300]
+    HashGridField(*box, HashConfig(levels=2, min_resolution=4, max_resolution=64, log2_table=10)).encode(x[:10])
+    field.encode(x[:20].requires_grad_())
+    assert served == [300]
+    nan = x[:5].clone()
+    nan[2, 1] = float("nan")
+    with pytest.raises(RuntimeError):
+        field.encode(nan)
+    assert served == [300, 5]  # asked, refused, then torch's operators
+    features = grid.native_features(field, x)[0]
+    gradient, = torch.autograd.grad(features.sum(), field.table)
+    monkeypatch.setattr(native, "grid_scatter", lambda *a: False)
+    fallback, = torch.autograd.grad(grid.native_features(field, x)[0].sum(), field.table)
+    torch.testing.assert_close(fallback, gradient, atol=1e-5, rtol=1e-5)
+
+
+@needs_compiler
+def test_levels_that_overrun_the_table_are_refused(fresh) -> None:
+    table = torch.zeros(100, 2)  # a level of 4 cells a side has 125 vertices
+    with pytest.raises(ValueError, match="do not fit a table of 100 rows"):
+        native.grid_gather(table, torch.zeros(1, 3), torch.zeros(3), torch.ones(3), torch.tensor([4]), torch.tensor([0]))
+    assert native.grid_gather(table.double(), torch.zeros(1, 3), torch.zeros(3), torch.ones(3), torch.tensor([1]),
+                              torch.tensor([0])) is None
+
+
+@needs_compiler
+def test_two_threads_give_one_thread_s_sums_exactly(fresh) -> None:
+    """On torch's threads (OpenMP, where the compiler has it), the gather splits the points and the scatter the
+    table's rows, each row receiving its additions in the points' order: the same bits as one thread, on enough
+    points for the work to split (16,384: beer's step)."""
+    torch.manual_seed(0)
+    field = GridField((-1.0,) * 3, (1.0,) * 3, GridConfig(levels=3, min_resolution=16, max_resolution=64))
+    x = torch.rand(16384, 3) * 2.2 - 1.1
+    grad = torch.randn(16384, 3, field.config.features)
+    args = (x, field.lo, field.hi, field.resolutions, field.offsets)
+    results = {}
+    threads = torch.get_num_threads()
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            table_grad = torch.zeros_like(field.table)
+            assert native.grid_scatter(table_grad, *args, grad)
+            results[n] = (*native.grid_gather(field.table.detach(), *args), table_grad)
+    finally:
+        torch.set_num_threads(threads)
+    for one, two in zip(results[1], results[2]):
+        assert torch.equal(one, two)
+
+
+@needs_compiler
+def test_openmp_runs_on_torch_s_runtime_or_is_left_out(fresh, monkeypatch, caplog) -> None:
+    """The OpenMP build shares the OpenMP runtime torch loaded (one libgomp in the process, not a second pool of
+    threads); a compiler without OpenMP (here a flag it refuses) gets the one-thread build, silently."""
+    import sys
+
+    lib = native.library()
+    assert lib is not None
+    if native.c_compiler().endswith("gcc"):
+        assert lib.nerfpipe_openmp() == 1  # gcc has OpenMP
+    if sys.platform.startswith("linux"):
+        with open("/proc/self/maps") as maps:
+            runtimes = {line.split()[-1] for line in maps if "libgomp" in line}
+        assert len(runtimes) <= 1, runtimes
+    native.library.cache_clear()
+    monkeypatch.setattr(native, "VARIANTS", (("-fno-such-option",), ()))
+    with caplog.at_level(logging.WARNING, logger="nerfpipe.nerf.native"):
+        lib = native.library()
+    assert lib is not None and lib.nerfpipe_openmp() == 0 and not caplog.records
+    field = GridField((-1.0,) * 3, (1.0,) * 3, GridConfig(levels=2, min_resolution=4, max_resolution=8))
+    features, inside = native.grid_gather(field.table.detach(), torch.zeros(3, 3), field.lo, field.hi,
+                                          field.resolutions, field.offsets)
+    torch.testing.assert_close(features, torch_features(field, torch.zeros(3, 3))[0].detach())

@@ -693,23 +693,27 @@ def test_camera_refinement_is_the_identity_at_first_with_finite_gradients_throug
 
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("value", [0.0, 1e-8, 1e4, -1e4])
-def test_the_native_kernels_keep_a_grid_field_finite_in_contracted_space(mode: str, value: float) -> None:
-    """The native C kernels (``nerfpipe.nerf.native``: the table's gradient, the contracted march's steps) at the
-    edges: a grid field whose table holds one extreme value everywhere (densities of exp(+-1e4) clamp at the field's
-    cap or vanish), rays from outside the box to far bounds up to 1e6. Both kernels run (counted); the steps are
-    torch's loop's to float rounding, finite and within [near, far]; the composite is sane and the table's gradient
-    finite. (The same gradient native or not, on the same samples: tests/nerf/test_native.py.)"""
+@pytest.mark.parametrize("kind", ["grid", "hash"])
+def test_the_native_kernels_keep_a_grid_field_finite_in_contracted_space(mode: str, value: float, kind: str) -> None:
+    """The native C kernels (``nerfpipe.nerf.native``: the dense grid's gather and scatter, the hashed grid's table
+    gradient, the contracted march's steps) at the edges: a grid field whose table holds one extreme value everywhere
+    (densities of exp(+-1e4) clamp at the field's cap or vanish), rays from outside the box to far bounds up to 1e6.
+    The field's kernels and the steps' run (counted); the steps are torch's loop's to float rounding, finite and
+    within [near, far]; the composite is sane and the table's gradient finite. (The same features and gradients
+    native or not, on the same samples: tests/nerf/test_native.py.)"""
     from nerfpipe.nerf import native
     from nerfpipe.nerf.compiling import VARIABLE
-    from nerfpipe.nerf.fields.configs import GridConfig
+    from nerfpipe.nerf.fields.configs import GridConfig, HashConfig
     from nerfpipe.nerf.fields.grid import GridField
+    from nerfpipe.nerf.fields.hash import HashGridField
     from nerfpipe.nerf.samplers.configs import MarchingConfig
     from nerfpipe.nerf.samplers.occupancy import OccupancyGrid
     from nerfpipe.nerf.spaces.ray_space import ContractedSpace
 
     if native.library() is None:
         pytest.skip("no native kernels on this machine (no C compiler, or NERFPIPE_COMPILE=off)")
-    calls = {"scatter_bags": 0, "contracted_steps": 0}
+    field_kernels = ("grid_gather", "grid_scatter") if kind == "grid" else ("scatter_bags",)
+    calls = dict.fromkeys((*field_kernels, "contracted_steps"), 0)
 
     def counted(name):
         fn = getattr(native, name)
@@ -723,7 +727,11 @@ def test_the_native_kernels_keep_a_grid_field_finite_in_contracted_space(mode: s
     box = _box_rays()
     rays = RayBatch(box.origins * 2.0, box.directions, box.viewdirs, torch.full((16,), 0.1), torch.logspace(0, 6, 16))
     space = ContractedSpace(((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)))
-    field = GridField((-2.0,) * 3, (2.0,) * 3, GridConfig(levels=2, min_resolution=8, max_resolution=16))
+    if kind == "grid":
+        field = GridField((-2.0,) * 3, (2.0,) * 3, GridConfig(levels=2, min_resolution=8, max_resolution=16))
+    else:
+        field = HashGridField((-2.0,) * 3, (2.0,) * 3, HashConfig(levels=2, min_resolution=8, max_resolution=64,
+                                                                  log2_table=10))
     with torch.no_grad():
         field.table.fill_(value)
     model = _marching(field, OccupancyGrid((-2.0,) * 3, (2.0,) * 3, 8), MarchingConfig(steps=64, early_stop=1e-4), space)
@@ -733,15 +741,15 @@ def test_the_native_kernels_keep_a_grid_field_finite_in_contracted_space(mode: s
         torch_steps = space.steps(rays.origins, rays.directions, rays.near, rays.far, 0.05, 257)
         patch.setenv(VARIABLE, "native")
         native.library.cache_clear()
-        patch.setattr(native, "scatter_bags", counted("scatter_bags"))
-        patch.setattr(native, "contracted_steps", counted("contracted_steps"))
+        for name in calls:
+            patch.setattr(native, name, counted(name))
         starts, ends = space.steps(rays.origins, rays.directions, rays.near, rays.far, 0.05, 257)
         with precision(mode):
             result = model.render(rays, train=True, generator=torch.Generator().manual_seed(0), background=torch.ones(3))
         assert_sane(result, torch.ones(3))
         result.rgb.sum().backward()
     native.library.cache_clear()
-    assert calls["scatter_bags"] >= 1 and calls["contracted_steps"] >= 2
+    assert all(calls[name] >= 1 for name in field_kernels) and calls["contracted_steps"] >= 2
     torch.testing.assert_close((starts, ends), torch_steps, rtol=1e-4, atol=1e-5)
     assert bool(torch.isfinite(ends).all()) and bool((starts >= rays.near[:, None]).all())
     assert bool((ends <= rays.far[:, None]).all()) and torch.equal(ends[:, -1], rays.far)

@@ -10,11 +10,12 @@ direction (the temple's 14, 22 degrees apart: 1.9 dB lower held out at L = 4). S
 question as ``NerfField`` -- (x, d) -> (c, sigma), Section 3 -- with the MLP's work moved into memory.
 
 Memory layout: each level is a (vertices, features) table, channels last, so one trilinear corner is one
-contiguous row: a forward pass is ``F.embedding_bag`` over each point's corners (gather and weighted sum in
-one pass: 2x faster than a gather and an ``einsum`` on the CPU, lego 100 px training 11 -> 12 steps/s), the
-backward pass a scatter-add of rows (``_Trilinear``: on the CPU the native kernel of
-``nerfpipe.nerf.native``, 1.15-1.2x the training rays a second on beer; elsewhere ``index_add_``); ``F.grid_sample``'s
-channels-first volumes measured 4-5x slower here, forward and backward.
+contiguous row. On the CPU the native kernels of ``nerfpipe.nerf.native`` make each point's corners and sum their
+rows in one pass, and make them again to scatter the gradient (``_NativeGrid``; 2.7x torch's forward and 1.6x its
+forward and backward on beer's samples). Elsewhere, and where the points train: ``F.embedding_bag`` over each point's
+corners (gather and weighted sum in one pass: 2x faster than a gather and an ``einsum`` on the CPU), the backward pass
+a scatter-add of rows (``_Trilinear``: the native ``scatter_bags`` on the CPU, else ``index_add_``);
+``F.grid_sample``'s channels-first volumes measured 4-5x slower here, forward and backward.
 """
 
 from __future__ import annotations
@@ -63,6 +64,53 @@ class _Trilinear(torch.autograd.Function):
             rows = table.index_select(0, bags.reshape(-1)).view(*bags.shape, table.shape[1]).to(grad.dtype)  # (M L, C, F)
             weights_grad = (rows * per_bag).sum(-1).view(m, levels, corners).permute(1, 2, 0).to(ctx.weights_dtype)
         return table_grad, None, weights_grad
+
+
+class _Refused(Exception):
+    """The native grid kernels declined these inputs (see ``nerfpipe.nerf.native.grid_gather``)."""
+
+
+class _NativeGrid(torch.autograd.Function):
+    """A grid field's features of points x in the native kernels: forward makes each point's corners and sums them
+    (``native.grid_gather``), backward makes them again and scatters into the table's gradient
+    (``native.grid_scatter``), so nothing of points x levels x 8 is made or kept. The points take no gradient (a
+    field whose points train, under camera refinement, goes through ``_Trilinear``)."""
+
+    @staticmethod
+    def forward(ctx, table: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: Tensor,  # (V, F), (M, 3)
+                offsets: Tensor) -> tuple[Tensor, Tensor]:  # -> (M, L, F), (M,)
+        fused = native.grid_gather(table, x, lo, hi, resolutions, offsets)
+        if fused is None:
+            raise _Refused
+        ctx.save_for_backward(x, lo, hi, resolutions, offsets)
+        ctx.rows = table.shape[0]
+        ctx.mark_non_differentiable(fused[1])
+        return fused
+
+    @staticmethod
+    def backward(ctx, grad: Tensor, _inside: Tensor | None):  # (M, L, F)
+        x, lo, hi, resolutions, offsets = ctx.saved_tensors
+        table_grad = torch.zeros((ctx.rows, grad.shape[-1]), dtype=grad.dtype, device=grad.device)
+        if not native.grid_scatter(table_grad, x, lo, hi, resolutions, offsets, grad):
+            u = (x - lo) / (hi - lo)
+            index, weights = trilinear_corners(u, resolutions, offsets)  # (L, 8, M)
+            rows = index.permute(2, 0, 1).reshape(-1)  # point-major, as grad is
+            contributions = grad.reshape(-1, 1, grad.shape[-1]) * weights.permute(2, 0, 1).reshape(-1, 8, 1).to(grad.dtype)
+            table_grad.index_add_(0, rows, contributions.reshape(-1, grad.shape[-1]))
+        return table_grad, None, None, None, None, None
+
+
+def native_features(field: "GridField", x: Tensor) -> tuple[Tensor, Tensor] | None:
+    """``field``'s features (M, L, F) of points x (M, 3) and whether each is inside its box, by the native kernels;
+    None where they do not serve: a field that makes its corners otherwise (hash, planes), points that train,
+    inside ``torch.compile`` (whose own fused kernel serves), no native library, inputs it refuses."""
+    if (type(field).corners is not GridField.corners or x.requires_grad or torch.compiler.is_compiling()
+            or native.library() is None):
+        return None
+    try:
+        return _NativeGrid.apply(field.table, x, field.lo, field.hi, field.resolutions, field.offsets)
+    except _Refused:
+        return None
 
 
 def gather_corners(table: Tensor, index: Tensor, weights: Tensor) -> Tensor:
@@ -169,6 +217,9 @@ class GridField(nn.Module):
 
     def encode(self, x: Tensor) -> tuple[Tensor, Tensor]:
         """(M, 3) -> features (M, levels * features) and whether each point is inside the box (M,)."""
+        fused = native_features(self, x)
+        if fused is not None:
+            return self.combine(fused[0]), fused[1]
         u = (x - self.lo) / (self.hi - self.lo)
         inside = ((u >= 0) & (u <= 1)).all(dim=-1)
         index, weights = self.corners(u)

@@ -1,9 +1,11 @@
 """Native CPU kernels: plain C, built on first use by the machine's C compiler and called through ctypes.
 
-Two loops that torch runs as many small operations (``scatter.c`` says how each differs; the figures are in
-docs/benchmarks.md): ``scatter_bags``, the grid fields' table gradient (``nerfpipe.nerf.fields.grid._Trilinear``),
-the largest share of a training step on a CPU; ``contracted_steps``, the steps of a march in contracted space
-(``nerfpipe.nerf.spaces.ray_space.ContractedSpace.steps``), eight operations over every ray for each step.
+Loops that torch runs as many small operations (``kernels.c`` says how each differs; the figures are in
+docs/benchmarks.md): ``grid_gather`` and ``grid_scatter``, the dense grid field's features and their gradient made
+from the points themselves (``nerfpipe.nerf.fields.grid._NativeGrid``), the largest share of a training step on a
+CPU; ``scatter_bags``, the table gradient of the fields that make their corners otherwise (hashed, planes) or whose
+points train (``nerfpipe.nerf.fields.grid._Trilinear``); ``contracted_steps``, the steps of a march in contracted
+space (``nerfpipe.nerf.spaces.ray_space.ContractedSpace.steps``), eight operations over every ray for each step.
 
 The library is built once a machine, in about a second, into the user's cache (``cache_dir``) under a name that
 hashes its source, the compiler's identity and the machine's architecture, so that a changed source or a home
@@ -33,8 +35,11 @@ from nerfpipe.nerf.compiling import choice
 
 log = logging.getLogger("nerfpipe.nerf.native")
 
-SOURCE = Path(__file__).with_name("scatter.c")
+SOURCE = Path(__file__).with_name("kernels.c")
 FLAGS = ("-O3", "-shared", "-fPIC", "-std=c99")  # no -march=native: a shared home may serve other CPUs
+# tried in turn: OpenMP, whose runtime (libgomp.so.1) is then the one torch has loaded already, so the kernels' two
+# halves run on torch's own threads, waiting for work between its operators; else one thread
+VARIANTS = (("-fopenmp",), ())
 
 
 def cache_dir() -> Path:
@@ -51,10 +56,12 @@ def c_compiler() -> str | None:
     return shutil.which(named) if named else shutil.which("gcc") or shutil.which("clang") or shutil.which("cc")
 
 
-def build(compiler: str, directory: Path) -> Path:
-    """The shared library of ``SOURCE`` built by ``compiler`` into ``directory`` (reused when already there)."""
+def build(compiler: str, directory: Path, extra: tuple[str, ...] = ()) -> Path:
+    """The shared library of ``SOURCE`` built by ``compiler`` with ``FLAGS`` and ``extra`` into ``directory`` (reused
+    when already there)."""
+    flags = (*FLAGS, *extra)
     version = subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=30).stdout
-    key = hashlib.sha256(SOURCE.read_bytes() + version.encode() + " ".join(FLAGS).encode()
+    key = hashlib.sha256(SOURCE.read_bytes() + version.encode() + " ".join(flags).encode()
                          + platform.machine().encode()).hexdigest()[:16]
     library = directory / f"nerfpipe_native_{key}.so"
     if library.exists():
@@ -62,7 +69,7 @@ def build(compiler: str, directory: Path) -> Path:
     directory.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=directory) as scratch:
         built = Path(scratch) / library.name
-        result = subprocess.run([compiler, *FLAGS, str(SOURCE), "-o", str(built)], capture_output=True, text=True,
+        result = subprocess.run([compiler, *flags, str(SOURCE), "-o", str(built)], capture_output=True, text=True,
                                 timeout=120)
         if result.returncode != 0:
             lines = (result.stderr or result.stdout).strip().splitlines()
@@ -77,17 +84,26 @@ def library() -> ctypes.CDLL | None:
     compiler = c_compiler()
     if choice() == "off" or compiler is None:
         return None
-    try:
-        lib = ctypes.CDLL(str(build(compiler, cache_dir())))
-    except (OSError, RuntimeError, subprocess.SubprocessError) as err:
-        log.warning("building the native kernels (the table gradient, the contracted march's steps) failed (%s: %s); "
-                    "using torch's operators (slower)", type(err).__name__, err)
+    for extra in VARIANTS:
+        try:
+            lib = ctypes.CDLL(str(build(compiler, cache_dir(), extra)))
+            break
+        except (OSError, RuntimeError, subprocess.SubprocessError) as err:
+            failure = err
+    else:
+        log.warning("building the native kernels (the grid's features and gradient, the contracted march's steps) "
+                    "failed (%s: %s); using torch's operators (slower)", type(failure).__name__, failure)
         return None
     p, i64 = ctypes.c_void_p, ctypes.c_int64
     lib.nerfpipe_scatter_bags.argtypes = [p, i64, i64, p, p, p, i64, i64]
     lib.nerfpipe_scatter_bags.restype = i64
     lib.nerfpipe_contracted_steps.argtypes = [p, p, p, p, p, i64, i64, p, p]
     lib.nerfpipe_contracted_steps.restype = i64
+    lib.nerfpipe_openmp.restype = i64
+    lib.nerfpipe_grid_gather.argtypes = [p, i64, p, i64, p, p, p, p, i64, p, p, i64]
+    lib.nerfpipe_grid_scatter.argtypes = [p, i64, p, i64, p, p, p, p, i64, p, i64]
+    for kernel in (lib.nerfpipe_grid_gather, lib.nerfpipe_grid_scatter):
+        kernel.restype = i64
     return lib
 
 
@@ -127,3 +143,55 @@ def contracted_steps(x0: Tensor, dx: Tensor, base: Tensor, near: Tensor, far: Te
     longest = lib.nerfpipe_contracted_steps(x0.data_ptr(), dx.data_ptr(), base.data_ptr(), near.data_ptr(),
                                             far.data_ptr(), len(near), most, edges.data_ptr(), counts.data_ptr())
     return None if longest < 0 else edges[:, :longest + 1]
+
+
+def _grid_inputs(table: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: Tensor,
+                 offsets: Tensor) -> tuple | None:
+    """The grid kernels' inputs made contiguous, or None where they cannot run (no library, not float32 on the CPU,
+    x not (M, 3)); raises ValueError if the levels' vertices overrun the table."""
+    lib = library()
+    if (lib is None or x.dim() != 2 or x.shape[1] != 3 or not table.is_contiguous()
+            or any(t.device.type != "cpu" for t in (table, x, lo, hi, resolutions, offsets))
+            or any(t.dtype != torch.float32 for t in (table, x, lo, hi))):
+        return None
+    resolutions, offsets = resolutions.to(torch.int64).contiguous(), offsets.to(torch.int64).contiguous()
+    ends = offsets + (resolutions + 1) ** 3
+    if len(resolutions) != len(offsets) or bool((offsets < 0).any()) or int(ends.max()) > table.shape[0]:
+        raise ValueError(f"grid kernels: levels of {resolutions.tolist()} cells at rows {offsets.tolist()} do not fit "
+                         f"a table of {table.shape[0]} rows")
+    return lib, x.contiguous(), lo.contiguous(), hi.contiguous(), resolutions, offsets
+
+
+def grid_gather(table: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: Tensor,
+                offsets: Tensor) -> tuple[Tensor, Tensor] | None:
+    """A grid field's features (M, L, F) of points x (M, 3) and whether each lies in the box [lo, hi] (M,), from its
+    (V, F) ``table`` whose level l, of ``resolutions[l]`` cells a side, starts at row ``offsets[l]``: the trilinear
+    corners and their weighted sum of ``nerfpipe.nerf.fields.grid`` in one pass. None where the kernel cannot run
+    (see ``_grid_inputs``) or a coordinate is NaN (torch's operators then say what they say)."""
+    inputs = _grid_inputs(table, x, lo, hi, resolutions, offsets)
+    if inputs is None:
+        return None
+    lib, x, lo, hi, resolutions, offsets = inputs
+    out = torch.empty(len(x), len(resolutions), table.shape[1])
+    inside = torch.empty(len(x), dtype=torch.bool)
+    refused = lib.nerfpipe_grid_gather(table.data_ptr(), table.shape[1], x.data_ptr(), len(x), lo.data_ptr(),
+                                       hi.data_ptr(), resolutions.data_ptr(), offsets.data_ptr(), len(resolutions),
+                                       out.data_ptr(), inside.data_ptr(), torch.get_num_threads())
+    return None if refused else (out, inside)
+
+
+def grid_scatter(table_grad: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: Tensor, offsets: Tensor,
+                 grad: Tensor) -> bool:
+    """``grid_gather``'s backward: adds each point's weighted (M, L, F) ``grad`` into the rows of its corners in
+    ``table_grad`` (V, F). False, ``table_grad`` untouched, where the kernel cannot run."""
+    inputs = _grid_inputs(table_grad, x, lo, hi, resolutions, offsets)
+    if inputs is None or grad.dtype != torch.float32 or grad.device.type != "cpu":
+        return False
+    lib, x, lo, hi, resolutions, offsets = inputs
+    if grad.shape != (len(x), len(resolutions), table_grad.shape[1]):
+        raise ValueError(f"grid_scatter: grad {tuple(grad.shape)} is not (points, levels, features) = "
+                         f"({len(x)}, {len(resolutions)}, {table_grad.shape[1]})")
+    grad = grad.contiguous()
+    return not lib.nerfpipe_grid_scatter(table_grad.data_ptr(), table_grad.shape[1], x.data_ptr(), len(x),
+                                         lo.data_ptr(), hi.data_ptr(), resolutions.data_ptr(), offsets.data_ptr(),
+                                         len(resolutions), grad.data_ptr(), torch.get_num_threads())
