@@ -32,6 +32,14 @@ Box = tuple[tuple[float, ...], tuple[float, ...]]
 MAX_LOG_DENSITY = 15.0  # exp(15) = 3.3e6: opaque within 1e-6 of any step, and no overflow
 
 
+def add_corners_(table_grad: Tensor, bags: Tensor, weights: Tensor, grad: Tensor) -> None:
+    """table_grad[bags[i, c]] += weights[i, c] grad[i] for (N, C) bags and weights and (N, F) grad: the native
+    ``scatter_bags`` where it runs, else the products and ``index_add_``."""
+    if not native.scatter_bags(table_grad, bags, weights, grad):
+        contributions = (grad.unsqueeze(1) * weights.to(grad.dtype).unsqueeze(-1)).reshape(-1, grad.shape[-1])
+        table_grad.index_add_(0, bags.reshape(-1), contributions)
+
+
 class _Trilinear(torch.autograd.Function):
     """sum_c w_c table[index_c]: forward by ``F.embedding_bag`` (each point's corners one weighted bag, the gather
     and the weighted sum in one pass), backward by row scatter-adds into the table's gradient (the native
@@ -56,9 +64,7 @@ class _Trilinear(torch.autograd.Function):
         levels, corners, m = ctx.shape
         per_bag = grad.reshape(-1, 1, grad.shape[-1])  # (M L, 1, F)
         table_grad = torch.zeros((ctx.rows, grad.shape[-1]), dtype=grad.dtype, device=grad.device)
-        if not native.scatter_bags(table_grad, bags, bag_weights, per_bag.view(-1, grad.shape[-1])):
-            contributions = (per_bag * bag_weights.to(grad.dtype).unsqueeze(-1)).reshape(-1, grad.shape[-1])
-            table_grad.index_add_(0, bags.reshape(-1), contributions)
+        add_corners_(table_grad, bags, bag_weights, per_bag.view(-1, grad.shape[-1]))
         weights_grad = None
         if ctx.needs_input_grad[2]:
             rows = table.index_select(0, bags.reshape(-1)).view(*bags.shape, table.shape[1]).to(grad.dtype)  # (M L, C, F)
@@ -92,11 +98,9 @@ class _NativeGrid(torch.autograd.Function):
         x, lo, hi, resolutions, offsets = ctx.saved_tensors
         table_grad = torch.zeros((ctx.rows, grad.shape[-1]), dtype=grad.dtype, device=grad.device)
         if not native.grid_scatter(table_grad, x, lo, hi, resolutions, offsets, grad):
-            u = (x - lo) / (hi - lo)
-            index, weights = trilinear_corners(u, resolutions, offsets)  # (L, 8, M)
-            rows = index.permute(2, 0, 1).reshape(-1)  # point-major, as grad is
-            contributions = grad.reshape(-1, 1, grad.shape[-1]) * weights.permute(2, 0, 1).reshape(-1, 8, 1).to(grad.dtype)
-            table_grad.index_add_(0, rows, contributions.reshape(-1, grad.shape[-1]))
+            index, weights = trilinear_corners((x - lo) / (hi - lo), resolutions, offsets)  # (L, 8, M)
+            add_corners_(table_grad, index.permute(2, 0, 1).reshape(-1, 8), weights.permute(2, 0, 1).reshape(-1, 8),
+                         grad.reshape(-1, grad.shape[-1]))  # point-major, as grad is
         return table_grad, None, None, None, None, None
 
 

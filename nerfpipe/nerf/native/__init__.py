@@ -100,8 +100,8 @@ def library() -> ctypes.CDLL | None:
     lib.nerfpipe_contracted_steps.argtypes = [p, p, p, p, p, i64, i64, p, p]
     lib.nerfpipe_contracted_steps.restype = i64
     lib.nerfpipe_openmp.restype = i64
-    lib.nerfpipe_grid_gather.argtypes = [p, i64, p, i64, p, p, p, p, i64, p, p, i64]
-    lib.nerfpipe_grid_scatter.argtypes = [p, i64, p, i64, p, p, p, p, i64, p, i64]
+    lib.nerfpipe_grid_gather.argtypes = [p, i64, i64, p, i64, p, p, p, p, i64, p, p, i64]
+    lib.nerfpipe_grid_scatter.argtypes = [p, i64, i64, p, i64, p, p, p, p, i64, p, i64]
     for kernel in (lib.nerfpipe_grid_gather, lib.nerfpipe_grid_scatter):
         kernel.restype = i64
     return lib
@@ -148,18 +148,23 @@ def contracted_steps(x0: Tensor, dx: Tensor, base: Tensor, near: Tensor, far: Te
 def _grid_inputs(table: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: Tensor,
                  offsets: Tensor) -> tuple | None:
     """The grid kernels' inputs made contiguous, or None where they cannot run (no library, not float32 on the CPU,
-    x not (M, 3)); raises ValueError if the levels' vertices overrun the table."""
+    x not (M, 3), levels and offsets of different lengths)."""
     lib = library()
-    if (lib is None or x.dim() != 2 or x.shape[1] != 3 or not table.is_contiguous()
+    if (lib is None or x.dim() != 2 or x.shape[1] != 3 or not table.is_contiguous() or len(resolutions) != len(offsets)
             or any(t.device.type != "cpu" for t in (table, x, lo, hi, resolutions, offsets))
             or any(t.dtype != torch.float32 for t in (table, x, lo, hi))):
         return None
-    resolutions, offsets = resolutions.to(torch.int64).contiguous(), offsets.to(torch.int64).contiguous()
-    ends = offsets + (resolutions + 1) ** 3
-    if len(resolutions) != len(offsets) or bool((offsets < 0).any()) or int(ends.max()) > table.shape[0]:
+    return (lib, x.contiguous(), lo.contiguous(), hi.contiguous(), resolutions.to(torch.int64).contiguous(),
+            offsets.to(torch.int64).contiguous())
+
+
+def _grid_result(code: int, table: Tensor, resolutions: Tensor, offsets: Tensor) -> bool:
+    """Whether a grid kernel ran (0), refused a NaN (-1); raises ValueError where the levels overrun the table (-2,
+    checked by the kernel itself: no work in Python on every call)."""
+    if code == -2:
         raise ValueError(f"grid kernels: levels of {resolutions.tolist()} cells at rows {offsets.tolist()} do not fit "
                          f"a table of {table.shape[0]} rows")
-    return lib, x.contiguous(), lo.contiguous(), hi.contiguous(), resolutions, offsets
+    return code == 0
 
 
 def grid_gather(table: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: Tensor,
@@ -174,10 +179,10 @@ def grid_gather(table: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: T
     lib, x, lo, hi, resolutions, offsets = inputs
     out = torch.empty(len(x), len(resolutions), table.shape[1])
     inside = torch.empty(len(x), dtype=torch.bool)
-    refused = lib.nerfpipe_grid_gather(table.data_ptr(), table.shape[1], x.data_ptr(), len(x), lo.data_ptr(),
-                                       hi.data_ptr(), resolutions.data_ptr(), offsets.data_ptr(), len(resolutions),
-                                       out.data_ptr(), inside.data_ptr(), torch.get_num_threads())
-    return None if refused else (out, inside)
+    code = lib.nerfpipe_grid_gather(table.data_ptr(), table.shape[0], table.shape[1], x.data_ptr(), len(x),
+                                    lo.data_ptr(), hi.data_ptr(), resolutions.data_ptr(), offsets.data_ptr(),
+                                    len(resolutions), out.data_ptr(), inside.data_ptr(), torch.get_num_threads())
+    return (out, inside) if _grid_result(code, table, resolutions, offsets) else None
 
 
 def grid_scatter(table_grad: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: Tensor, offsets: Tensor,
@@ -192,6 +197,7 @@ def grid_scatter(table_grad: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resoluti
         raise ValueError(f"grid_scatter: grad {tuple(grad.shape)} is not (points, levels, features) = "
                          f"({len(x)}, {len(resolutions)}, {table_grad.shape[1]})")
     grad = grad.contiguous()
-    return not lib.nerfpipe_grid_scatter(table_grad.data_ptr(), table_grad.shape[1], x.data_ptr(), len(x),
-                                         lo.data_ptr(), hi.data_ptr(), resolutions.data_ptr(), offsets.data_ptr(),
-                                         len(resolutions), grad.data_ptr(), torch.get_num_threads())
+    code = lib.nerfpipe_grid_scatter(table_grad.data_ptr(), table_grad.shape[0], table_grad.shape[1], x.data_ptr(),
+                                     len(x), lo.data_ptr(), hi.data_ptr(), resolutions.data_ptr(), offsets.data_ptr(),
+                                     len(resolutions), grad.data_ptr(), torch.get_num_threads())
+    return _grid_result(code, table_grad, resolutions, offsets)

@@ -196,16 +196,26 @@ static inline void add_corners(float *restrict table, int64_t features, const in
     }
 }
 
+/* Whether every level's vertices, (r + 1)^3 rows from its offset, lie within a table of ``rows`` rows. */
+static int levels_fit(const int64_t *resolutions, const int64_t *offsets, int64_t levels, int64_t rows) {
+    for (int64_t l = 0; l < levels; ++l) {
+        const int64_t n = resolutions[l] + 1;
+        if (resolutions[l] < 1 || offsets[l] < 0 || offsets[l] > rows - n * n * n) return 0;
+    }
+    return 1;
+}
+
 /* nerfpipe_grid_gather, a grid field's features (nerfpipe.nerf.fields.grid.GridField.encode) in one pass: for each of
  * m points x (m, 3) and each of the levels, the sum over its 8 corners of weight x the table's row (features floats),
  * into out (m, levels, features); inside (m,) says whether the point lies in the box [lo, hi]. torch computes the
  * corners as some twenty operations over arrays of points x levels x 8 and gathers after; here the corners of a few
  * points at a time are made, their rows fetched together, and summed. Returns -1, writing nothing, if a coordinate
- * is NaN. */
-int64_t nerfpipe_grid_gather(const float *table, int64_t features, const float *x, int64_t m, const float *lo,
-                             const float *hi, const int64_t *resolutions, const int64_t *offsets, int64_t levels,
-                             float *out, uint8_t *inside, int64_t threads) {
+ * is NaN, -2 if the levels overrun the table (of ``rows`` rows). */
+int64_t nerfpipe_grid_gather(const float *table, int64_t rows, int64_t features, const float *x, int64_t m,
+                             const float *lo, const float *hi, const int64_t *resolutions, const int64_t *offsets,
+                             int64_t levels, float *out, uint8_t *inside, int64_t threads) {
     (void)threads;  /* without OpenMP: one thread */
+    if (!levels_fit(resolutions, offsets, levels, rows)) return -2;
     if (!no_nan(x, m)) return -1;
     const int64_t blocks = (m + BLOCK - 1) / BLOCK;
 #ifdef _OPENMP
@@ -251,11 +261,12 @@ static int64_t share_start(int64_t t, int64_t n, const int64_t *resolutions, con
  * level and corner, the corners made again from x as nerfpipe_grid_gather made them. On ``threads`` > 1 threads each
  * adds into its own range of rows (share_start), every thread making every point's corners: no two write the same
  * row, and each row receives its additions in the points' order, as on one thread. Returns -1, writing nothing, if a
- * coordinate is NaN. */
-int64_t nerfpipe_grid_scatter(float *table_grad, int64_t features, const float *x, int64_t m, const float *lo,
-                              const float *hi, const int64_t *resolutions, const int64_t *offsets, int64_t levels,
-                              const float *grad, int64_t threads) {
+ * coordinate is NaN, -2 if the levels overrun the table. */
+int64_t nerfpipe_grid_scatter(float *table_grad, int64_t rows, int64_t features, const float *x, int64_t m,
+                              const float *lo, const float *hi, const int64_t *resolutions, const int64_t *offsets,
+                              int64_t levels, const float *grad, int64_t threads) {
     (void)threads;
+    if (!levels_fit(resolutions, offsets, levels, rows)) return -2;
     if (!no_nan(x, m)) return -1;
 #ifdef _OPENMP
 #pragma omp parallel num_threads(m >= 8192 && threads > 1 ? (int)threads : 1)
