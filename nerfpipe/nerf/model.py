@@ -19,6 +19,7 @@ from torch import Tensor
 
 from nerfpipe.nerf.appearance import ExposureGains
 from nerfpipe.nerf.fields.base import Field
+from nerfpipe.nerf.fused import marched_grid, render_fused
 from nerfpipe.nerf.kernels import for_rendering
 from nerfpipe.nerf.spaces.ray_space import RaySpace
 from nerfpipe.nerf.spaces.rays import RayBatch, pixel_centers
@@ -111,19 +112,30 @@ class RadianceModel:
         """``render`` without gradients, deterministic, ``chunk`` rays at a time (cut further to what memory
         allows, ``RENDER_CANDIDATES``): rgb (R, 3), depth, disparity, acc (R,) in the ray space's own ray
         parameter (t, or NDC t'); and ``samples``, the field evaluations per ray on average. ``background`` as
-        ``render`` takes it."""
+        ``render`` takes it. A model the native kernel knows renders in one loop a ray (``nerfpipe.nerf.fused``)."""
         for f in self.fields():
             f.eval()
-        parts: dict[str, list[Tensor]] = {"rgb": [], "depth": [], "disparity": [], "acc": []}
+        parts: dict[str, list[Tensor]] = {"rgb": [], "depth": [], "acc": []}
         evaluated = 0
-        chunk = max(1, min(chunk, RENDER_CANDIDATES // self.sampler.candidates_per_ray()))  # memory, not speed
+        fused = marched_grid(self)
+        # memory, not speed: the kernel holds only its outputs, torch every candidate step
+        chunk = max(1, min(chunk, RENDER_CANDIDATES // self.sampler.candidates_per_ray())) if fused is None else \
+            max(chunk, 1 << 16)
+        behind = self.background_tensor() if isinstance(background, str) else background
         with torch.no_grad():
             for start in range(0, max(len(rays), 1), chunk):  # an empty batch renders once, to empty shapes
-                out = self.render(rays.slice(start, start + chunk), background=background)
-                evaluated += out.evaluated
-                for key in parts:
-                    parts[key].append(getattr(out, key))
+                part = rays.slice(start, start + chunk)
+                done = None if fused is None else render_fused(fused, part)
+                if done is None:
+                    out = self.render(part, background=background)
+                    done, evaluated = (out.rgb, out.depth, out.acc), evaluated + out.evaluated
+                else:
+                    rgb, depth, acc, counts = done
+                    done, evaluated = (RenderOutput.blend(rgb, acc, behind), depth, acc), evaluated + int(counts.sum())
+                for key, value in zip(parts, done):
+                    parts[key].append(value)
         result = {key: torch.cat(values) for key, values in parts.items()}
+        result["disparity"] = RenderOutput.inverse(result["depth"])
         result["samples"] = torch.tensor(evaluated / max(len(rays), 1))
         return result
 

@@ -2,7 +2,8 @@
 every ray space and grid field kind; each function compiles once a process, whichever model of that shape it is
 given; nothing compiles where gradients are on, for the MLP field, or with ``NERFPIPE_COMPILE=off``; a compiler that
 fails leaves eager rendering, said once; inductor's C++ on this CPU renders what the eager model does, finite at
-extreme inputs."""
+extreme inputs. These are how a CUDA device renders; on the CPU, the dense grid's models render in one native loop a
+ray instead (``nerfpipe.nerf.fused``, tests/nerf/test_fused.py), which every test here switches off."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import pytest
 import torch
 
 import nerfpipe.nerf.kernels as kernels
+import nerfpipe.nerf.model as model_module
 from nerfpipe.nerf.compiling import VARIABLE, choice
 from nerfpipe.nerf.kernels import COMPILED, for_rendering
 from nerfpipe.nerf.policy import build_model
@@ -23,6 +25,12 @@ from tests.nerf.test_cuda import params_of, view_rays
 
 CPU = torch.device("cpu")
 SPACES = {"contracted": ("inward360", "none"), "box": ("inward360", "white"), "ndc": ("forward", "none")}
+
+
+@pytest.fixture(autouse=True)
+def through_torch(monkeypatch):
+    """Rendering through torch's operators, compiled or not, as on a CUDA device: not the CPU's native loop."""
+    monkeypatch.setattr(model_module, "marched_grid", lambda model: None)
 
 
 @pytest.fixture

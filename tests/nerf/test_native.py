@@ -89,9 +89,13 @@ def test_the_library_is_built_once_and_again_for_a_changed_source(fresh, monkeyp
     stamp = built[0].stat().st_mtime_ns
     native.library.cache_clear()
     assert native.library() is not None and built[0].stat().st_mtime_ns == stamp  # reused, not rebuilt
-    changed = tmp_path / "kernels.c"
-    changed.write_text(native.SOURCE.read_text() + "\n/* changed */\n")
-    monkeypatch.setattr(native, "SOURCE", changed)
+    copies = tmp_path / "changed"
+    copies.mkdir()
+    for source in (*native.SOURCES, *native.HEADERS):
+        (copies / source.name).write_text(source.read_text())
+    (copies / "render.c").write_text((copies / "render.c").read_text() + "\n/* changed */\n")
+    monkeypatch.setattr(native, "SOURCES", tuple(copies / p.name for p in native.SOURCES))
+    monkeypatch.setattr(native, "HEADERS", tuple(copies / p.name for p in native.HEADERS))
     native.library.cache_clear()
     assert native.library() is not None and len(list(fresh.glob("*.so"))) == 2
     assert not list(fresh.glob("tmp*"))  # the build's scratch folder is gone

@@ -754,3 +754,43 @@ def test_the_native_kernels_keep_a_grid_field_finite_in_contracted_space(mode: s
     assert bool(torch.isfinite(ends).all()) and bool((starts >= rays.near[:, None]).all())
     assert bool((ends <= rays.far[:, None]).all()) and torch.equal(ends[:, -1], rays.far)
     assert field.table.grad is not None and bool(torch.isfinite(field.table.grad).all())
+
+
+@pytest.mark.parametrize("value", [0.0, 1e-8, 1e4, -1e4])
+@pytest.mark.parametrize("contracted", [True, False])
+def test_rendering_in_one_loop_a_ray_stays_finite_at_the_edges(value: float, contracted: bool) -> None:
+    """The native renderer (``nerfpipe.nerf.fused``, render.c) at the edges: a table of one extreme value everywhere
+    (densities clamp at the field's cap or vanish, the colour MLP's sums of 1e4s), rays from outside the box to far
+    bounds up to 1e6. It runs (not torch's path), and what it gives keeps the bounds every composite keeps: opacity
+    and colour in [0, 1], depth within [near, far], every value finite. (Torch's results to float rounding:
+    tests/nerf/test_fused.py.)"""
+    from nerfpipe.nerf import native
+    from nerfpipe.nerf.fields.configs import GridConfig
+    from nerfpipe.nerf.fields.grid import GridField
+    from nerfpipe.nerf.fused import marched_grid
+    from nerfpipe.nerf.samplers.configs import MarchingConfig
+    from nerfpipe.nerf.samplers.occupancy import OccupancyGrid
+    from nerfpipe.nerf.spaces.ray_space import BoxSpace, ContractedSpace
+
+    if native.library() is None:
+        pytest.skip("no native kernels on this machine (no C compiler, or NERFPIPE_COMPILE=off)")
+    box = _box_rays()
+    unit = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
+    if contracted:
+        rays = RayBatch(box.origins * 2.0, box.directions, box.viewdirs, torch.full((16,), 0.1), torch.logspace(0, 6, 16))
+        space, lo, hi = ContractedSpace(unit), (-2.0,) * 3, (2.0,) * 3
+    else:
+        rays, space, lo, hi = box, BoxSpace(unit), (-1.0,) * 3, (1.0,) * 3
+    field = GridField(lo, hi, GridConfig(levels=2, min_resolution=8, max_resolution=16))
+    with torch.no_grad():
+        field.table.fill_(value)
+    model = _marching(field, OccupancyGrid(lo, hi, 8), MarchingConfig(steps=64, early_stop=1e-4), space)
+    grid = marched_grid(model)
+    assert grid is not None
+    rgb, depth, acc, counts = native.render_marched(grid, rays.origins, rays.directions, rays.viewdirs, rays.near,
+                                                    rays.far)
+    assert all(bool(torch.isfinite(x).all()) for x in (rgb, depth, acc))
+    assert bool((acc >= 0).all() and (acc <= 1 + 1e-6).all() and (rgb >= 0).all() and (rgb <= 1 + 1e-6).all())
+    assert bool((depth >= rays.near).all() and (depth <= rays.far).all() and (counts >= 0).all())
+    out = model.render_rays(rays)
+    assert torch.equal(out["rgb"], rgb) and bool(torch.isfinite(out["disparity"]).all())

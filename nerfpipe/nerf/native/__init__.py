@@ -5,7 +5,9 @@ docs/benchmarks.md): ``grid_gather`` and ``grid_scatter``, the dense grid field'
 from the points themselves (``nerfpipe.nerf.fields.grid._NativeGrid``), the largest share of a training step on a
 CPU; ``scatter_bags``, the table gradient of the fields that make their corners otherwise (hashed, planes) or whose
 points train (``nerfpipe.nerf.fields.grid._Trilinear``); ``contracted_steps``, the steps of a march in contracted
-space (``nerfpipe.nerf.spaces.ray_space.ContractedSpace.steps``), eight operations over every ray for each step.
+space (``nerfpipe.nerf.spaces.ray_space.ContractedSpace.steps``), eight operations over every ray for each step;
+``render_marched`` (``render.c``), rendering a dense grid field without gradients, one loop a ray from its march to
+its colour (``nerfpipe.nerf.fused``).
 
 The library is built once a machine, in about a second, into the user's cache (``cache_dir``) under a name that
 hashes its source, the compiler's identity and the machine's architecture, so that a changed source or a home
@@ -25,7 +27,9 @@ import os
 import platform
 import shutil
 import subprocess
+import math
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -35,11 +39,15 @@ from nerfpipe.nerf.compiling import choice
 
 log = logging.getLogger("nerfpipe.nerf.native")
 
-SOURCE = Path(__file__).with_name("kernels.c")
-FLAGS = ("-O3", "-shared", "-fPIC", "-std=c99")  # no -march=native: a shared home may serve other CPUs
+HERE = Path(__file__).parent
+SOURCES = (HERE / "kernels.c", HERE / "render.c")
+HEADERS = (HERE / "grid.h",)
+# no -march=native: a shared home may serve other CPUs (render.c builds its own AVX2 clone, chosen at load time)
+FLAGS = ("-O3", "-shared", "-fPIC", "-std=c99")
 # tried in turn: OpenMP, whose runtime (libgomp.so.1) is then the one torch has loaded already, so the kernels' two
-# halves run on torch's own threads, waiting for work between its operators; else one thread
-VARIANTS = (("-fopenmp",), ())
+# halves run on torch's own threads, waiting for work between its operators; without render.c's AVX2 clone (a
+# compiler without target_clones); on one thread
+VARIANTS = (("-fopenmp",), ("-fopenmp", "-DNERFPIPE_NO_CLONES"), ("-DNERFPIPE_NO_CLONES",))
 
 
 def cache_dir() -> Path:
@@ -57,11 +65,12 @@ def c_compiler() -> str | None:
 
 
 def build(compiler: str, directory: Path, extra: tuple[str, ...] = ()) -> Path:
-    """The shared library of ``SOURCE`` built by ``compiler`` with ``FLAGS`` and ``extra`` into ``directory`` (reused
-    when already there)."""
+    """The shared library of ``SOURCES`` (and their ``HEADERS``) built by ``compiler`` with ``FLAGS`` and ``extra`` into
+    ``directory`` (reused when already there)."""
     flags = (*FLAGS, *extra)
     version = subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=30).stdout
-    key = hashlib.sha256(SOURCE.read_bytes() + version.encode() + " ".join(flags).encode()
+    text = b"".join(p.read_bytes() for p in (*SOURCES, *HEADERS))
+    key = hashlib.sha256(text + version.encode() + " ".join(flags).encode()
                          + platform.machine().encode()).hexdigest()[:16]
     library = directory / f"nerfpipe_native_{key}.so"
     if library.exists():
@@ -69,8 +78,9 @@ def build(compiler: str, directory: Path, extra: tuple[str, ...] = ()) -> Path:
     directory.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=directory) as scratch:
         built = Path(scratch) / library.name
-        result = subprocess.run([compiler, *flags, str(SOURCE), "-o", str(built)], capture_output=True, text=True,
-                                timeout=120)
+        includes = sorted({f"-I{p.parent}" for p in HEADERS})
+        result = subprocess.run([compiler, *flags, *includes, *map(str, SOURCES), "-o", str(built), "-lm"],
+                                capture_output=True, text=True, timeout=120)
         if result.returncode != 0:
             lines = (result.stderr or result.stdout).strip().splitlines()
             raise RuntimeError(lines[0] if lines else f"{compiler} exited {result.returncode}")
@@ -91,8 +101,8 @@ def library() -> ctypes.CDLL | None:
         except (OSError, RuntimeError, subprocess.SubprocessError) as err:
             failure = err
     else:
-        log.warning("building the native kernels (the grid's features and gradient, the contracted march's steps) "
-                    "failed (%s: %s); using torch's operators (slower)", type(failure).__name__, failure)
+        log.warning("building the native kernels (the grid's features and gradient, the contracted march's steps, "
+                    "rendering) failed (%s: %s); using torch's operators (slower)", type(failure).__name__, failure)
         return None
     p, i64 = ctypes.c_void_p, ctypes.c_int64
     lib.nerfpipe_scatter_bags.argtypes = [p, i64, i64, p, p, p, i64, i64]
@@ -104,6 +114,8 @@ def library() -> ctypes.CDLL | None:
     lib.nerfpipe_grid_scatter.argtypes = [p, i64, i64, p, i64, p, p, p, p, i64, p, i64]
     for kernel in (lib.nerfpipe_grid_gather, lib.nerfpipe_grid_scatter):
         kernel.restype = i64
+    lib.nerfpipe_render_marched.argtypes = [ctypes.POINTER(_MarchedGrid), p, p, p, p, p, i64, p, p, p, p, i64]
+    lib.nerfpipe_render_marched.restype = i64
     return lib
 
 
@@ -201,3 +213,86 @@ def grid_scatter(table_grad: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resoluti
                                      len(x), lo.data_ptr(), hi.data_ptr(), resolutions.data_ptr(), offsets.data_ptr(),
                                      len(resolutions), grad.data_ptr(), torch.get_num_threads())
     return _grid_result(code, table_grad, resolutions, offsets)
+
+
+_f3 = ctypes.c_float * 3
+
+
+class _MarchedGrid(ctypes.Structure):
+    """render.c's MarchedGrid, field by field."""
+
+    _fields_ = [("contracted", ctypes.c_int64), ("center", _f3), ("half", _f3), ("step", ctypes.c_float),
+                ("most", ctypes.c_int64), ("limit", ctypes.c_double), ("occupied", ctypes.c_void_p),
+                ("occupancy_resolution", ctypes.c_int64), ("occupancy_lo", _f3), ("occupancy_hi", _f3),
+                ("table", ctypes.c_void_p), ("rows", ctypes.c_int64), ("features", ctypes.c_int64),
+                ("levels", ctypes.c_int64), ("resolutions", ctypes.c_void_p), ("offsets", ctypes.c_void_p),
+                ("lo", _f3), ("hi", _f3), ("hidden", ctypes.c_int64), ("geo", ctypes.c_int64),
+                ("dir_freqs", ctypes.c_int64), ("view_dependent", ctypes.c_int64),
+                *((name, ctypes.c_void_p) for name in ("w1", "b1", "w2", "b2", "w3", "b3", "w4", "b4", "w5", "b5"))]
+
+
+@dataclass(frozen=True)
+class MarchedGrid:
+    """What ``render_marched`` renders: a march through an occupancy grid over a dense grid field.
+
+    contracted: the ray space contracts what lies beyond ``center`` +- ``half`` (its scene box; else the field is in
+    world coordinates); step, most: the march's step in field units and the most steps a ray takes; early_stop: the
+    transmittance at which a ray stops (0: never); occupied (r^3,) bool over the box ``occupancy_box``; table (V, F),
+    resolutions and offsets (L,) of the field's levels over ``box``; layers: the density MLP's two and the colour MLP's
+    three (weight (out, in), bias (out,)) pairs, float32; dir_freqs, view_dependent: what the colour MLP reads beside
+    the density MLP's other outputs (``nerfpipe.nerf.fields.grid.GridField``)."""
+
+    contracted: bool
+    center: tuple[float, float, float]
+    half: tuple[float, float, float]
+    step: float
+    most: int
+    early_stop: float
+    occupied: Tensor
+    occupancy_box: tuple[tuple[float, ...], tuple[float, ...]]
+    table: Tensor
+    resolutions: Tensor
+    offsets: Tensor
+    box: tuple[tuple[float, ...], tuple[float, ...]]
+    layers: tuple[tuple[Tensor, Tensor], ...]
+    dir_freqs: int
+    view_dependent: bool
+
+
+def render_marched(grid: MarchedGrid, origins: Tensor, directions: Tensor, viewdirs: Tensor, near: Tensor,
+                   far: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor] | None:
+    """R rays (origins, directions, viewdirs (R, 3), near, far (R,)) rendered through ``grid`` without gradients, each
+    in one loop from its march to its colour (render.c): rgb (R, 3) composited onto nothing, depth and acc (R,) as
+    ``volume_render`` gives them, and each ray's samples evaluated (R,). None where the kernel cannot run: no
+    library, tensors not float32 on the CPU, a value that is not finite, sizes beyond the kernel's bounds."""
+    lib = library()
+    rays = (origins, directions, viewdirs, near, far)
+    weights = [t for layer in grid.layers for t in layer]
+    if (lib is None or len(grid.layers) != 5 or any(t.device.type != "cpu" or t.dtype != torch.float32
+                                                    for t in (*rays, grid.table, *weights))):
+        return None
+    origins, directions, viewdirs, near, far = (t.detach().contiguous() for t in rays)
+    occupied = grid.occupied.to(torch.uint8).contiguous()
+    table = grid.table.detach().contiguous()
+    resolutions, offsets = (t.to(torch.int64).contiguous() for t in (grid.resolutions, grid.offsets))
+    # (in, out), but the colour's last layer (3, in): render.c's products
+    kept = [t.detach().t().contiguous() if t.dim() == 2 and i < 8 else t.detach().contiguous()
+            for i, t in enumerate(weights)]
+    (hidden, features_in), geo = grid.layers[0][0].shape, grid.layers[1][0].shape[0] - 1
+    struct = _MarchedGrid(
+        int(grid.contracted), _f3(*grid.center), _f3(*grid.half), grid.step, grid.most,
+        -math.log(grid.early_stop) if grid.early_stop > 0 else math.inf, occupied.data_ptr(),
+        round(occupied.numel() ** (1 / 3)), _f3(*grid.occupancy_box[0]), _f3(*grid.occupancy_box[1]),
+        table.data_ptr(), table.shape[0], table.shape[1], len(resolutions), resolutions.data_ptr(), offsets.data_ptr(),
+        _f3(*grid.box[0]), _f3(*grid.box[1]), hidden, geo, grid.dir_freqs, int(grid.view_dependent),
+        *(t.data_ptr() for t in kept))
+    if struct.occupancy_resolution ** 3 != occupied.numel() or features_in != len(resolutions) * table.shape[1]:
+        raise ValueError(f"render_marched: an occupancy grid of {occupied.numel()} cells or a density MLP of "
+                         f"{features_in} inputs does not fit {len(resolutions)} levels of {table.shape[1]} features")
+    n = len(near)
+    rgb, depth, acc = torch.empty(n, 3), torch.empty(n), torch.empty(n)
+    counts = torch.empty(n, dtype=torch.int64)
+    code = lib.nerfpipe_render_marched(ctypes.byref(struct), origins.data_ptr(), directions.data_ptr(),
+                                       viewdirs.data_ptr(), near.data_ptr(), far.data_ptr(), n, rgb.data_ptr(),
+                                       depth.data_ptr(), acc.data_ptr(), counts.data_ptr(), torch.get_num_threads())
+    return None if _grid_result(code, table, resolutions, offsets) is False else (rgb, depth, acc, counts)

@@ -156,9 +156,22 @@ class RenderOutput:
     @property
     def disparity(self) -> Tensor:
         """(R,) 1 / depth, 0 where depth is not positive."""
-        positive = self.depth > 0
-        return torch.where(positive, 1.0 / torch.where(positive, self.depth, torch.ones_like(self.depth)),
-                           torch.zeros_like(self.depth))
+        return self.inverse(self.depth)
+
+    @staticmethod
+    def inverse(depth: Tensor) -> Tensor:
+        """1 / depth, 0 where depth is not positive: (R,) -> (R,)."""
+        positive = depth > 0
+        return torch.where(positive, 1.0 / torch.where(positive, depth, torch.ones_like(depth)), torch.zeros_like(depth))
+
+    @staticmethod
+    def blend(rgb: Tensor, acc: Tensor, background: Tensor | None) -> Tensor:
+        """Porter-Duff "over": rgb (R, 3) with opacity acc (R,) onto ``background`` (3,) or (R, 3) (None: as it is)."""
+        if background is None:
+            return rgb
+        colour = _float(background)
+        behind = colour if colour.dim() == 1 else colour[:len(rgb)]
+        return rgb + (1.0 - acc).clamp_min(0.0).unsqueeze(-1) * behind.to(rgb.device)
 
     def passes(self) -> tuple["RenderOutput", ...]:
         """Every rendering the loss fits: the earlier ones, then this one."""
@@ -172,13 +185,7 @@ class RenderOutput:
         """Porter-Duff "over" onto ``background`` (3,) or (R, 3): rgb + (1 - acc) background, every pass."""
         if background is None:
             return self
-        colour = _float(background)
-
-        def blend(rgb: Tensor, out: RenderOutput) -> Tensor:
-            behind = colour if colour.dim() == 1 else colour[:len(out)]
-            return rgb + (1.0 - out.acc).clamp_min(0.0).unsqueeze(-1) * behind.to(rgb.device)
-
-        return self.map_rgb(blend)
+        return self.map_rgb(lambda rgb, out: self.blend(rgb, out.acc, background))
 
     def distortion(self) -> Tensor | None:
         """(R,) mip-NeRF 360's distortion of the weights over the samples' spans (``distortion``); None

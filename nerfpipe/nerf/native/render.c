@@ -1,0 +1,348 @@
+/* nerfpipe_render_marched: rendering a dense grid field without gradients, one ray at a time from its march to its
+ * colour, for every ray of a view (nerfpipe/nerf/fused.py says when it runs).
+ *
+ * torch renders a chunk of rays as some forty operations over arrays of samples: the march's candidate steps and
+ * their cells (nerfpipe/nerf/samplers/march.py: march), the visibility pass a window of places at a time (visible),
+ * the grid's features and the density MLP there, the colour MLP on the samples kept, and the compositing
+ * (nerfpipe/nerf/render/volume.py: volume_render). Each writes its array to memory and reads it back, and the
+ * visibility pass's bookkeeping is half of a render on a CPU. Here one function follows a ray: each occupied step's
+ * point, its features (grid.h) and density, its weight, and the colour of the samples the ray reaches before its
+ * transmittance falls below the early stop, summed as they come. The same quantities as torch's, computed in the
+ * same order along a ray, to float rounding (the optical depth before a sample in double, as there); the MLPs' sums
+ * may be fused multiply-adds here.
+ *
+ * Rays are shared among OpenMP's threads (torch's own, see kernels.c); each ray's result is its own, so the threads
+ * give the bits one thread gives. Built twice where the compiler can (GCC and clang's target_clones): for x86-64's
+ * AVX2 with FMA, chosen at load time where the CPU has them, and for any x86-64. */
+#include <math.h>
+#include <stdint.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
+#include "grid.h"
+
+#if defined(__clang__)
+#pragma clang fp contract(fast)
+#elif defined(__GNUC__)
+#pragma GCC optimize("fp-contract=fast")
+#endif
+
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__)) && !defined(__APPLE__) && !defined(NERFPIPE_NO_CLONES)
+#define VECTOR_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#else
+#define VECTOR_CLONES
+#endif
+
+#define MAX_WIDTH 1024       /* GridConfig.hidden's bound */
+#define MAX_INPUTS 1024      /* features x levels (64 x 32 at most) and the colour MLP's inputs */
+#define BLOCK_SAMPLES 8      /* occupied steps found, and their rows asked of memory, before the first is evaluated */
+#define MAX_OPTICAL_DEPTH 1e4f
+#define ACC_EPS 1e-10f
+
+/* What a march over a dense grid field is made of (ctypes' MarchedGrid in nerfpipe/nerf/fused.py, field by field). */
+typedef struct {
+    int64_t contracted;          /* 1: ContractedSpace (steps grow beyond the box, points contracted); 0: BoxSpace */
+    float center[3], half[3];    /* the contraction's scene box, as centre and half extent */
+    float step;                  /* the march's step in field units: the occupancy grid's diagonal / steps */
+    int64_t most;                /* steps a ray takes at most */
+    double limit;                /* the optical depth at which a ray stops, -log(early_stop) (INFINITY: never) */
+    const uint8_t *occupied;     /* (r^3,) the occupancy grid's cells, (i r + j) r + k */
+    int64_t occupancy_resolution;
+    float occupancy_lo[3], occupancy_hi[3];
+    const float *table;          /* (rows, features): every level's vertices */
+    int64_t rows, features, levels;
+    const int64_t *resolutions, *offsets;
+    float lo[3], hi[3];          /* the field's box */
+    int64_t hidden, geo, dir_freqs, view_dependent;
+    /* the MLPs' weights and biases: density (features levels -> hidden -> 1 + geo), colour (geo [+ the direction's
+     * encoding] -> hidden -> hidden -> 3); each weight transposed, (inputs, outputs), but the last, (3, hidden) */
+    const float *w1, *b1, *w2, *b2, *w3, *b3, *w4, *b4, *w5, *b5;
+} MarchedGrid;
+
+/* y = x W + b for x (in,), W (in, out) row-major: out's sums run along x, as a matrix product's do; ReLU if asked.
+ * For the common widths the sums are a constant number of vector registers, held there while x is read. */
+typedef float v8 __attribute__((vector_size(32), aligned(4)));  /* eight floats, read and written anywhere */
+typedef int32_t v8i __attribute__((vector_size(32), aligned(4)));
+#define DENSE(OUT)                                                                                                   \
+    static inline __attribute__((always_inline)) void dense_##OUT(const float *restrict w, const float *restrict b, \
+                                                                  const float *restrict x, int64_t in,             \
+                                                                  float *restrict y, int relu) {                   \
+        v8 acc[OUT / 8];                                                                                             \
+        for (int v = 0; v < OUT / 8; ++v) acc[v] = *(const v8 *)(b + 8 * v);                                         \
+        for (int64_t i = 0; i < in; ++i) {                                                                           \
+            const float xi = x[i];                                                                                   \
+            const float *restrict wi = w + i * OUT;                                                                  \
+            for (int v = 0; v < OUT / 8; ++v) acc[v] += xi * *(const v8 *)(wi + 8 * v);                              \
+        }                                                                                                            \
+        const v8 zero = {0};                                                                                         \
+        for (int v = 0; v < OUT / 8; ++v) /* ReLU: the sum where it is positive, else +0 */                          \
+            *(v8 *)(y + 8 * v) = relu ? (v8)((v8i)acc[v] & (acc[v] > zero)) : acc[v];                                \
+    }
+DENSE(16)
+DENSE(32)
+DENSE(64)
+
+static inline __attribute__((always_inline)) void dense(const float *restrict w, const float *restrict b,
+                                                        const float *restrict x, int64_t in, int64_t out,
+                                                        float *restrict y, int relu) {
+    switch (out) {
+    case 16: dense_16(w, b, x, in, y, relu); return;
+    case 32: dense_32(w, b, x, in, y, relu); return;
+    case 64: dense_64(w, b, x, in, y, relu); return;
+    }
+    for (int64_t o = 0; o < out; ++o) y[o] = b[o];
+    for (int64_t i = 0; i < in; ++i) {
+        const float xi = x[i];
+        const float *restrict wi = w + i * out;
+        for (int64_t o = 0; o < out; ++o) y[o] += xi * wi[o];
+    }
+    if (relu)
+        for (int64_t o = 0; o < out; ++o) y[o] = y[o] > 0.0f ? y[o] : 0.0f;
+}
+
+/* y = W x + b for the colour MLP's three outputs, W (3, in) as torch keeps it: three dot products along x. */
+static inline __attribute__((always_inline)) void dense_rgb(const float *restrict w, const float *restrict b,
+                                                            const float *restrict x, int64_t in, float *restrict y) {
+    for (int o = 0; o < 3; ++o) {
+        const float *restrict wo = w + o * in;
+        v8 acc = {0};
+        int64_t i = 0;
+        for (; i + 8 <= in; i += 8) acc += *(const v8 *)(x + i) * *(const v8 *)(wo + i);
+        float sum = b[o] + ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]));
+        for (; i < in; ++i) sum += x[i] * wo[i];
+        y[o] = sum;
+    }
+}
+
+#define MIN(a, b) ((a) < (b) ? (a) : (b))  /* finite operands (the kernel refuses others): no library call */
+#define MAX(a, b) ((a) > (b) ? (a) : (b))
+
+/* The features of one point on every level (levels x features, level after level): the weighted sum of its corners'
+ * rows (nerfpipe_grid_gather's, inlined with ``features`` a constant where it is one). */
+static inline __attribute__((always_inline)) void gather(const float *restrict table, int64_t features, int64_t levels,
+                                                         const int64_t *restrict rows, const float *restrict weights,
+                                                         float *restrict out) {
+    for (int64_t l = 0; l < levels; ++l) {
+        float *f = out + l * features;
+        for (int64_t j = 0; j < features; ++j) f[j] = 0.0f;
+        for (int k = 0; k < 8; ++k) {
+            const float *row = table + rows[8 * l + k] * features;
+            const float w = weights[8 * l + k];
+            for (int64_t j = 0; j < features; ++j) f[j] += w * row[j];
+        }
+    }
+}
+
+/* Contraction (nerfpipe/nerf/spaces/contraction.py, Eq. 10 with the L-infinity norm) of a point in box units. */
+static inline void contract(const float *x, float *y) {
+    float n = MAX(MAX(fabsf(x[0]), fabsf(x[1])), fabsf(x[2]));
+    if (n > 1.0f) {
+        const float s = 2.0f - 1.0f / n;
+        for (int a = 0; a < 3; ++a) y[a] = s * (x[a] / n);
+    } else {
+        for (int a = 0; a < 3; ++a) y[a] = x[a];
+    }
+}
+
+/* Whether field point x lies in an occupied cell of the occupancy grid (OccupancyGrid.is_occupied). */
+static inline int occupied(const MarchedGrid *m, const float *x) {
+    const int64_t r = m->occupancy_resolution;
+    int64_t index = 0;
+    for (int a = 0; a < 3; ++a) {
+        const float u = (x[a] - m->occupancy_lo[a]) / (m->occupancy_hi[a] - m->occupancy_lo[a]);
+        if (!(u >= 0.0f && u <= 1.0f)) return 0;
+        int64_t i = (int64_t)floorf(u * (float)r);
+        i = i < 0 ? 0 : (i > r - 1 ? r - 1 : i);
+        index = index * r + i;
+    }
+    return m->occupied[index] != 0;
+}
+
+/* Where a ray's march stands: its next step k, starting at t. */
+typedef struct {
+    int64_t k;
+    float t, base;       /* base: the step in ray parameter inside the box (contracted) or everywhere (box) */
+    float x0[3], dx[3];  /* the ray in box units (contracted) */
+    int done;
+} March;
+
+/* The next occupied steps of a ray, up to ``capacity``: their t, start, end and field points. The steps as
+ * ContractedSpace.steps (nerfpipe.nerf.native.contracted_steps) or constant_steps lay them, the sample half way
+ * along each (march's u = 0.5). Its products and sums are not fused, as torch's are not: a point on a cell's face
+ * falls in the cell torch puts it in. */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize("fp-contract=off")
+#endif
+__attribute__((noinline)) static int next_samples(const MarchedGrid *m, March *s, const float *o, const float *d, float near, float far,
+                        int capacity, float *t_out, float *start_out, float *end_out, float *x_out) {
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#endif
+    int found = 0;
+    while (!s->done && found < capacity) {
+        if (s->k >= m->most) { s->done = 1; break; }
+        float start, end;
+        if (m->contracted) {
+            start = s->t;
+            const float n = MAX(MAX(fabsf(s->x0[0] + start * s->dx[0]), fabsf(s->x0[1] + start * s->dx[1])),
+                                  fabsf(s->x0[2] + start * s->dx[2]));
+            const float scale = MIN(MAX(n, 1.0f), 1e6f);
+            end = MIN(start + s->base * (scale * scale), far);
+        } else {
+            start = MIN(near + (float)s->k * s->base, far);
+            end = MIN(start + s->base, far);
+        }
+        if (!(start < far)) { s->done = 1; break; }
+        s->t = end;
+        s->k += 1;
+        const float t = start + 0.5f * MAX(end - start, 0.0f);
+        float p[3], x[3];
+        for (int a = 0; a < 3; ++a) p[a] = o[a] + t * d[a];
+        if (m->contracted) {
+            for (int a = 0; a < 3; ++a) p[a] = (p[a] - m->center[a]) / m->half[a];
+            contract(p, x);
+        } else {
+            for (int a = 0; a < 3; ++a) x[a] = p[a];
+        }
+        if (!occupied(m, x)) continue;
+        t_out[found] = t;
+        start_out[found] = start;
+        end_out[found] = end;
+        for (int a = 0; a < 3; ++a) x_out[3 * found + a] = x[a];
+        ++found;
+    }
+    return found;
+}
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
+
+/* interval_stop_depths (nerfpipe/nerf/render/volume.py): the mean depth at which a ray stopping in [start, end] of
+ * density sigma stops. */
+static inline float stop_depth(float sigma, float start, float end) {
+    const float length = MAX(end - start, 0.0f);
+    const float tau = MIN(MAX(sigma, 0.0f), 1e30f) * length;
+    float g;
+    if (tau < 0.1f) g = 0.5f - tau / 12.0f + tau * tau * tau / 720.0f;
+    else if (tau > 30.0f) g = 1.0f / tau;
+    else g = 1.0f / tau - 1.0f / expm1f(tau);
+    return start + length * g;
+}
+
+/* The direction's encoding the colour MLP reads (nerfpipe/nerf/fields/encoding.py: positional_encoding with its
+ * input), into out; returns its width. */
+static int64_t encode_direction(const float *v, int64_t freqs, float *out) {
+    for (int a = 0; a < 3; ++a) out[a] = v[a];
+    float scale = 1.0f;
+    for (int64_t k = 0; k < freqs; ++k, scale *= 2.0f) {
+        for (int a = 0; a < 3; ++a) {
+            const float phase = fmodf(fmodf(v[a], 2.0f) * scale, 2.0f) * 3.14159265358979323846f;
+            out[3 + 6 * k + a] = sinf(phase);
+            out[3 + 6 * k + 3 + a] = cosf(phase);
+        }
+    }
+    return 3 * (2 * freqs + 1);
+}
+
+/* One ray: its colour composited onto nothing (rgb), its depth and opacity (acc), as volume_render gives them; returns
+ * how many samples it evaluated with colour (those it reached). */
+VECTOR_CLONES
+static int64_t render_ray(const MarchedGrid *m, const float *o, const float *d, const float *v, float near, float far,
+                          float *rgb_out, float *depth_out, float *acc_out) {
+    const int64_t width = m->levels * m->features, hidden = m->hidden, geo = m->geo;
+    float colour_bias[MAX_WIDTH];  /* the colour MLP's first layer on the direction, the same along the ray */
+    for (int64_t h = 0; h < hidden; ++h) colour_bias[h] = m->b3[h];
+    if (m->view_dependent) {
+        float encoded[3 * (2 * 16 + 1)];
+        const int64_t n = encode_direction(v, m->dir_freqs, encoded);
+        for (int64_t i = 0; i < n; ++i)
+            for (int64_t h = 0; h < hidden; ++h) colour_bias[h] += encoded[i] * m->w3[(geo + i) * hidden + h];
+    }
+    March s = {0, near, 0.0f, {0}, {0}, 0};
+    if (m->contracted) {
+        float norm = 0.0f;
+        for (int a = 0; a < 3; ++a) {
+            s.x0[a] = (o[a] - m->center[a]) / m->half[a];
+            s.dx[a] = d[a] / m->half[a];
+            norm += s.dx[a] * s.dx[a];
+        }
+        s.base = m->step / MAX(sqrtf(norm), 1e-12f);
+    } else {
+        s.base = m->step / MAX(sqrtf(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), 1e-12f);
+    }
+    double depth = 0.0;  /* optical depth so far */
+    float rgb[3] = {0.0f, 0.0f, 0.0f}, acc = 0.0f, stops = 0.0f;
+    int64_t evaluated = 0;
+    float t[BLOCK_SAMPLES], start[BLOCK_SAMPLES], end[BLOCK_SAMPLES], x[3 * BLOCK_SAMPLES];
+    int64_t corner_rows[BLOCK_SAMPLES][32 * 8];
+    float corner_weights[BLOCK_SAMPLES][32 * 8];
+    int inside[BLOCK_SAMPLES];
+    float features[MAX_INPUTS], h1[MAX_WIDTH], h2[MAX_WIDTH], h3[MAX_WIDTH], c[3];
+    float sigma[BLOCK_SAMPLES], out[BLOCK_SAMPLES][MAX_WIDTH + 1];
+    while (depth < m->limit) {
+        const int found = next_samples(m, &s, o, d, near, far, BLOCK_SAMPLES, t, start, end, x);
+        if (!found) break;
+        for (int q = 0; q < found; ++q) {  /* every corner's row asked for before the first is read */
+            float u[3];
+            inside[q] = box_coordinates(x + 3 * q, m->lo, m->hi, u);
+            for (int64_t l = 0; l < m->levels; ++l) {
+                grid_corners(u, m->resolutions[l], m->offsets[l], corner_rows[q] + 8 * l, corner_weights[q] + 8 * l);
+                for (int k = 0; k < 8; k += 2) __builtin_prefetch(m->table + corner_rows[q][8 * l + k] * m->features);
+            }
+        }
+        for (int q = 0; q < found; ++q) {  /* the block's densities (GridField._density) */
+            if (m->features == 4) gather(m->table, 4, m->levels, corner_rows[q], corner_weights[q], features);
+            else gather(m->table, m->features, m->levels, corner_rows[q], corner_weights[q], features);
+            dense(m->w1, m->b1, features, width, hidden, h1, 1);
+            dense(m->w2, m->b2, h1, hidden, 1 + geo, out[q], 0);
+            sigma[q] = inside[q] ? expf(MIN(out[q][0], 15.0f)) : 0.0f;
+        }
+        for (int q = 0; q < found && depth < m->limit; ++q) {  /* composited in order, coloured where reached */
+            const float tau = MIN(sigma[q] * MAX(end[q] - start[q], 0.0f), MAX_OPTICAL_DEPTH);
+            const float weight = expf(-(float)depth) * -expm1f(-tau);
+            dense(m->w3, colour_bias, out[q] + 1, geo, hidden, h2, 1);
+            dense(m->w4, m->b4, h2, hidden, hidden, h3, 1);
+            dense_rgb(m->w5, m->b5, h3, hidden, c);
+            for (int a = 0; a < 3; ++a) rgb[a] += weight * (1.0f / (1.0f + expf(-c[a])));
+            acc += weight;
+            stops += weight * stop_depth(sigma[q], start[q], end[q]);
+            depth += (double)tau;
+            ++evaluated;
+        }
+    }
+    for (int a = 0; a < 3; ++a) rgb_out[a] = rgb[a];
+    const float stopped = acc > ACC_EPS ? stops / acc : far;
+    *depth_out = MIN(MAX(stopped, near), MAX(far, near));
+    *acc_out = acc;
+    return evaluated;
+}
+
+/* Renders n rays (origins, directions, unit viewing directions (n, 3), near and far (n,)) into rgb (n, 3), depth and
+ * acc (n,), each ray's evaluated samples into counts (n,). Returns -1, writing nothing, if an input is not finite or a
+ * size is out of this kernel's bounds (torch's operators then render), -2 if the levels overrun the table. */
+int64_t nerfpipe_render_marched(const MarchedGrid *m, const float *origins, const float *directions,
+                                const float *viewdirs, const float *near, const float *far, int64_t n, float *rgb,
+                                float *depth, float *acc, int64_t *counts, int64_t threads) {
+    (void)threads;
+    for (int64_t l = 0; l < m->levels; ++l) {
+        const int64_t side = m->resolutions[l] + 1;
+        if (m->resolutions[l] < 1 || m->offsets[l] < 0 || m->offsets[l] > m->rows - side * side * side) return -2;
+    }
+    if (m->hidden < 1 || m->hidden > MAX_WIDTH || m->geo < 0 || m->geo + 1 > MAX_WIDTH || m->levels > 32
+        || m->levels * m->features > MAX_INPUTS || m->dir_freqs < 0 || m->dir_freqs > 16 || m->occupancy_resolution < 1)
+        return -1;
+    for (int64_t r = 0; r < n; ++r) {  /* a sum of finite floats may overflow too: torch's operators then render */
+        float all = near[r] + far[r];
+        for (int a = 0; a < 3; ++a) all += origins[3 * r + a] + directions[3 * r + a] + viewdirs[3 * r + a];
+        if (!isfinite(all)) return -1;
+    }
+#ifdef _OPENMP
+#pragma omp parallel for schedule(dynamic, 64) num_threads(n >= 256 && threads > 1 ? (int)threads : 1)
+#endif
+    for (int64_t r = 0; r < n; ++r)
+        counts[r] = render_ray(m, origins + 3 * r, directions + 3 * r, viewdirs + 3 * r, near[r], far[r], rgb + 3 * r,
+                               depth + r, acc + r);
+    return 0;
+}
