@@ -1,4 +1,5 @@
-"""Rendering without gradients in one native loop a ray (``nerfpipe.nerf.native.render_marched``), for the models it
+"""Rendering without gradients in one native loop a ray (``nerfpipe.nerf.native.render_marched``; and training's
+visibility pass, ``reached_marched``), for the models it
 knows: a dense grid field (``GridField`` itself, not a subclass with other corners) marched through an occupancy
 grid (``MarchingSampler``) in a contracted or box ray space, with no fine field. That is the default model of
 every capture on a CPU; any other model, or a machine without the native library, renders through
@@ -21,6 +22,7 @@ from nerfpipe.nerf import native
 from nerfpipe.nerf.fields.grid import GridField
 from nerfpipe.nerf.samplers.marching import MarchingSampler
 from nerfpipe.nerf.spaces.ray_space import BoxSpace, ContractedSpace
+from nerfpipe.nerf.render.volume import RaySamples
 from nerfpipe.nerf.spaces.rays import RayBatch
 
 
@@ -69,3 +71,11 @@ def render_fused(grid: native.MarchedGrid, rays: RayBatch) -> tuple[Tensor, Tens
     """``rays`` rendered through ``grid`` (``marched_grid``): rgb (R, 3) onto nothing, depth, acc and samples
     evaluated (R,), as ``RadianceModel.render`` gives them without a background; None where the kernel cannot run."""
     return native.render_marched(grid, rays.origins, rays.directions, rays.viewdirs, rays.near, rays.far)
+
+
+def reached_fused(grid: native.MarchedGrid, rays: RayBatch, samples: RaySamples) -> Tensor | None:
+    """Which of ``samples`` of ``rays`` each ray reaches before its transmittance falls below the early stop, from the
+    field's density through ``grid`` (``marched_grid``): the mask (N,) ``nerfpipe.nerf.samplers.march.visible`` would
+    keep, in one native loop a ray; None where the kernel cannot run."""
+    return native.reached_marched(grid, rays.origins, rays.directions, samples.ray, samples.t, samples.starts,
+                                  samples.ends)

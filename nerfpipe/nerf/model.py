@@ -19,7 +19,7 @@ from torch import Tensor
 
 from nerfpipe.nerf.appearance import ExposureGains
 from nerfpipe.nerf.fields.base import Field
-from nerfpipe.nerf.fused import marched_grid, render_fused
+from nerfpipe.nerf.fused import marched_grid, reached_fused, render_fused
 from nerfpipe.nerf.kernels import for_rendering
 from nerfpipe.nerf.spaces.ray_space import RaySpace
 from nerfpipe.nerf.spaces.rays import RayBatch, pixel_centers
@@ -255,6 +255,12 @@ class _Probe:
             field, rays = for_rendering(self.model.coarse), self.rays
             return _pieces(self.piece, lambda r, s: field.density_along(self.model.ray_space, rays.origins,
                                                                         rays.directions, r, s), ray, t)
+
+    def reached(self, samples: RaySamples, early_stop: float) -> Tensor | None:
+        grid = marched_grid(self.model)
+        if grid is None or early_stop != grid.early_stop:
+            return None
+        return reached_fused(grid, self.rays, samples)
 
     def render(self, samples: RaySamples, level: int) -> RenderOutput:
         """The field of ``level`` (the last there is) at ``samples``, composited onto nothing (Eq. 3). The

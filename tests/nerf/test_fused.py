@@ -169,3 +169,37 @@ def test_the_background_goes_behind_as_torch_puts_it(monkeypatch) -> None:
     fused, reference = both(model, rays(False), monkeypatch)
     torch.testing.assert_close(fused["rgb"], reference["rgb"], rtol=1e-4, atol=2e-5)
     assert float(fused["rgb"][:, 2].min()) > 0.2  # the blue behind shows through the clear rays
+
+
+@pytest.mark.parametrize("contracted", [True, False])
+def test_training_s_visibility_pass_keeps_what_torch_keeps(contracted) -> None:
+    """Of a randomized march's samples, the same ones reached as ``visible`` finds from the field's density in torch,
+    rays stopping early among them."""
+    from nerfpipe.nerf.samplers.march import at_samples, march, visible
+
+    model = build(contracted, seed=5)
+    with torch.no_grad():
+        model.coarse.density_net[2].bias[0] += 2.0
+    batch = rays(contracted, n=400, seed=6)
+    samples = march(batch, model.ray_space, model.sampler.grid, 64, True, torch.Generator().manual_seed(0))
+    keep = native.reached_marched(marched_grid(model), batch.origins, batch.directions, samples.ray, samples.t,
+                                  samples.starts, samples.ends)
+    reference = visible(batch, model.ray_space, samples,
+                        at_samples(batch, model.ray_space, model.coarse.density_features), 1e-4, 16)
+    assert keep is not None and int(keep.sum()) < 0.8 * len(samples)  # rays stopped
+    assert torch.equal(samples.ray[keep], reference.ray) and torch.equal(samples.t[keep], reference.t)
+
+
+def test_a_training_step_marches_through_the_native_pass(monkeypatch) -> None:
+    """A training step (gradients on) asks the native pass which samples its rays reach, and its loss's gradient
+    reaches the table; rendering without gradients reuses torch's densities instead (``RaySamples.known``)."""
+    calls = []
+    reached = native.reached_marched
+    monkeypatch.setattr(native, "reached_marched", lambda *args: calls.append(1) or reached(*args))
+    model, batch = build(False, seed=7), rays(False, n=256, seed=8)
+    out = model.render(batch, train=True, generator=torch.Generator().manual_seed(0))
+    out.rgb.sum().backward()
+    assert calls and model.coarse.table.grad is not None and bool(torch.isfinite(model.coarse.table.grad).all())
+    with torch.no_grad():
+        model.render(batch)
+    assert len(calls) == 1

@@ -116,6 +116,8 @@ def library() -> ctypes.CDLL | None:
         kernel.restype = i64
     lib.nerfpipe_render_marched.argtypes = [ctypes.POINTER(_MarchedGrid), p, p, p, p, p, i64, p, p, p, p, i64]
     lib.nerfpipe_render_marched.restype = i64
+    lib.nerfpipe_reached_marched.argtypes = [ctypes.POINTER(_MarchedGrid), p, p, i64, p, p, p, p, i64, p, i64]
+    lib.nerfpipe_reached_marched.restype = i64
     return lib
 
 
@@ -259,19 +261,14 @@ class MarchedGrid:
     view_dependent: bool
 
 
-def render_marched(grid: MarchedGrid, origins: Tensor, directions: Tensor, viewdirs: Tensor, near: Tensor,
-                   far: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor] | None:
-    """R rays (origins, directions, viewdirs (R, 3), near, far (R,)) rendered through ``grid`` without gradients, each
-    in one loop from its march to its colour (render.c): rgb (R, 3) composited onto nothing, depth and acc (R,) as
-    ``volume_render`` gives them, and each ray's samples evaluated (R,). None where the kernel cannot run: no
-    library, tensors not float32 on the CPU, a value that is not finite, sizes beyond the kernel's bounds."""
+def _marched_struct(grid: MarchedGrid, rays: tuple[Tensor, ...]) -> tuple[ctypes.CDLL, _MarchedGrid, list] | None:
+    """render.c's MarchedGrid of ``grid`` and the tensors it points into (kept alive by the caller), or None where the
+    kernels cannot run (no library, tensors not float32 on the CPU)."""
     lib = library()
-    rays = (origins, directions, viewdirs, near, far)
     weights = [t for layer in grid.layers for t in layer]
     if (lib is None or len(grid.layers) != 5 or any(t.device.type != "cpu" or t.dtype != torch.float32
                                                     for t in (*rays, grid.table, *weights))):
         return None
-    origins, directions, viewdirs, near, far = (t.detach().contiguous() for t in rays)
     occupied = grid.occupied.to(torch.uint8).contiguous()
     table = grid.table.detach().contiguous()
     resolutions, offsets = (t.to(torch.int64).contiguous() for t in (grid.resolutions, grid.offsets))
@@ -289,10 +286,45 @@ def render_marched(grid: MarchedGrid, origins: Tensor, directions: Tensor, viewd
     if struct.occupancy_resolution ** 3 != occupied.numel() or features_in != len(resolutions) * table.shape[1]:
         raise ValueError(f"render_marched: an occupancy grid of {occupied.numel()} cells or a density MLP of "
                          f"{features_in} inputs does not fit {len(resolutions)} levels of {table.shape[1]} features")
+    return lib, struct, [occupied, table, resolutions, offsets, *kept]
+
+
+def render_marched(grid: MarchedGrid, origins: Tensor, directions: Tensor, viewdirs: Tensor, near: Tensor,
+                   far: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor] | None:
+    """R rays (origins, directions, viewdirs (R, 3), near, far (R,)) rendered through ``grid`` without gradients, each
+    in one loop from its march to its colour (render.c): rgb (R, 3) composited onto nothing, depth and acc (R,) as
+    ``volume_render`` gives them, and each ray's samples evaluated (R,). None where the kernel cannot run: no
+    library, tensors not float32 on the CPU, a value that is not finite, sizes beyond the kernel's bounds."""
+    rays = tuple(t.detach().contiguous() for t in (origins, directions, viewdirs, near, far))
+    made = _marched_struct(grid, rays)
+    if made is None:
+        return None
+    lib, struct, _alive = made
+    origins, directions, viewdirs, near, far = rays
     n = len(near)
     rgb, depth, acc = torch.empty(n, 3), torch.empty(n), torch.empty(n)
     counts = torch.empty(n, dtype=torch.int64)
     code = lib.nerfpipe_render_marched(ctypes.byref(struct), origins.data_ptr(), directions.data_ptr(),
                                        viewdirs.data_ptr(), near.data_ptr(), far.data_ptr(), n, rgb.data_ptr(),
                                        depth.data_ptr(), acc.data_ptr(), counts.data_ptr(), torch.get_num_threads())
-    return None if _grid_result(code, table, resolutions, offsets) is False else (rgb, depth, acc, counts)
+    return None if _grid_result(code, _alive[1], _alive[2], _alive[3]) is False else (rgb, depth, acc, counts)
+
+
+def reached_marched(grid: MarchedGrid, origins: Tensor, directions: Tensor, ray: Tensor, t: Tensor, starts: Tensor,
+                    ends: Tensor) -> Tensor | None:
+    """Which of N samples (ray (N,) int64, non-decreasing; t, starts, ends (N,)) of R rays (origins, directions (R, 3))
+    each ray reaches before its transmittance falls below ``grid.early_stop``, from ``grid``'s density: a mask (N,),
+    what ``nerfpipe.nerf.samplers.march.visible`` keeps, in one native loop a ray (render.c). None where the kernel
+    cannot run (as ``render_marched``; a sample that names no ray too)."""
+    rays = tuple(x.detach().contiguous() for x in (origins, directions, t, starts, ends))
+    made = _marched_struct(grid, rays)
+    if made is None or ray.dtype != torch.int64 or ray.device.type != "cpu":
+        return None
+    lib, struct, _alive = made
+    origins, directions, t, starts, ends = rays
+    ray = ray.contiguous()
+    keep = torch.empty(len(ray), dtype=torch.bool)
+    code = lib.nerfpipe_reached_marched(ctypes.byref(struct), origins.data_ptr(), directions.data_ptr(), len(origins),
+                                        ray.data_ptr(), t.data_ptr(), starts.data_ptr(), ends.data_ptr(), len(ray),
+                                        keep.data_ptr(), torch.get_num_threads())
+    return None if _grid_result(code, _alive[1], _alive[2], _alive[3]) is False else keep

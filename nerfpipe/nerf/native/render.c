@@ -17,6 +17,7 @@
  * AVX2 with FMA, chosen at load time where the CPU has them, and for any x86-64. */
 #include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 #ifdef _OPENMP
 #include <omp.h>
 #endif
@@ -221,6 +222,22 @@ typedef struct {
 #pragma GCC push_options
 #pragma GCC optimize("fp-contract=off")
 #endif
+/* The field point of o + t d: the ray's point (RayBatch.points), contracted (Contraction.to_field) or as it is. */
+__attribute__((noinline)) static void field_point(const MarchedGrid *m, const float *o, const float *d, float t,
+                                                  float *x) {
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#endif
+    float p[3];
+    for (int a = 0; a < 3; ++a) p[a] = o[a] + t * d[a];
+    if (m->contracted) {
+        for (int a = 0; a < 3; ++a) p[a] = (p[a] - m->center[a]) / m->half[a];
+        contract(p, x);
+    } else {
+        for (int a = 0; a < 3; ++a) x[a] = p[a];
+    }
+}
+
 __attribute__((noinline)) static int next_samples(const MarchedGrid *m, March *s, const float *o, const float *d, float near, float far,
                         int capacity, float *t_out, float *start_out, float *end_out, float *x_out) {
 #if defined(__clang__)
@@ -244,14 +261,8 @@ __attribute__((noinline)) static int next_samples(const MarchedGrid *m, March *s
         s->t = end;
         s->k += 1;
         const float t = start + 0.5f * MAX(end - start, 0.0f);
-        float p[3], x[3];
-        for (int a = 0; a < 3; ++a) p[a] = o[a] + t * d[a];
-        if (m->contracted) {
-            for (int a = 0; a < 3; ++a) p[a] = (p[a] - m->center[a]) / m->half[a];
-            contract(p, x);
-        } else {
-            for (int a = 0; a < 3; ++a) x[a] = p[a];
-        }
+        float x[3];
+        field_point(m, o, d, t, x);
         if (!occupied(m, x)) continue;
         t_out[found] = t;
         start_out[found] = start;
@@ -292,12 +303,38 @@ static int64_t encode_direction(const float *v, int64_t freqs, float *out) {
     return 3 * (2 * freqs + 1);
 }
 
+/* The density MLP's outputs (out[q]: log density, then the colour's features) of ``found`` field points x: their corner
+ * rows asked of memory together, then two points at a time (GridField._density before its activation); inside[q]: in
+ * the field's box. */
+static inline __attribute__((always_inline)) void block_densities(const MarchedGrid *m, const float *x, int found,
+                                                                  int *inside, float (*out)[MAX_WIDTH + 1]) {
+    const int64_t width = m->levels * m->features, hidden = m->hidden;
+    int64_t corner_rows[BLOCK_SAMPLES][32 * 8];
+    float corner_weights[BLOCK_SAMPLES][32 * 8];
+    float features[MAX_INPUTS], features2[MAX_INPUTS], h1[MAX_WIDTH], h1b[MAX_WIDTH];
+    for (int q = 0; q < found; ++q) {  /* every corner's row asked for before the first is read */
+        float u[3];
+        inside[q] = box_coordinates(x + 3 * q, m->lo, m->hi, u);
+        for (int64_t l = 0; l < m->levels; ++l) {
+            grid_corners(u, m->resolutions[l], m->offsets[l], corner_rows[q] + 8 * l, corner_weights[q] + 8 * l);
+            for (int k = 0; k < 8; k += 2) __builtin_prefetch(m->table + corner_rows[q][8 * l + k] * m->features);
+        }
+    }
+    for (int q = 0; q < found; q += 2) {
+        const int r = q + 1 < found ? q + 1 : q;  /* a block of odd length evaluates its last twice */
+        gather_point(m, corner_rows[q], corner_weights[q], features);
+        gather_point(m, corner_rows[r], corner_weights[r], features2);
+        dense_pair(m->w1, m->b1, features, features2, width, hidden, h1, h1b, 1);
+        dense_pair(m->w2, m->b2, h1, h1b, hidden, 1 + m->geo, out[q], out[r], 0);
+    }
+}
+
 /* One ray: its colour composited onto nothing (rgb), its depth and opacity (acc), as volume_render gives them; returns
  * how many samples it evaluated with colour (those it reached). */
 VECTOR_CLONES
 static int64_t render_ray(const MarchedGrid *m, const float *o, const float *d, const float *v, float near, float far,
                           float *rgb_out, float *depth_out, float *acc_out) {
-    const int64_t width = m->levels * m->features, hidden = m->hidden, geo = m->geo;
+    const int64_t hidden = m->hidden, geo = m->geo;
     float colour_bias[MAX_WIDTH];  /* the colour MLP's first layer on the direction, the same along the ray */
     for (int64_t h = 0; h < hidden; ++h) colour_bias[h] = m->b3[h];
     if (m->view_dependent) {
@@ -322,30 +359,13 @@ static int64_t render_ray(const MarchedGrid *m, const float *o, const float *d, 
     float rgb[3] = {0.0f, 0.0f, 0.0f}, acc = 0.0f, stops = 0.0f;
     int64_t evaluated = 0;
     float t[BLOCK_SAMPLES], start[BLOCK_SAMPLES], end[BLOCK_SAMPLES], x[3 * BLOCK_SAMPLES];
-    int64_t corner_rows[BLOCK_SAMPLES][32 * 8];
-    float corner_weights[BLOCK_SAMPLES][32 * 8];
     int inside[BLOCK_SAMPLES];
-    float features[MAX_INPUTS], features2[MAX_INPUTS], h1[MAX_WIDTH], h1b[MAX_WIDTH], h2[MAX_WIDTH], h2b[MAX_WIDTH];
-    float h3[MAX_WIDTH], h3b[MAX_WIDTH], c[3];
+    float h2[MAX_WIDTH], h2b[MAX_WIDTH], h3[MAX_WIDTH], h3b[MAX_WIDTH], c[3];
     float sigma[BLOCK_SAMPLES], weight[BLOCK_SAMPLES], out[BLOCK_SAMPLES][MAX_WIDTH + 1];
     while (depth < m->limit) {
         const int found = next_samples(m, &s, o, d, near, far, BLOCK_SAMPLES, t, start, end, x);
         if (!found) break;
-        for (int q = 0; q < found; ++q) {  /* every corner's row asked for before the first is read */
-            float u[3];
-            inside[q] = box_coordinates(x + 3 * q, m->lo, m->hi, u);
-            for (int64_t l = 0; l < m->levels; ++l) {
-                grid_corners(u, m->resolutions[l], m->offsets[l], corner_rows[q] + 8 * l, corner_weights[q] + 8 * l);
-                for (int k = 0; k < 8; k += 2) __builtin_prefetch(m->table + corner_rows[q][8 * l + k] * m->features);
-            }
-        }
-        for (int q = 0; q < found; q += 2) {  /* the block's densities (GridField._density), two at a time */
-            const int r = q + 1 < found ? q + 1 : q;  /* a block of odd length evaluates its last twice */
-            gather_point(m, corner_rows[q], corner_weights[q], features);
-            gather_point(m, corner_rows[r], corner_weights[r], features2);
-            dense_pair(m->w1, m->b1, features, features2, width, hidden, h1, h1b, 1);
-            dense_pair(m->w2, m->b2, h1, h1b, hidden, 1 + geo, out[q], out[r], 0);
-        }
+        block_densities(m, x, found, inside, out);
         int reached = 0;
         for (int q = 0; q < found && depth < m->limit; ++q, ++reached) {  /* composited in order */
             sigma[q] = inside[q] ? expf(MIN(out[q][0], 15.0f)) : 0.0f;
@@ -374,13 +394,11 @@ static int64_t render_ray(const MarchedGrid *m, const float *o, const float *d, 
     return evaluated;
 }
 
-/* Renders n rays (origins, directions, unit viewing directions (n, 3), near and far (n,)) into rgb (n, 3), depth and
- * acc (n,), each ray's evaluated samples into counts (n,). Returns -1, writing nothing, if an input is not finite or a
- * size is out of this kernel's bounds (torch's operators then render), -2 if the levels overrun the table. */
-int64_t nerfpipe_render_marched(const MarchedGrid *m, const float *origins, const float *directions,
-                                const float *viewdirs, const float *near, const float *far, int64_t n, float *rgb,
-                                float *depth, float *acc, int64_t *counts, int64_t threads) {
-    (void)threads;
+/* 0 where the kernels can take ``m`` and n rays (origins, directions, viewdirs (n, 3), two per-ray arrays a and b: near
+ * and far, or for reached_marched the samples' starts and ends, ``extra`` of them); -1 where a value is not finite or
+ * a size is out of bounds, -2 where the levels overrun the table. */
+static int64_t check_marched(const MarchedGrid *m, const float *origins, const float *directions,
+                             const float *viewdirs, const float *a, const float *b, int64_t n, int64_t extra) {
     for (int64_t l = 0; l < m->levels; ++l) {
         const int64_t side = m->resolutions[l] + 1;
         if (m->resolutions[l] < 1 || m->offsets[l] < 0 || m->offsets[l] > m->rows - side * side * side) return -2;
@@ -389,15 +407,84 @@ int64_t nerfpipe_render_marched(const MarchedGrid *m, const float *origins, cons
         || m->levels * m->features > MAX_INPUTS || m->dir_freqs < 0 || m->dir_freqs > 16 || m->occupancy_resolution < 1)
         return -1;
     for (int64_t r = 0; r < n; ++r) {  /* a sum of finite floats may overflow too: torch's operators then render */
-        float all = near[r] + far[r];
-        for (int a = 0; a < 3; ++a) all += origins[3 * r + a] + directions[3 * r + a] + viewdirs[3 * r + a];
+        float all = extra ? 0.0f : a[r] + b[r];
+        for (int c = 0; c < 3; ++c) all += origins[3 * r + c] + directions[3 * r + c] + viewdirs[3 * r + c];
         if (!isfinite(all)) return -1;
     }
+    for (int64_t i = 0; i < extra; ++i)
+        if (!isfinite(a[i] + b[i])) return -1;
+    return 0;
+}
+
+/* Renders n rays (origins, directions, unit viewing directions (n, 3), near and far (n,)) into rgb (n, 3), depth and
+ * acc (n,), each ray's evaluated samples into counts (n,). Returns -1, writing nothing, if an input is not finite or a
+ * size is out of this kernel's bounds (torch's operators then render), -2 if the levels overrun the table. */
+int64_t nerfpipe_render_marched(const MarchedGrid *m, const float *origins, const float *directions,
+                                const float *viewdirs, const float *near, const float *far, int64_t n, float *rgb,
+                                float *depth, float *acc, int64_t *counts, int64_t threads) {
+    (void)threads;
+    const int64_t checked = check_marched(m, origins, directions, viewdirs, near, far, n, 0);
+    if (checked) return checked;
 #ifdef _OPENMP
 #pragma omp parallel for schedule(dynamic, 64) num_threads(n >= 256 && threads > 1 ? (int)threads : 1)
 #endif
     for (int64_t r = 0; r < n; ++r)
         counts[r] = render_ray(m, origins + 3 * r, directions + 3 * r, viewdirs + 3 * r, near[r], far[r], rgb + 3 * r,
                                depth + r, acc + r);
+    return 0;
+}
+
+/* One ray's marched samples (count of them, their t, start and end): which it reaches before its optical depth passes
+ * the early stop (keep), as nerfpipe.nerf.samplers.march.visible decides from the field's density. */
+VECTOR_CLONES
+static void reach_ray(const MarchedGrid *m, const float *o, const float *d, const float *t, const float *start,
+                      const float *end, int64_t count, uint8_t *keep) {
+    double depth = 0.0;
+    float x[3 * BLOCK_SAMPLES], out[BLOCK_SAMPLES][MAX_WIDTH + 1];
+    int inside[BLOCK_SAMPLES];
+    for (int64_t j = 0; j < count; j += BLOCK_SAMPLES) {
+        const int found = count - j < BLOCK_SAMPLES ? (int)(count - j) : BLOCK_SAMPLES;
+        if (!(depth < m->limit)) {
+            for (int64_t k = j; k < count; ++k) keep[k] = 0;
+            return;
+        }
+        for (int q = 0; q < found; ++q) field_point(m, o, d, t[j + q], x + 3 * q);
+        block_densities(m, x, found, inside, out);
+        for (int q = 0; q < found; ++q) {
+            keep[j + q] = depth < m->limit;
+            if (!keep[j + q]) continue;
+            const float sigma = inside[q] ? expf(MIN(out[q][0], 15.0f)) : 0.0f;
+            depth += (double)MIN(sigma * MAX(end[j + q] - start[j + q], 0.0f), MAX_OPTICAL_DEPTH);
+        }
+    }
+}
+
+/* nerfpipe_reached_marched: of n_samples samples packed ray after ray (ray (n,), non-decreasing; t, starts, ends (n,))
+ * of rays (origins, directions (rays, 3)), which each ray reaches before its transmittance falls below the early
+ * stop, into keep (n,): training's visibility pass, without the colour. Returns -1, writing nothing, where an input is
+ * not finite, a sample names no ray, or a size is out of bounds; -2 if the levels overrun the table. */
+int64_t nerfpipe_reached_marched(const MarchedGrid *m, const float *origins, const float *directions, int64_t rays,
+                                 const int64_t *ray, const float *t, const float *starts, const float *ends,
+                                 int64_t n, uint8_t *keep, int64_t threads) {
+    (void)threads;
+    const int64_t checked = check_marched(m, origins, directions, directions, starts, ends, rays, n);
+    if (checked) return checked;
+    for (int64_t i = 0; i < n; ++i) {
+        if (ray[i] < 0 || ray[i] >= rays || (i && ray[i] < ray[i - 1]) || !isfinite(t[i])) return -1;
+    }
+    /* where each ray's samples begin: rays without samples begin where the next does */
+    int64_t *first = (int64_t *)malloc((size_t)(rays + 1) * sizeof(int64_t));
+    if (!first) return -1;
+    for (int64_t r = 0, i = 0; r <= rays; ++r) {
+        while (i < n && ray[i] < r) ++i;
+        first[r] = i;
+    }
+#ifdef _OPENMP
+#pragma omp parallel for schedule(dynamic, 64) num_threads(n >= 4096 && threads > 1 ? (int)threads : 1)
+#endif
+    for (int64_t r = 0; r < rays; ++r)
+        reach_ray(m, origins + 3 * r, directions + 3 * r, t + first[r], starts + first[r], ends + first[r],
+                  first[r + 1] - first[r], keep + first[r]);
+    free(first);
     return 0;
 }

@@ -38,6 +38,10 @@ class Probe(Protocol):
     def render(self, samples: RaySamples, level: int) -> RenderOutput:
         """``samples`` rendered through field ``level`` (0: coarse, 1: fine), with gradients while training."""
 
+    def reached(self, samples: RaySamples, early_stop: float) -> Tensor | None:
+        """Which of ``samples`` each ray reaches before its transmittance falls below ``early_stop``, a mask (N,), where
+        the model can say so natively (``nerfpipe.nerf.fused``); None: the sampler finds out from ``density_features``."""
+
 
 class Sampler(Protocol):
     """Where a model samples its rays."""

@@ -66,7 +66,12 @@ class MarchingSampler:
         marched = len(samples)
         # a window of places along the rays at a time, so that a ray that stopped evaluates nothing more (training
         # too: the temple trains 1.34x the rays a second of a pass over every marched sample, docs/benchmarks.md)
-        samples = visible(rays, space, samples, probe.density_features, self.config.early_stop, 16)
+        # in one native loop a ray where the model can (not rendering: its densities and features are reused there)
+        reached = probe.reached(samples, self.config.early_stop) if torch.is_grad_enabled() else None
+        if reached is not None:
+            samples = samples.select(reached)
+        else:
+            samples = visible(rays, space, samples, probe.density_features, self.config.early_stop, 16)
         if training:
             self.visible_share, self.measure = len(samples) / max(marched, 1), False
         if max_samples > 0:
