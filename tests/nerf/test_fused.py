@@ -203,3 +203,16 @@ def test_a_training_step_marches_through_the_native_pass(monkeypatch) -> None:
     with torch.no_grad():
         model.render(batch)
     assert len(calls) == 1
+
+
+def test_no_samples_and_no_rays_are_nothing_to_do() -> None:
+    """A training step whose rays marched no sample (empty tensors: their data pointers may be null), and a batch of no
+    rays, come back empty, not read (a run with camera refinement at pose_lr 10 crashed here)."""
+    grid, batch = marched_grid(build(True)), rays(True, n=8)
+    none = torch.empty(0)
+    keep = native.reached_marched(grid, batch.origins, batch.directions, torch.empty(0, dtype=torch.int64), none, none,
+                                  none)
+    assert keep is not None and keep.shape == (0,)
+    rgb, depth, acc, counts = native.render_marched(grid, *(x[:0] for x in (batch.origins, batch.directions,
+                                                                         batch.viewdirs, batch.near, batch.far)))
+    assert rgb.shape == (0, 3) and depth.shape == acc.shape == counts.shape == (0,)

@@ -315,6 +315,10 @@ static inline __attribute__((always_inline)) void block_densities(const MarchedG
     for (int q = 0; q < found; ++q) {  /* every corner's row asked for before the first is read */
         float u[3];
         inside[q] = box_coordinates(x + 3 * q, m->lo, m->hi, u);
+        if (u[0] != u[0] || u[1] != u[1] || u[2] != u[2]) {  /* a point that overflowed: outside, density 0, no rows */
+            u[0] = u[1] = u[2] = 0.0f;
+            inside[q] = 0;
+        }
         for (int64_t l = 0; l < m->levels; ++l) {
             grid_corners(u, m->resolutions[l], m->offsets[l], corner_rows[q] + 8 * l, corner_weights[q] + 8 * l);
             for (int k = 0; k < 8; k += 2) __builtin_prefetch(m->table + corner_rows[q][8 * l + k] * m->features);
@@ -394,11 +398,11 @@ static int64_t render_ray(const MarchedGrid *m, const float *o, const float *d, 
     return evaluated;
 }
 
-/* 0 where the kernels can take ``m`` and n rays (origins, directions, viewdirs (n, 3), two per-ray arrays a and b: near
- * and far, or for reached_marched the samples' starts and ends, ``extra`` of them); -1 where a value is not finite or
- * a size is out of bounds, -2 where the levels overrun the table. */
+/* 0 where the kernels can take ``m`` and n rays (origins, directions, viewdirs (n, 3), and their near and far (n,)
+ * where given, else NULL); -1 where a value is not finite or a size is out of bounds, -2 where the levels overrun the
+ * table. */
 static int64_t check_marched(const MarchedGrid *m, const float *origins, const float *directions,
-                             const float *viewdirs, const float *a, const float *b, int64_t n, int64_t extra) {
+                             const float *viewdirs, const float *near, const float *far, int64_t n) {
     for (int64_t l = 0; l < m->levels; ++l) {
         const int64_t side = m->resolutions[l] + 1;
         if (m->resolutions[l] < 1 || m->offsets[l] < 0 || m->offsets[l] > m->rows - side * side * side) return -2;
@@ -407,12 +411,10 @@ static int64_t check_marched(const MarchedGrid *m, const float *origins, const f
         || m->levels * m->features > MAX_INPUTS || m->dir_freqs < 0 || m->dir_freqs > 16 || m->occupancy_resolution < 1)
         return -1;
     for (int64_t r = 0; r < n; ++r) {  /* a sum of finite floats may overflow too: torch's operators then render */
-        float all = extra ? 0.0f : a[r] + b[r];
+        float all = near ? near[r] + far[r] : 0.0f;
         for (int c = 0; c < 3; ++c) all += origins[3 * r + c] + directions[3 * r + c] + viewdirs[3 * r + c];
         if (!isfinite(all)) return -1;
     }
-    for (int64_t i = 0; i < extra; ++i)
-        if (!isfinite(a[i] + b[i])) return -1;
     return 0;
 }
 
@@ -423,7 +425,7 @@ int64_t nerfpipe_render_marched(const MarchedGrid *m, const float *origins, cons
                                 const float *viewdirs, const float *near, const float *far, int64_t n, float *rgb,
                                 float *depth, float *acc, int64_t *counts, int64_t threads) {
     (void)threads;
-    const int64_t checked = check_marched(m, origins, directions, viewdirs, near, far, n, 0);
+    const int64_t checked = check_marched(m, origins, directions, viewdirs, near, far, n);
     if (checked) return checked;
 #ifdef _OPENMP
 #pragma omp parallel for schedule(dynamic, 64) num_threads(n >= 256 && threads > 1 ? (int)threads : 1)
@@ -467,10 +469,11 @@ int64_t nerfpipe_reached_marched(const MarchedGrid *m, const float *origins, con
                                  const int64_t *ray, const float *t, const float *starts, const float *ends,
                                  int64_t n, uint8_t *keep, int64_t threads) {
     (void)threads;
-    const int64_t checked = check_marched(m, origins, directions, directions, starts, ends, rays, n);
+    const int64_t checked = check_marched(m, origins, directions, directions, NULL, NULL, rays);
     if (checked) return checked;
     for (int64_t i = 0; i < n; ++i) {
-        if (ray[i] < 0 || ray[i] >= rays || (i && ray[i] < ray[i - 1]) || !isfinite(t[i])) return -1;
+        if (ray[i] < 0 || ray[i] >= rays || (i && ray[i] < ray[i - 1]) || !isfinite(t[i] + starts[i] + ends[i]))
+            return -1;
     }
     /* where each ray's samples begin: rays without samples begin where the next does */
     int64_t *first = (int64_t *)malloc((size_t)(rays + 1) * sizeof(int64_t));
