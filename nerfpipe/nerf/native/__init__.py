@@ -269,7 +269,9 @@ def _marched_struct(grid: MarchedGrid, rays: tuple[Tensor, ...]) -> tuple[ctypes
     if (lib is None or len(grid.layers) != 5 or any(t.device.type != "cpu" or t.dtype != torch.float32
                                                     for t in (*rays, grid.table, *weights))):
         return None
-    occupied = grid.occupied.to(torch.uint8).contiguous()
+    # the grid's bools read as bytes where they are laid out so: no copy of its cells on every training step
+    cells = grid.occupied.contiguous()
+    occupied = cells.view(torch.uint8) if cells.dtype == torch.bool else cells.to(torch.uint8)
     table = grid.table.detach().contiguous()
     resolutions, offsets = (t.to(torch.int64).contiguous() for t in (grid.resolutions, grid.offsets))
     # (in, out), but the colour's last layer (3, in): render.c's products
@@ -284,7 +286,7 @@ def _marched_struct(grid: MarchedGrid, rays: tuple[Tensor, ...]) -> tuple[ctypes
         _f3(*grid.box[0]), _f3(*grid.box[1]), hidden, geo, grid.dir_freqs, int(grid.view_dependent),
         *(t.data_ptr() for t in kept))
     if struct.occupancy_resolution ** 3 != occupied.numel() or features_in != len(resolutions) * table.shape[1]:
-        raise ValueError(f"render_marched: an occupancy grid of {occupied.numel()} cells or a density MLP of "
+        raise ValueError(f"the native renderer: an occupancy grid of {occupied.numel()} cells or a density MLP of "
                          f"{features_in} inputs does not fit {len(resolutions)} levels of {table.shape[1]} features")
     return lib, struct, [occupied, table, resolutions, offsets, *kept]
 
