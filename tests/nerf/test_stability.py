@@ -794,3 +794,37 @@ def test_rendering_in_one_loop_a_ray_stays_finite_at_the_edges(value: float, con
     assert bool((depth >= rays.near).all() and (depth <= rays.far).all() and (counts >= 0).all())
     out = model.render_rays(rays)
     assert torch.equal(out["rgb"], rgb) and bool(torch.isfinite(out["disparity"]).all())
+
+
+@pytest.mark.parametrize("contracted", [True, False])
+def test_training_s_native_march_stays_within_its_rays_at_the_edges(contracted: bool, monkeypatch) -> None:
+    """Training's march in one loop a ray (``native.march_marched``) at the edges: rays from outside the box to far
+    bounds up to 1e6, rays whose near is their far, directions of 1e-6 and 1e6 units, every cell occupied. It runs,
+    and every sample is finite, lies within its ray's [near, far] in order, takes at most the march's steps, and the
+    budget holds."""
+    from nerfpipe.nerf import native
+    from nerfpipe.nerf.samplers.march import march
+    from nerfpipe.nerf.samplers.occupancy import OccupancyGrid
+    from nerfpipe.nerf.spaces.ray_space import BoxSpace, ContractedSpace
+
+    if native.library() is None:
+        pytest.skip("no native kernels on this machine (no C compiler, or NERFPIPE_COMPILE=off)")
+    box = _box_rays()
+    unit = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
+    scale = torch.tensor([1e-6, 1.0, 1e6, 1.0] * 4).unsqueeze(-1)
+    far = torch.logspace(0, 6, 16) if contracted else box.far
+    near = torch.where(torch.arange(16) % 5 == 0, far, torch.full((16,), 0.1) if contracted else box.near)
+    rays = RayBatch(box.origins * (2.0 if contracted else 1.0), box.directions * scale, box.viewdirs, near, far)
+    space, lo, hi = (ContractedSpace(unit), (-2.0,) * 3, (2.0,) * 3) if contracted else (BoxSpace(unit), (-1.0,) * 3, (1.0,) * 3)
+    grid = OccupancyGrid(lo, hi, 8)
+    called = []
+    kernel = native.march_marched
+    monkeypatch.setattr(native, "march_marched", lambda *a: called.append(1) or kernel(*a))
+    samples = march(rays, space, grid, 64, True, torch.Generator().manual_seed(0), budget=2000)
+    assert called and len(samples) <= 2000 + 4 * 64 + 1
+    ray = samples.ray
+    assert all(bool(torch.isfinite(x).all()) for x in (samples.t, samples.starts, samples.ends, *samples.spans))
+    assert bool((samples.starts >= rays.near[ray]).all() and (samples.ends <= rays.far[ray]).all())
+    assert bool((samples.starts <= samples.t).all() and (samples.t <= samples.ends).all())
+    assert bool((samples.counts() <= 4 * 64 + 1).all()) and bool((samples.spans[1] <= (4 * 64 + 1) / 64).all())
+    assert not bool((ray % 5 == 0).any()), "a ray whose near is its far has no steps"

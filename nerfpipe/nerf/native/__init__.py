@@ -118,6 +118,9 @@ def library() -> ctypes.CDLL | None:
     lib.nerfpipe_render_marched.restype = i64
     lib.nerfpipe_reached_marched.argtypes = [ctypes.POINTER(_MarchedGrid), p, p, i64, p, p, p, p, i64, p, i64]
     lib.nerfpipe_reached_marched.restype = i64
+    lib.nerfpipe_march_marched.argtypes = [ctypes.POINTER(_MarchedGrid), p, p, p, p, p, i64, i64, i64, p, p, p, p, p,
+                                           p, i64]
+    lib.nerfpipe_march_marched.restype = i64
     return lib
 
 
@@ -330,3 +333,39 @@ def reached_marched(grid: MarchedGrid, origins: Tensor, directions: Tensor, ray:
                                         ray.data_ptr(), t.data_ptr(), starts.data_ptr(), ends.data_ptr(), len(ray),
                                         keep.data_ptr(), torch.get_num_threads())
     return None if _grid_result(code, _alive[1], _alive[2], _alive[3]) is False else keep
+
+
+def march_marched(contracted: bool, center: tuple[float, ...], half: tuple[float, ...], step: float, most: int,
+                  occupied: Tensor, occupancy_box: tuple[tuple[float, ...], tuple[float, ...]], origins: Tensor,
+                  directions: Tensor, near: Tensor, far: Tensor, u: Tensor,
+                  budget: int) -> tuple[tuple[Tensor, Tensor, Tensor, Tensor, Tensor], int] | None:
+    """Training's march in one native loop a ray (render.c: ``nerfpipe.nerf.samplers.march.march`` and
+    ``within_budget``): the occupied steps of R rays (origins, directions (R, 3), near, far (R,); the march's
+    ``contracted``, ``center``, ``half``, ``step`` and ``most`` as ``MarchedGrid``'s, through the (r^3,) ``occupied``
+    cells over ``occupancy_box``), each sample a fraction u (R,) into its step, of the leading rays whose samples
+    number at most ``budget`` > 0 together (at least one ray). Returns (ray, t, starts, ends, step along the ray), each
+    (N,), and how many rays were kept; None where the kernel cannot run (no library, tensors not float32 on the CPU,
+    a value not finite)."""
+    lib = library()
+    rays = tuple(x.detach().contiguous() for x in (origins, directions, near, far, u))
+    if (lib is None or budget < 1 or not len(near) or any(x.device.type != "cpu" or x.dtype != torch.float32 for x in rays)
+            or occupied.device.type != "cpu"):
+        return None
+    cells = occupied.contiguous()
+    cells = cells.view(torch.uint8) if cells.dtype == torch.bool else cells.to(torch.uint8)
+    struct = _MarchedGrid(int(contracted), _f3(*center), _f3(*half), step, most, math.inf, cells.data_ptr(),
+                          round(cells.numel() ** (1 / 3)), _f3(*occupancy_box[0]), _f3(*occupancy_box[1]))
+    if struct.occupancy_resolution ** 3 != cells.numel():
+        raise ValueError(f"march_marched: an occupancy grid of {cells.numel()} cells is not a cube")
+    origins, directions, near, far, u = rays
+    capacity = budget + most
+    ray, k = torch.empty(capacity, dtype=torch.int64), torch.empty(capacity, dtype=torch.int64)
+    t, starts, ends = torch.empty(capacity), torch.empty(capacity), torch.empty(capacity)
+    kept = ctypes.c_int64(0)
+    count = lib.nerfpipe_march_marched(ctypes.byref(struct), origins.data_ptr(), directions.data_ptr(),
+                                       near.data_ptr(), far.data_ptr(), u.data_ptr(), len(near), budget, capacity,
+                                       ray.data_ptr(), t.data_ptr(), starts.data_ptr(), ends.data_ptr(), k.data_ptr(),
+                                       ctypes.byref(kept), torch.get_num_threads())
+    if count < 0:
+        return None
+    return (ray[:count], t[:count], starts[:count], ends[:count], k[:count]), kept.value

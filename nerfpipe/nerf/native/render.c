@@ -238,8 +238,29 @@ __attribute__((noinline)) static void field_point(const MarchedGrid *m, const fl
     }
 }
 
-__attribute__((noinline)) static int next_samples(const MarchedGrid *m, March *s, const float *o, const float *d, float near, float far,
-                        int capacity, float *t_out, float *start_out, float *end_out, float *x_out) {
+/* A ray's march before its first step: the step in ray parameter, and in contracted space the ray in box units. */
+__attribute__((noinline)) static March start_march(const MarchedGrid *m, const float *o, const float *d, float near) {
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#endif
+    March s = {0, near, 0.0f, {0}, {0}, 0};
+    if (m->contracted) {
+        float norm = 0.0f;
+        for (int a = 0; a < 3; ++a) {
+            s.x0[a] = (o[a] - m->center[a]) / m->half[a];
+            s.dx[a] = d[a] / m->half[a];
+            norm += s.dx[a] * s.dx[a];
+        }
+        s.base = m->step / MAX(sqrtf(norm), 1e-12f);
+    } else {
+        s.base = m->step / MAX(sqrtf(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), 1e-12f);
+    }
+    return s;
+}
+
+__attribute__((noinline)) static int next_samples(const MarchedGrid *m, March *s, const float *o, const float *d,
+                                                  float near, float far, float u, int capacity, float *t_out,
+                                                  float *start_out, float *end_out, float *x_out, int64_t *k_out) {
 #if defined(__clang__)
 #pragma clang fp contract(off)
 #endif
@@ -260,14 +281,16 @@ __attribute__((noinline)) static int next_samples(const MarchedGrid *m, March *s
         if (!(start < far)) { s->done = 1; break; }
         s->t = end;
         s->k += 1;
-        const float t = start + 0.5f * MAX(end - start, 0.0f);
+        const float t = start + u * MAX(end - start, 0.0f);
         float x[3];
         field_point(m, o, d, t, x);
         if (!occupied(m, x)) continue;
         t_out[found] = t;
         start_out[found] = start;
         end_out[found] = end;
-        for (int a = 0; a < 3; ++a) x_out[3 * found + a] = x[a];
+        if (x_out)
+            for (int a = 0; a < 3; ++a) x_out[3 * found + a] = x[a];
+        if (k_out) k_out[found] = s->k - 1;
         ++found;
     }
     return found;
@@ -347,18 +370,7 @@ static int64_t render_ray(const MarchedGrid *m, const float *o, const float *d, 
         for (int64_t i = 0; i < n; ++i)
             for (int64_t h = 0; h < hidden; ++h) colour_bias[h] += encoded[i] * m->w3[(geo + i) * hidden + h];
     }
-    March s = {0, near, 0.0f, {0}, {0}, 0};
-    if (m->contracted) {
-        float norm = 0.0f;
-        for (int a = 0; a < 3; ++a) {
-            s.x0[a] = (o[a] - m->center[a]) / m->half[a];
-            s.dx[a] = d[a] / m->half[a];
-            norm += s.dx[a] * s.dx[a];
-        }
-        s.base = m->step / MAX(sqrtf(norm), 1e-12f);
-    } else {
-        s.base = m->step / MAX(sqrtf(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), 1e-12f);
-    }
+    March s = start_march(m, o, d, near);
     double depth = 0.0;  /* optical depth so far */
     float rgb[3] = {0.0f, 0.0f, 0.0f}, acc = 0.0f, stops = 0.0f;
     int64_t evaluated = 0;
@@ -367,7 +379,7 @@ static int64_t render_ray(const MarchedGrid *m, const float *o, const float *d, 
     float h2[MAX_WIDTH], h2b[MAX_WIDTH], h3[MAX_WIDTH], h3b[MAX_WIDTH], c[3];
     float sigma[BLOCK_SAMPLES], weight[BLOCK_SAMPLES], out[BLOCK_SAMPLES][MAX_WIDTH + 1];
     while (depth < m->limit) {
-        const int found = next_samples(m, &s, o, d, near, far, BLOCK_SAMPLES, t, start, end, x);
+        const int found = next_samples(m, &s, o, d, near, far, 0.5f, BLOCK_SAMPLES, t, start, end, x, NULL);
         if (!found) break;
         block_densities(m, x, found, inside, out);
         int reached = 0;
@@ -490,4 +502,121 @@ int64_t nerfpipe_reached_marched(const MarchedGrid *m, const float *origins, con
                   first[r + 1] - first[r], keep + first[r]);
     free(first);
     return 0;
+}
+
+/* A growing list of marched samples: one thread's share of a march. */
+typedef struct {
+    float *t, *start, *end;
+    int64_t *k, *ray;
+    int64_t count, capacity;
+    int failed;  /* memory ran out */
+} Marched;
+
+static int marched_reserve(Marched *list, int64_t more) {
+    if (list->count + more <= list->capacity) return 1;
+    int64_t capacity = list->capacity ? 2 * list->capacity : 4096;
+    while (capacity < list->count + more) capacity *= 2;
+    float *t = realloc(list->t, (size_t)capacity * sizeof(float));
+    if (t) list->t = t;
+    float *start = realloc(list->start, (size_t)capacity * sizeof(float));
+    if (start) list->start = start;
+    float *end = realloc(list->end, (size_t)capacity * sizeof(float));
+    if (end) list->end = end;
+    int64_t *k = realloc(list->k, (size_t)capacity * sizeof(int64_t));
+    if (k) list->k = k;
+    int64_t *ray = realloc(list->ray, (size_t)capacity * sizeof(int64_t));
+    if (ray) list->ray = ray;
+    if (!(t && start && end && k && ray)) return 0;
+    list->capacity = capacity;
+    return 1;
+}
+
+/* nerfpipe_march_marched: training's march (nerfpipe/nerf/samplers/march.py: march, then within_budget), each ray's
+ * occupied steps found as rendering finds them (next_samples), the sample a fraction u[r] into each: of rays (origins,
+ * directions (rays, 3), near and far (rays,)), the leading rays whose samples number at most ``budget`` together (at
+ * least one), packed ray after ray into ray_out, t_out, start_out, end_out and the step k_out of each along its ray,
+ * whose capacity must hold ``budget`` samples and one ray's most. Rays split among the threads in blocks, each thread's
+ * samples in its own list, gathered in the rays' order after. Returns the samples written and the rays kept (in
+ * *kept), -1 where an input is not finite (or memory ran out), the capacity is short or the march's sizes are out of
+ * bounds. */
+int64_t nerfpipe_march_marched(const MarchedGrid *m, const float *origins, const float *directions, const float *near,
+                               const float *far, const float *u, int64_t rays, int64_t budget, int64_t capacity,
+                               int64_t *ray_out, float *t_out, float *start_out, float *end_out, int64_t *k_out,
+                               int64_t *kept, int64_t threads) {
+    (void)threads;
+    if (m->occupancy_resolution < 1 || m->most < 1 || capacity < budget + m->most || rays < 1) return -1;
+    for (int64_t r = 0; r < rays; ++r) {
+        float all = near[r] + far[r] + u[r];
+        for (int c = 0; c < 3; ++c) all += origins[3 * r + c] + directions[3 * r + c];
+        if (!isfinite(all)) return -1;
+    }
+    int64_t *counts = calloc((size_t)rays, sizeof(int64_t));
+    int nthreads = 1;
+#ifdef _OPENMP
+    nthreads = rays >= 256 && threads > 1 ? (int)threads : 1;
+#endif
+    Marched *lists = calloc((size_t)nthreads, sizeof(Marched));
+    int failed = !counts || !lists;
+    if (!failed) {
+#ifdef _OPENMP
+#pragma omp parallel num_threads(nthreads)
+#endif
+        {
+            int me = 0;
+#ifdef _OPENMP
+            me = omp_get_thread_num();
+#endif
+            Marched *list = lists + me;
+            /* contiguous blocks of rays, so that each list holds its rays in order */
+            const int64_t first = rays * me / nthreads, last = rays * (me + 1) / nthreads;
+            for (int64_t r = first; r < last && !list->failed; ++r) {
+                const float *o = origins + 3 * r, *d = directions + 3 * r;
+                March s = start_march(m, o, d, near[r]);
+                while (!s.done) {
+                    if (!marched_reserve(list, BLOCK_SAMPLES)) {
+                        list->failed = 1;
+                        break;
+                    }
+                    const int64_t at = list->count;
+                    const int found = next_samples(m, &s, o, d, near[r], far[r], u[r], BLOCK_SAMPLES, list->t + at,
+                                                   list->start + at, list->end + at, NULL, list->k + at);
+                    for (int q = 0; q < found; ++q) list->ray[at + q] = r;
+                    list->count += found;
+                    counts[r] += found;
+                    if (!found) break;
+                }
+            }
+        }
+    }
+    for (int me = 0; !failed && me < nthreads; ++me) failed = lists[me].failed;
+    int64_t total = 0, taken = 0;
+    if (!failed) {
+        for (; taken < rays; ++taken) {  /* within_budget: at least one ray */
+            if (taken && total + counts[taken] > budget) break;
+            total += counts[taken];
+        }
+        int64_t written = 0;
+        for (int me = 0; me < nthreads && written < total; ++me) {
+            const Marched *list = lists + me;
+            for (int64_t i = 0; i < list->count && written < total; ++i, ++written) {
+                ray_out[written] = list->ray[i];
+                t_out[written] = list->t[i];
+                start_out[written] = list->start[i];
+                end_out[written] = list->end[i];
+                k_out[written] = list->k[i];
+            }
+        }
+    }
+    for (int me = 0; lists && me < nthreads; ++me) {
+        free(lists[me].t);
+        free(lists[me].start);
+        free(lists[me].end);
+        free(lists[me].k);
+        free(lists[me].ray);
+    }
+    free(lists);
+    free(counts);
+    if (failed) return -1;
+    *kept = taken;
+    return total;
 }

@@ -55,14 +55,15 @@ class MarchingSampler:
         the grid became since the caller chose how many rays to draw: the visibility pass looks at the
         leading rays with at most ``4 max_samples`` marched samples, and the samples kept are those of the
         leading rays with at most ``max_samples`` visible ones."""
-        samples = march(rays, space, self.grid, self.config.steps, train, generator)
         training = train and torch.is_grad_enabled() and getattr(space, "kind", "") == "contracted"
-        if training and not self.measure and self.visible_share > self.SKIP_VISIBILITY_ABOVE:
-            if max_samples > 0:  # the training pass evaluates every marched sample: the budget bounds those
-                samples = samples.leading(within_budget(samples, max_samples))
-            return samples, 0, ()
+        skip = training and not self.measure and self.visible_share > self.SKIP_VISIBILITY_ABOVE
+        # the training pass evaluates every marched sample where it skips the visibility pass: the budget bounds those
+        budget = max_samples if skip else 4 * max_samples
+        samples = march(rays, space, self.grid, self.config.steps, train, generator, budget)
         if max_samples > 0:
-            samples = samples.leading(within_budget(samples, 4 * max_samples))
+            samples = samples.leading(within_budget(samples, budget))
+        if skip:
+            return samples, 0, ()
         marched = len(samples)
         # a window of places along the rays at a time, so that a ray that stopped evaluates nothing more (training
         # too: the temple trains 1.34x the rays a second of a pass over every marched sample, docs/benchmarks.md)
