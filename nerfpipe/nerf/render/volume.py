@@ -93,7 +93,10 @@ class RaySamples:
         return RaySamples(ray, t.reshape(-1), starts.reshape(-1), ends.reshape(-1), n_rays, flat)
 
     def select(self, index: Tensor) -> "RaySamples":
-        """The samples ``index`` picks (a mask (N,), or increasing indices), in their order."""
+        """The samples ``index`` picks (a mask (N,), or increasing indices), in their order. A mask becomes indices
+        once (each of the six arrays indexed by the mask would scan it again)."""
+        if isinstance(index, Tensor) and index.dtype == torch.bool:
+            index = index.nonzero().squeeze(-1)
         spans = None if self.spans is None else (self.spans[0][index], self.spans[1][index])
         known = None if self.known is None else (self.known[0][index], self.known[1][index])
         return RaySamples(self.ray[index], self.t[index], self.starts[index], self.ends[index], self.n_rays, spans,

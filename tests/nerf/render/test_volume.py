@@ -301,3 +301,18 @@ def test_distortion_gradients_pull_split_weight_together() -> None:
     loss.sum().backward()
     assert torch.isfinite(w.grad).all()
     assert w.grad[1] < w.grad[0]  # moving weight to the middle costs less than adding to an end
+
+
+def test_selecting_by_a_mask_or_by_its_indices_picks_the_same_samples() -> None:
+    """``RaySamples.select`` turns a mask into indices once: the same samples, spans and known values either way,
+    in order, and an all-false mask picks none."""
+    t = torch.arange(6, dtype=torch.float32)
+    samples = RaySamples(torch.tensor([0, 0, 1, 1, 1, 2]), t, t - 0.5, t + 0.5, 3, (t / 6, (t + 1) / 6),
+                         (t * 10, t.unsqueeze(-1).repeat(1, 2)))
+    mask = torch.tensor([True, False, True, True, False, True])
+    by_mask, by_index = samples.select(mask), samples.select(mask.nonzero().squeeze(-1))
+    for a, b in ((by_mask.ray, by_index.ray), (by_mask.t, by_index.t), (by_mask.spans[1], by_index.spans[1]),
+                 (by_mask.known[1], by_index.known[1])):
+        assert torch.equal(a, b)
+    assert by_mask.t.tolist() == [0.0, 2.0, 3.0, 5.0] and by_mask.n_rays == 3
+    assert len(samples.select(torch.zeros(6, dtype=torch.bool))) == 0
