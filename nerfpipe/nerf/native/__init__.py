@@ -7,7 +7,8 @@ CPU; ``scatter_bags``, the table gradient of the fields that make their corners 
 points train (``nerfpipe.nerf.fields.grid._Trilinear``); ``contracted_steps``, the steps of a march in contracted
 space (``nerfpipe.nerf.spaces.ray_space.ContractedSpace.steps``), eight operations over every ray for each step;
 ``render_marched`` (``render.c``), rendering a dense grid field without gradients, one loop a ray from its march to
-its colour (``nerfpipe.nerf.fused``).
+its colour (``nerfpipe.nerf.fused``); ``reached_marched`` and ``march_marched``, training's visibility pass and march
+in the same loop (``nerfpipe.nerf.samplers``).
 
 The library is built once a machine, in about a second, into the user's cache (``cache_dir``) under a name that
 hashes its source, the compiler's identity and the machine's architecture, so that a changed source or a home

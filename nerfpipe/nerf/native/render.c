@@ -12,6 +12,10 @@
  * same order along a ray, to float rounding (the optical depth before a sample in double, as there); the MLPs' sums
  * may be fused multiply-adds here.
  *
+ * The same march serves training (nerfpipe_march_marched, at the file's end: nerfpipe/nerf/samplers/march.py's march
+ * with a budget): each ray's occupied steps found as here, the sample at the ray's own random fraction into each, and
+ * training's visibility pass (nerfpipe_reached_marched) the density alone along the samples kept.
+ *
  * Rays are shared among OpenMP's threads (torch's own, see kernels.c); each ray's result is its own, so the threads
  * give the bits one thread gives. Built twice where the compiler can (GCC and clang's target_clones): for x86-64's
  * AVX2 with FMA, chosen at load time where the CPU has them, and for any x86-64. */
