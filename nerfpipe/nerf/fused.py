@@ -20,6 +20,7 @@ from torch import Tensor, nn
 
 from nerfpipe.nerf import native
 from nerfpipe.nerf.fields.grid import GridField
+from nerfpipe.nerf.samplers.march import march_frame
 from nerfpipe.nerf.samplers.marching import MarchingSampler
 from nerfpipe.nerf.spaces.ray_space import BoxSpace, ContractedSpace
 from nerfpipe.nerf.render.volume import RaySamples
@@ -47,20 +48,16 @@ def marched_grid(model: Any) -> native.MarchedGrid | None:
     field, sampler, space = model.coarse, model.sampler, model.ray_space
     if type(field) is not GridField or model.fine is not None or type(sampler) is not MarchingSampler:
         return None
-    if isinstance(space, ContractedSpace):
-        lo, hi = space.box
-        center = tuple((a + b) / 2.0 for a, b in zip(lo, hi))
-        half = tuple((b - a) / 2.0 for a, b in zip(lo, hi))
-    elif isinstance(space, BoxSpace):
-        center, half = (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)
-    else:
+    frame = march_frame(space) if isinstance(space, (ContractedSpace, BoxSpace)) else None
+    if frame is None:
         return None
+    contracted, center, half = frame
     layers = _layers(field.density_net, field.color_net)
     if layers is None or len(layers) != 5:
         return None
     grid, config = sampler.grid, sampler.config
     return native.MarchedGrid(
-        contracted=isinstance(space, ContractedSpace), center=center, half=half, step=grid.diagonal / config.steps,
+        contracted=contracted, center=center, half=half, step=grid.diagonal / config.steps,
         most=sampler.candidates_per_ray(), early_stop=config.early_stop, occupied=grid.occupied,
         occupancy_box=(tuple(grid.lo.tolist()), tuple(grid.hi.tolist())), table=field.table,
         resolutions=field.resolutions, offsets=field.offsets, box=field.box(), layers=layers,

@@ -265,6 +265,13 @@ class MarchedGrid:
     view_dependent: bool
 
 
+def _occupancy_bytes(occupied: Tensor) -> Tensor:
+    """An occupancy grid's cells as the kernels read them, a byte each: its bools read as bytes where they are laid
+    out so (no copy of its cells on every training step)."""
+    cells = occupied.contiguous()
+    return cells.view(torch.uint8) if cells.dtype == torch.bool else cells.to(torch.uint8)
+
+
 def _marched_struct(grid: MarchedGrid, rays: tuple[Tensor, ...]) -> tuple[ctypes.CDLL, _MarchedGrid, list] | None:
     """render.c's MarchedGrid of ``grid`` and the tensors it points into (kept alive by the caller), or None where the
     kernels cannot run (no library, tensors not float32 on the CPU)."""
@@ -273,9 +280,7 @@ def _marched_struct(grid: MarchedGrid, rays: tuple[Tensor, ...]) -> tuple[ctypes
     if (lib is None or len(grid.layers) != 5 or any(t.device.type != "cpu" or t.dtype != torch.float32
                                                     for t in (*rays, grid.table, *weights))):
         return None
-    # the grid's bools read as bytes where they are laid out so: no copy of its cells on every training step
-    cells = grid.occupied.contiguous()
-    occupied = cells.view(torch.uint8) if cells.dtype == torch.bool else cells.to(torch.uint8)
+    occupied = _occupancy_bytes(grid.occupied)
     table = grid.table.detach().contiguous()
     resolutions, offsets = (t.to(torch.int64).contiguous() for t in (grid.resolutions, grid.offsets))
     # (in, out), but the colour's last layer (3, in): render.c's products
@@ -352,8 +357,7 @@ def march_marched(contracted: bool, center: tuple[float, ...], half: tuple[float
     if (lib is None or budget < 1 or not len(near) or any(x.device.type != "cpu" or x.dtype != torch.float32 for x in rays)
             or occupied.device.type != "cpu"):
         return None
-    cells = occupied.contiguous()
-    cells = cells.view(torch.uint8) if cells.dtype == torch.bool else cells.to(torch.uint8)
+    cells = _occupancy_bytes(occupied)
     struct = _MarchedGrid(int(contracted), _f3(*center), _f3(*half), step, most, math.inf, cells.data_ptr(),
                           round(cells.numel() ** (1 / 3)), _f3(*occupancy_box[0]), _f3(*occupancy_box[1]))
     if struct.occupancy_resolution ** 3 != cells.numel():

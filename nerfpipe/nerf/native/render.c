@@ -8,9 +8,9 @@
  * visibility pass's bookkeeping is half of a render on a CPU. Here one function follows a ray: each occupied step's
  * point, its features (grid.h) and density, its weight, and the colour of the samples the ray reaches before its
  * transmittance falls below the early stop, summed as they come. Eight occupied steps at a time: their corner rows
- * asked of memory together, their MLPs evaluated two samples at a time (each weight read once for both). The same quantities as torch's, computed in the
- * same order along a ray, to float rounding (the optical depth before a sample in double, as there); the MLPs' sums
- * may be fused multiply-adds here.
+ * asked of memory together, their MLPs evaluated two samples at a time (each weight read once for both). The same
+ * quantities as torch's, computed in the same order along a ray, to float rounding (the optical depth before a
+ * sample in double, as there); the MLPs' sums may be fused multiply-adds here.
  *
  * The same march serves training (nerfpipe_march_marched, at the file's end: nerfpipe/nerf/samplers/march.py's march
  * with a budget): each ray's occupied steps found as here, the sample at the ray's own random fraction into each, and

@@ -47,7 +47,7 @@ def march(rays: RayBatch, space, grid: OccupancyGrid, steps: int, randomized: bo
     A ray takes at most ``4 steps + 1`` steps (rays clipped to the field box need at most ``steps + 1``).
     ``spans`` measure each sample's stretch in whole-march units (step k: [k, k + 1] / steps).
     With a ``budget`` > 0, only the leading rays whose samples number at most that together (at least one ray:
-    ``within_budget``) may be kept; their samples are the same.
+    ``within_budget``) are kept; their samples are the same.
 
     On the CPU, in a contracted or box space, with a budget, the march runs in one native loop a ray
     (``nerfpipe.nerf.native.march_marched``, rendering's march in render.c): torch's lays out every candidate step
@@ -76,21 +76,29 @@ def march(rays: RayBatch, space, grid: OccupancyGrid, steps: int, randomized: bo
     columns = starts.shape[1]
     ray, step = flat // columns, (flat % columns).to(t.dtype)
     t, s, e = (x.reshape(-1)[flat] for x in (t, starts, ends))
-    return RaySamples(ray, t, s, e, n_rays, (step / steps, (step + 1.0) / steps))
+    samples = RaySamples(ray, t, s, e, n_rays, (step / steps, (step + 1.0) / steps))
+    return samples.leading(within_budget(samples, budget)) if budget > 0 else samples
+
+
+def march_frame(space) -> tuple[bool, tuple[float, ...], tuple[float, ...]] | None:
+    """How the native loops (render.c) find a ray's field points in ``space``: (contracted, centre, half extent) of
+    the box a contracted space keeps (its scene box), or (False, 0, 1) for a box space's world coordinates; None for
+    a space they do not know (NDC)."""
+    kind = getattr(space, "kind", "")
+    if kind == "contracted":
+        lo, hi = space.box
+        return True, tuple((a + b) / 2.0 for a, b in zip(lo, hi)), tuple((b - a) / 2.0 for a, b in zip(lo, hi))
+    return (False, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)) if kind == "box" else None
 
 
 def _native_march(rays: RayBatch, space, grid: OccupancyGrid, steps: int, u: Tensor, budget: int) -> RaySamples | None:
     """``march`` in the native loop (``native.march_marched``), or None where it does not run: no budget, a space
     other than contracted or box (NDC), or what the kernel refuses."""
-    kind = getattr(space, "kind", "")
-    if budget <= 0 or kind not in ("contracted", "box") or len(rays) == 0:
+    frame = march_frame(space)
+    if budget <= 0 or frame is None or len(rays) == 0:
         return None
-    if kind == "contracted":
-        lo, hi = space.box
-        center, half = tuple((a + b) / 2.0 for a, b in zip(lo, hi)), tuple((b - a) / 2.0 for a, b in zip(lo, hi))
-    else:
-        center, half = (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)
-    made = native.march_marched(kind == "contracted", center, half, grid.diagonal / steps, 4 * steps + 1,
+    contracted, center, half = frame
+    made = native.march_marched(contracted, center, half, grid.diagonal / steps, 4 * steps + 1,
                                 grid.occupied, (tuple(grid.lo.tolist()), tuple(grid.hi.tolist())), rays.origins,
                                 rays.directions, rays.near, rays.far, u.reshape(-1), budget)
     if made is None:

@@ -60,8 +60,6 @@ class MarchingSampler:
         # the training pass evaluates every marched sample where it skips the visibility pass: the budget bounds those
         budget = max_samples if skip else 4 * max_samples
         samples = march(rays, space, self.grid, self.config.steps, train, generator, budget)
-        if max_samples > 0:
-            samples = samples.leading(within_budget(samples, budget))
         if skip:
             return samples, 0, ()
         marched = len(samples)
