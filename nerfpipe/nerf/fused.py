@@ -22,7 +22,6 @@ from nerfpipe.nerf import native
 from nerfpipe.nerf.fields.grid import GridField
 from nerfpipe.nerf.samplers.march import march_frame
 from nerfpipe.nerf.samplers.marching import MarchingSampler
-from nerfpipe.nerf.spaces.ray_space import BoxSpace, ContractedSpace
 from nerfpipe.nerf.render.volume import RaySamples
 from nerfpipe.nerf.spaces.rays import RayBatch
 
@@ -48,7 +47,7 @@ def marched_grid(model: Any) -> native.MarchedGrid | None:
     field, sampler, space = model.coarse, model.sampler, model.ray_space
     if type(field) is not GridField or model.fine is not None or type(sampler) is not MarchingSampler:
         return None
-    frame = march_frame(space) if isinstance(space, (ContractedSpace, BoxSpace)) else None
+    frame = march_frame(space)  # None for a space the native loops do not know (NDC)
     if frame is None:
         return None
     contracted, center, half = frame
