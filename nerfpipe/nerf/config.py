@@ -78,7 +78,7 @@ class OptimParams:
     mlp_lr_share: float = param(0.33, "a grid field's MLPs learn at this share of lr and lr_final, its feature tables at "
                                       "lr itself (lego 100 px at 2 minutes: 32.24 dB, 31.93 with 1)", bounds=(1e-06, 1.0))
     adam_eps: float = param(1e-15, "Adam epsilon (the paper: 1e-7)", bounds=(1e-20, 1.0))
-    adam_beta2: float = param(0.99, "Adam beta2 (the paper: 0.999; Instant-NGP: 0.99)", bounds=(0.0, 0.999999))
+    adam_beta2: float = param(0.99, "Adam beta2 (the paper: 0.999; Instant-NGP: 0.99)", bounds=(0.001, 0.999999))
     density_noise: str = param("auto", "std of noise on raw density: auto (1.0 for forward-facing real captures, "
                                        "else 0) or a number")
     distortion: float = param(0.0, "weight of mip-NeRF 360's distortion loss (Eq. 15) against floaters, 0: off "

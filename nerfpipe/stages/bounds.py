@@ -46,7 +46,12 @@ UNCONSTRAINED_FAR = 100.0
 class BoundsParams:
     near_percentile: float = field(default=0.1, metadata={"bounds": (0.0, 100.0), "help": "percentile of the point depths an image sees taken as its near bound"})
     far_percentile: float = field(default=99.9, metadata={"bounds": (0.0, 100.0), "help": "percentile of the point depths an image sees taken as its far bound"})
-    margin: float = field(default=0.1, metadata={"bounds": (0.0, 10.0), "help": "relative margin: near * (1 - margin), far * (1 + margin)"})
+    margin: float = field(
+        default=0.1, metadata={"bounds": (0.0, 0.99), "help": "relative margin: near * (1 - margin), far * (1 + margin). "
+                               "Beer scored 0.2-0.4 dB higher at 0.5 (its walls' screens move towards their own cameras) "
+                               "and the cup 0.8 dB lower, in its views where training cameras are sparse; 0.8 cost beer "
+                               "1.3 dB (docs/benchmarks.md)"}
+    )
     box_outlier_quantile: float = field(
         default=0.01, metadata={"bounds": (0.0, 0.49), "help": "per-axis quantile cut from each side of the sparse points for the scene box"}
     )
@@ -54,14 +59,14 @@ class BoundsParams:
         default=5.0, metadata={"bounds": (0.1, 1000.0), "help": "points farther from the median than median + k MADs are left out of the scene box"}
     )
     box_margin: float = field(
-        default=0.1, metadata={"bounds": (0.0, 10.0), "help": "the sparse points' box grows by this fraction of its extent on every side: "
+        default=0.1, metadata={"bounds": (0.0, 1.0), "help": "the sparse points' box grows by this fraction of its extent on every side: "
                                "points are only where features matched, and the object goes on beyond them"}
     )
     min_points: int = field(
         default=10, metadata={"bounds": (1, 1_000_000), "help": "fewest sparse points an image must see for point-based near/far (else rig-based)"}
     )
     rig_radius: float = field(
-        default=0.5, metadata={"bounds": (0.001, 100.0), "help": "without points: scene sphere radius as a fraction of the camera distance to the look-at centre"}
+        default=0.5, metadata={"bounds": (0.001, 0.999), "help": "without points: scene sphere radius as a fraction of the camera distance to the look-at centre"}
     )
 
     def __post_init__(self) -> None:

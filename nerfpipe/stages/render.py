@@ -63,7 +63,7 @@ class RenderParams:
                                           "ones whose cameras go all round (300° or more), else a sweep out and "
                                           "back along the cameras"}
     )
-    n_rotations: float = field(default=2.0, metadata={"bounds": (0.0, 100.0), "help": "spiral: turns around the mean camera (LLFF: 2)"})
+    n_rotations: float = field(default=2.0, metadata={"bounds": (0.01, 100.0), "help": "spiral: turns around the mean camera (LLFF: 2)"})
     elevation: str = field(default="auto", metadata={"help": "orbit: degrees above the target, or auto (the cameras' mean)"})
     chunk: int = field(default=4096, metadata={"keyed": False, "bounds": (1, 1_048_576), "help": "rays per chunk while rendering (4096: measured fastest on a 2-core CPU, scripts/bench_throughput.py)"})
     device: Literal["auto", "cpu", "cuda"] = field(default="auto", metadata={"keyed": False, "help": "auto: CUDA when present, else CPU"})

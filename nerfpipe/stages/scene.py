@@ -76,25 +76,25 @@ class SceneParams:
         default="auto", metadata={"help": "whether exposure varies across photos; auto reads EXIF"}
     )
     forward_max_angle_deg: float = field(
-        default=45.0, metadata={"bounds": (0.0, 180.0), "help": "forward: every viewing direction within this angle of the mean one"}
+        default=45.0, metadata={"bounds": (0.1, 179.9), "help": "forward: every viewing direction within this angle of the mean one"}
     )
     forward_max_advance: float = field(
-        default=0.5, metadata={"bounds": (0.0, 100.0), "help": "forward: camera spread along the mean direction, at most this times the median near depth"}
+        default=0.5, metadata={"bounds": (0.001, 100.0), "help": "forward: camera spread along the mean direction, at most this times the median near depth"}
     )
     converge_max_angle_deg: float = field(
-        default=25.0, metadata={"bounds": (0.0, 90.0), "help": "360: cameras look at a common centre when the median axis-to-centre angle is below this"}
+        default=25.0, metadata={"bounds": (0.1, 90.0), "help": "360: cameras look at a common centre when the median axis-to-centre angle is below this"}
     )
     unbounded_outside_fraction: float = field(
-        default=0.2, metadata={"bounds": (0.0, 1.0), "help": "unbounded: fraction of sparse points farther from the centre than the cameras"}
+        default=0.2, metadata={"bounds": (0.001, 1.0), "help": "unbounded: fraction of sparse points farther from the centre than the cameras"}
     )
     unbounded_far_near_ratio: float = field(
-        default=20.0, metadata={"bounds": (1.0, 1000000.0), "help": "unbounded: median far/near ratio of the images at least this"}
+        default=20.0, metadata={"bounds": (1.01, 1000000.0), "help": "unbounded: median far/near ratio of the images at least this"}
     )
     background_tolerance: float = field(
-        default=0.1, metadata={"bounds": (0.0, 1.0), "help": "color background: border pixels within this (0..1, per channel) of the median colour"}
+        default=0.1, metadata={"bounds": (0.001, 1.0), "help": "color background: border pixels within this (0..1, per channel) of the median colour"}
     )
     background_min_fraction: float = field(
-        default=0.9, metadata={"bounds": (0.0, 1.0), "help": "color background: at least this fraction of border pixels within the tolerance"}
+        default=0.9, metadata={"bounds": (0.001, 1.0), "help": "color background: at least this fraction of border pixels within the tolerance"}
     )
     background_images: int = field(default=24, metadata={"bounds": (1, 10_000), "help": "images sampled (evenly) for the background analysis"})
 

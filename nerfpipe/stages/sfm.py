@@ -40,7 +40,7 @@ class SfmParams:
         default="auto", metadata={"help": "one camera shared by all photos; auto = when EXIF make, model, size agree"}
     )
     max_image_size: int = field(default=1600, metadata={"bounds": (64, 16_384), "help": "SIFT extraction: longest side in pixels"})
-    max_features: int = field(default=8192, metadata={"bounds": (16, 1_000_000), "help": "SIFT extraction: features per image"})
+    max_features: int = field(default=8192, metadata={"bounds": (64, 1_000_000), "help": "SIFT extraction: features per image"})
     matcher: Literal["auto", "exhaustive", "sequential", "spatial"] = field(
         default="auto", metadata={"help": "auto: exhaustive up to exhaustive_max photos, then spatial (GPS) or sequential (video)"}
     )
@@ -50,7 +50,7 @@ class SfmParams:
                                                                   "nearest cameras each photo is matched with"})
     mapper: Literal["incremental", "global"] = field(default="incremental", metadata={"help": "COLMAP mapper or GLOMAP"})
     relaxed_retry: bool = field(default=True, metadata={"help": "retry mapping with relaxed options when photos stay unregistered"})
-    min_registered: float = field(default=0.5, metadata={"bounds": (0.0, 1.0), "help": "fail when fewer than this fraction of photos register"})
+    min_registered: float = field(default=0.5, metadata={"bounds": (0.01, 1.0), "help": "fail when fewer than this fraction of photos register"})
     min_images: int = field(default=3, metadata={"bounds": (2, 100_000), "help": "fewest photos SfM will try"})
     seed: int = field(default=0, metadata={"bounds": (0, 2_147_483_647), "help": "random seed of COLMAP's RANSAC and mapper"})
     triangulate: Literal["auto", "true", "false"] = field(
@@ -65,7 +65,7 @@ class SfmParams:
                                 "held-out views lost 0.5 dB with its points (docs/benchmarks.md)"}
     )
     min_triangulated_points: int = field(
-        default=100, metadata={"bounds": (0, 10_000_000), "help": "fewer triangulated points than this: keep none and say so (bounds then use "
+        default=100, metadata={"bounds": (1, 10_000_000), "help": "fewer triangulated points than this: keep none and say so (bounds then use "
                                        "the pose file's near/far, or the rig guess)"}
     )
 

@@ -8,7 +8,7 @@ import pytest
 from nerfpipe.pipeline import ParamError
 from nerfpipe.pipeline.budget import Allotment, check_affordable, parse_duration
 from nerfpipe.pipeline.errors import StageError
-from nerfpipe.pipeline.params import build_params
+from nerfpipe.pipeline.params import build_params, param_specs
 from nerfpipe.pipeline.resources import memory_limit
 from nerfpipe.pipeline.run_config import run_command
 from nerfpipe.stages import default_stages
@@ -47,6 +47,34 @@ def test_the_outside_pass_parameter_cases_are_refused_in_one_line(stage, name, v
     with pytest.raises(ParamError) as err:
         build(stage, name, value)
     assert needle in str(err.value) and "\n" not in str(err.value)
+
+
+# a bound that holds only beside another setting's value: each end is refused with the default of the other
+PAIRED = {("bounds", "near_percentile"), ("bounds", "far_percentile"), ("train", "field.min_resolution"),
+          ("train", "field.max_resolution"), ("train", "field.skip_after"), ("export_points", "agree_views"),
+          ("export_points", "neighbours")}
+
+
+def _ends():
+    for s in default_stages():
+        for spec in param_specs(s.Params):
+            if spec.bounds is not None and spec.is_number:
+                group = spec.name.rsplit(".", 1)[0]
+                kind = {f"{group}.kind": spec.kinds[0]} if spec.kinds else {}  # a setting of one kind of a union
+                for end in spec.bounds:
+                    yield s.name, spec.name, {**kind, spec.name: repr(end) if isinstance(end, float) else str(end)}
+
+
+@pytest.mark.parametrize(("stage", "name", "values"), list(_ends()), ids=lambda v: v if isinstance(v, str) else "")
+def test_both_ends_of_every_declared_bound_are_accepted(stage, name, values) -> None:
+    """The bounds `nerfpipe stages` and docs/parameters.md show are "both allowed": a stage's own checks must not
+    refuse them (margin's [0, 10] was refused above 1). Only a bound paired with another setting, or the memory a
+    size takes on this machine, may refuse an end, each in its one line."""
+    s = STAGES[stage]
+    try:
+        build_params(stage, s.Params, s.presets, None, values)
+    except ParamError as err:
+        assert (stage, name) in PAIRED or "this machine allows" in str(err), str(err)
 
 
 def test_the_memory_checks_follow_the_process_limit(monkeypatch) -> None:
