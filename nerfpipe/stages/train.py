@@ -257,6 +257,7 @@ class TrainStage(Stage):
         from nerfpipe.nerf.train.evaluation import evaluate, evaluated_scale, evaluation_scale, scaled_size
         from nerfpipe.nerf.train.floors import floor_hook
         from nerfpipe.nerf.train.images import ImageLoader, describe_masks, split_views, trained_cameras, write_masks
+        from nerfpipe.nerf.samplers.marching import describe_carving
         from nerfpipe.nerf.train.sampling import DRAWS
         from nerfpipe.nerf.train.trainer import Trainer
 
@@ -282,7 +283,7 @@ class TrainStage(Stage):
         trainer = Trainer(model, pixels, params, out, device, density_noise=density_noise(params, layout))
         for decision in (params.optim.distortion > 0 and f"mip-NeRF 360's distortion loss (Eq. 15) at weight "
                          f"{params.optim.distortion:g} against floaters", params.optim.pixels == "error" and DRAWS,
-                         describe_masks(trainer.pixels)):
+                         describe_masks(trainer.pixels), describe_carving(model.sampler)):
             if decision:
                 decisions.append(decision)
                 ctx.log.info("train: %s", decision)

@@ -57,8 +57,9 @@ class Sampler(Protocol):
     def update(self, step: int, density: DensityFn, generator: torch.Generator) -> None:
         """What the sampler keeps up to date with the field, before training step ``step``."""
 
-    def start(self, space: Any, intrinsics: Tensor, c2w: Tensor) -> None:
-        """Before training: the training cameras (intrinsics (I, 4), c2w (I, 4, 4)) and the ray space."""
+    def start(self, space: Any, intrinsics: Tensor, c2w: Tensor, least_depth: Tensor | None = None) -> None:
+        """Before training: the training cameras (intrinsics (I, 4), c2w (I, 4, 4)), the least depths of the sparse points each sees over a grid of cells of its image ((I, rows, columns), inf where
+        none: ``nerfpipe.geometry.freespace.frame_least_depths``; None: no points) and the ray space."""
 
     def reset(self) -> None:
         """Back to the state training starts from."""
@@ -90,7 +91,7 @@ class StatelessSampler:
     def update(self, step: int, density: DensityFn, generator: torch.Generator) -> None:
         pass
 
-    def start(self, space: Any, intrinsics: Tensor, c2w: Tensor) -> None:
+    def start(self, space: Any, intrinsics: Tensor, c2w: Tensor, least_depth: Tensor | None = None) -> None:
         pass
 
     def reset(self) -> None:

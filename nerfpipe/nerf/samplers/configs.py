@@ -63,6 +63,7 @@ class MarchingConfig(SamplerConfig):
     steps: int = param(128, "marching steps along the field box's diagonal (about one per image pixel at 100 px lego)", bounds=(1, 100_000))
     early_stop: float = param(1e-4, "stop a marched ray once its transmittance is below this (0: never)", bounds=(0.0, 0.99))
     occupancy_threshold: float = param(0.01, "a cell is occupied when one step through it is this optically thick", bounds=(0.0, 1000.0))
+    carve: float = param(0.5, "cells a training photo sees in front of this share of the depth of its nearest sparse points (over a sixteenth of its side) are empty for good (0: none)", bounds=(0.0, 0.99))
 
     target: ClassVar[Any] = "nerfpipe.nerf.samplers.marching:MarchingSampler"
     needs_box: ClassVar[bool] = True
@@ -75,6 +76,8 @@ class MarchingConfig(SamplerConfig):
         at_least(self, 0, "occupancy_threshold")
         if not (0 <= self.early_stop < 1):
             raise ValueError(f"early_stop must be in [0, 1), got {self.early_stop}")
+        if not (0 <= self.carve < 1):
+            raise ValueError(f"carve must be in [0, 1), got {self.carve}")
         check_memory("occupancy_resolution", "the occupancy grid's cells", OCCUPANCY_CELL_BYTES * self.occupancy_resolution**3)
 
     def step_samples(self, batch_rays: int, batch_samples: int) -> int:

@@ -13,7 +13,7 @@ from nerfpipe.nerf.render.volume import RaySamples, RenderOutput
 from nerfpipe.nerf.samplers.base import Box, Probe
 from nerfpipe.nerf.samplers.configs import MarchingConfig
 from nerfpipe.nerf.samplers.march import DensityFn, march, visible, within_budget
-from nerfpipe.nerf.samplers.occupancy import OccupancyGrid, cells_seen
+from nerfpipe.nerf.samplers.occupancy import OccupancyGrid, cells_in_front, cells_seen
 from nerfpipe.nerf.spaces.rays import RayBatch
 
 
@@ -40,6 +40,7 @@ class MarchingSampler:
         self.grid, self.config = grid, config
         self.visible_share = -1.0  # of the marched samples, what the last visibility pass in training kept (-1: none yet)
         self.measure = True  # whether the next training call runs the visibility pass whatever the share
+        self.carved = 0.0  # of the cells the training cameras see, the share ``start`` found empty in front of them
 
     @classmethod
     def from_config(cls, config: MarchingConfig, box: Box | None) -> "MarchingSampler":
@@ -86,11 +87,20 @@ class MarchingSampler:
         self.grid.update(density, self.grid.diagonal / self.config.steps, self.config.occupancy_threshold,
                          step < self.config.warmup, generator)
 
-    def start(self, space: Any, intrinsics: Tensor, c2w: Tensor) -> None:
-        """Only cells a training camera sees can ever be occupied (where the space can tell)."""
+    def start(self, space: Any, intrinsics: Tensor, c2w: Tensor, least_depth: Tensor | None = None) -> None:
+        """Only cells a training camera sees can ever be occupied, and none that one of them sees empty: in front of
+        ``carve`` x the least depth of its sparse points near a pixel. Where the space can tell (not NDC)."""
         to_world = space.seen_map()
-        if to_world is not None:
-            self.grid.restrict_to(cells_seen(self.grid, to_world, intrinsics, c2w))
+        if to_world is None:
+            return
+        seen = cells_seen(self.grid, to_world, intrinsics, c2w)
+        self.carved = 0.0
+        if least_depth is not None and self.config.carve > 0:
+            free = torch.where(torch.isfinite(least_depth), self.config.carve * least_depth, 0.0)
+            empty = cells_in_front(self.grid, to_world, intrinsics, c2w, free) & seen
+            self.carved = float(empty.sum()) / max(int(seen.sum()), 1)
+            seen &= ~empty
+        self.grid.restrict_to(seen)
 
     def reset(self) -> None:
         self.grid.reset()
@@ -115,3 +125,13 @@ class MarchingSampler:
     def to(self, device: torch.device | str) -> "MarchingSampler":
         self.grid = self.grid.to(device)
         return self
+
+
+def describe_carving(sampler: Any) -> str | None:
+    """A sentence for the train log on what ``MarchingSampler.start`` carved, or None where it carved nothing."""
+    carved = getattr(sampler, "carved", 0.0)
+    if carved <= 0:
+        return None
+    return (f"{carved:.0%} of the occupancy cells the training photos see lie in front of {sampler.config.carve:g}x "
+            "the depth of the sparse points each photo sees there: empty for good "
+            "(train.sampler.carve)")

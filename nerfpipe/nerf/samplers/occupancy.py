@@ -11,6 +11,8 @@ nerfacc (Li et al. 2023) does the same in PyTorch. This module is that scheme fo
   Instant-NGP's), and which cells are occupied: those whose density makes one marching step more than
   ``threshold`` optically thick.
 - ``cells_seen``: the cells the training cameras see.
+- ``cells_in_front``: the cells wholly in front of what each training camera's sparse points leave free
+  (``nerfpipe.geometry.freespace``): empty space, carved for good.
 
 How rays march it is ``nerfpipe.nerf.samplers.configs.MarchingConfig``.
 
@@ -153,3 +155,68 @@ def cells_seen(grid: OccupancyGrid, to_world: Callable[[Tensor], Tensor], intrin
         inside = (z > 0) & (u >= 0) & (u <= 2 * intrinsics[:, 2:3]) & (v >= 0) & (v <= 2 * intrinsics[:, 3:4])
         seen[index] = inside.any(dim=0)
     return seen
+
+
+@torch.no_grad()
+def cells_in_front(grid: OccupancyGrid, to_world: Callable[[Tensor], Tensor], intrinsics: Tensor, c2w: Tensor,
+                   depth: Tensor, corners: int = 1 << 20) -> Tensor:
+    """Which cells lie wholly in front of ``depth`` in at least one pinhole camera: space that camera sees empty.
+
+    A cell is in front of a camera when its eight corners project inside the image, in front of the camera, at
+    depths below the least of ``depth`` at their pixels (bilinear between its cells' centres), and its projection
+    spans at most two of ``depth``'s cells each way, so that a dip in ``depth`` cannot hide between its corners.
+
+    Args:
+        to_world: field coordinates (M, 3) -> world points (the ray space's ``from_field``; inf past its end).
+        intrinsics: (I, 4) fx, fy, cx, cy, the image spanning [0, 2 cx] x [0, 2 cy]; c2w: (I, 4, 4) OpenCV.
+        depth: (I, rows, columns) per camera, over a grid of cells of its image, the depth along its optical axis
+            up to which it sees empty space (0: none).
+        corners: about how many grid corners to hold at once (slabs of cells along x).
+    Returns:
+        (R^3,) bool.
+    """
+    r = grid.resolution
+    device = grid.occupied.device
+    axis = torch.linspace(0.0, 1.0, r + 1, device=device)
+    rows, cols = depth.shape[1:]
+    maps = depth.to(device=device, dtype=torch.float32).unsqueeze(1)  # (I, 1, rows, columns)
+    rotation, center = c2w[:, :3, :3].to(device), c2w[:, :3, 3].to(device)
+    k = intrinsics.to(device)
+    free = torch.zeros((r, r, r), dtype=torch.bool, device=device)
+    slab = max(1, corners // (r + 1) ** 2 - 1)
+    for start in range(0, r, slab):
+        stop = min(start + slab, r)
+        ijk = torch.stack(torch.meshgrid(axis[start:stop + 1], axis, axis, indexing="ij"), dim=-1)
+        world = to_world(grid.lo + ijk.reshape(-1, 3) * (grid.hi - grid.lo))
+        finite = torch.isfinite(world).all(dim=-1)
+        world = torch.where(finite.unsqueeze(-1), world, 0.0)
+        for i in range(len(k)):
+            fx, fy, cx, cy = k[i]
+            local = (world - center[i]) @ rotation[i]
+            z = local[:, 2]
+            u = fx * local[:, 0] / z.clamp_min(1e-9) + cx
+            v = fy * local[:, 1] / z.clamp_min(1e-9) + cy
+            ok = finite & (z > 0) & (u >= 0) & (u <= 2 * cx) & (v >= 0) & (v <= 2 * cy)
+            u, v = torch.where(ok, u, 0.0), torch.where(ok, v, 0.0)
+            where = torch.stack([u / cx - 1.0, v / cy - 1.0], dim=-1).reshape(1, 1, -1, 2)
+            limit = torch.nn.functional.grid_sample(maps[i:i + 1], where, mode="bilinear", padding_mode="border",
+                                                    align_corners=False).reshape(-1)
+            shape = (stop - start + 1, r + 1, r + 1)
+            whole = _over_corners(ok.reshape(shape), torch.amin) > 0
+            nearer = _over_corners(torch.where(ok, z, torch.inf).reshape(shape), torch.amax) < _over_corners(
+                limit.reshape(shape), torch.amin)
+            narrow = ((_spread(u.reshape(shape)) <= 4 * cx / cols) & (_spread(v.reshape(shape)) <= 4 * cy / rows))
+            free[start:stop] |= whole & nearer & narrow
+    return free.reshape(-1)
+
+
+def _over_corners(lattice: Tensor, reduce: Callable[..., Tensor]) -> Tensor:
+    """(A + 1, B + 1, C + 1) values at a grid's corners -> (A, B, C): ``reduce`` over each cell's eight."""
+    a, b, c = (n - 1 for n in lattice.shape)
+    eight = [lattice[x:x + a, y:y + b, z:z + c] for x in (0, 1) for y in (0, 1) for z in (0, 1)]
+    return reduce(torch.stack(eight).to(torch.float32) if lattice.dtype == torch.bool else torch.stack(eight), dim=0)
+
+
+def _spread(lattice: Tensor) -> Tensor:
+    """(A + 1, B + 1, C + 1) -> (A, B, C): the largest less the least of each cell's eight corner values."""
+    return _over_corners(lattice, torch.amax) - _over_corners(lattice, torch.amin)

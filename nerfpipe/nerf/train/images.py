@@ -16,6 +16,7 @@ import torch
 
 from nerfpipe.artifacts import BOUNDS, SCENE, WORLD, Bounds, SceneDecisions, frame_image_path, mask_file
 from nerfpipe.geometry.cameras import CameraSet, Frame
+from nerfpipe.geometry.freespace import frame_least_depths
 from nerfpipe.geometry.hull import Silhouettes
 from nerfpipe.imaging.masks import object_mask
 from nerfpipe.imaging.png import read_png
@@ -158,6 +159,7 @@ class ImageLoader:
             rgb.append(torch.from_numpy(np.ascontiguousarray(pixels.reshape(-1, 3))))
             uv.append(pixel_centers(w, h))
             image.append(torch.full((h * w,), i, dtype=torch.int64))
+        least = frame_least_depths(self.world, frames) if frames else None
         return PixelSet(
             rgb=torch.cat(rgb), image=torch.cat(image), uv=torch.cat(uv),
             intrinsics=torch.tensor([self.intrinsics(f) for f in frames], dtype=torch.float32),
@@ -165,6 +167,7 @@ class ImageLoader:
             near=torch.tensor([self.near_far[f.name][0] for f in frames], dtype=torch.float32),
             far=torch.tensor([self.near_far[f.name][1] for f in frames], dtype=torch.float32),
             alpha=torch.cat(alpha) if alpha else None,
+            least_depth=None if least is None else torch.from_numpy(least).float(),
         )
 
 

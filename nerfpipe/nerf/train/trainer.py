@@ -51,8 +51,9 @@ class PixelSet:
     near: Tensor
     far: Tensor
     alpha: Tensor | None = None
+    least_depth: Tensor | None = None  # (I, rows, columns) ``nerfpipe.geometry.freespace.frame_least_depths``
 
-    FIELDS = ("rgb", "image", "uv", "intrinsics", "c2w", "near", "far", "alpha")
+    FIELDS = ("rgb", "image", "uv", "intrinsics", "c2w", "near", "far", "alpha", "least_depth")
 
     def to(self, device: torch.device) -> "PixelSet":
         return PixelSet(*(None if getattr(self, k) is None else getattr(self, k).to(device) for k in self.FIELDS))
@@ -143,7 +144,7 @@ class Trainer:
         self.total_samples = 0
         self.total_rays = 0
         self.lr_scale = 1.0  # halved by a restart after a stall
-        model.sampler.start(model.ray_space, self.pixels.intrinsics, self.pixels.c2w)
+        model.sampler.start(model.ray_space, self.pixels.intrinsics, self.pixels.c2w, self.pixels.least_depth)
         self.static = self.static_step(compile_mode(config.compile, device))
         check = 200 if config.steps <= 0 else min(max(200, config.steps // 8), config.steps)
         self.guard = StallGuard(mean_colour_psnr(self.pixels.rgb), check_step=check)
