@@ -53,7 +53,7 @@ def test_the_reference_lists_bounds_for_every_numeric_parameter() -> None:
     from nerfpipe.pipeline.params import param_specs
 
     declared = {f"{s.name}.{p.name}" for s in default_stages() for p in param_specs(s.Params) if p.is_number}
-    assert {name for name, _, _ in NUMERIC} == declared and len(declared) == 102
+    assert {name for name, _, _ in NUMERIC} == declared and len(declared) == 103
 
 
 def in_bounds(kind: str, bounds: tuple[float, float], text: str) -> bool:
