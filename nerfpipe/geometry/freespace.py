@@ -70,8 +70,6 @@ def frame_least_depths(world: CameraSet, frames: list[Frame], cells: int = CELLS
     out = np.full((len(frames), rows, cols), np.inf)
     for i, frame in enumerate(frames):
         camera = world.camera_of(frame)
-        fx, fy, cx, cy = camera.intrinsics
-        xyz = points.xyz[points.visible[index[frame.name]]]
-        uv, z = project(frame.c2w, np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), xyz)
+        uv, z = project(frame.c2w, camera.K(), points.xyz[points.visible[index[frame.name]]])
         out[i] = least_depths(uv, z, camera.width, camera.height, (rows, cols))
     return out

@@ -58,8 +58,9 @@ class Sampler(Protocol):
         """What the sampler keeps up to date with the field, before training step ``step``."""
 
     def start(self, space: Any, intrinsics: Tensor, c2w: Tensor, least_depth: Tensor | None = None) -> None:
-        """Before training: the training cameras (intrinsics (I, 4), c2w (I, 4, 4)), the least depths of the sparse points each sees over a grid of cells of its image ((I, rows, columns), inf where
-        none: ``nerfpipe.geometry.freespace.frame_least_depths``; None: no points) and the ray space."""
+        """Before training: the ray space, the training cameras (intrinsics (I, 4), c2w (I, 4, 4)), and the least
+        depths of the sparse points each sees over a grid of cells of its image ((I, rows, columns), inf where none:
+        ``nerfpipe.geometry.freespace.frame_least_depths``; None: no points)."""
 
     def reset(self) -> None:
         """Back to the state training starts from."""

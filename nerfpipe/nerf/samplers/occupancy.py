@@ -148,12 +148,7 @@ def cells_seen(grid: OccupancyGrid, to_world: Callable[[Tensor], Tensor], intrin
     for start in range(0, n, chunk):
         index = torch.arange(start, min(start + chunk, n), device=seen.device)
         world = to_world(grid.cell_points(index, jitter=False))
-        local = (world.unsqueeze(0) - center.unsqueeze(1)) @ rotation  # (I, M, 3) in each camera's frame
-        z = local[..., 2]
-        u = intrinsics[:, 0:1] * local[..., 0] / z.clamp_min(1e-9) + intrinsics[:, 2:3]
-        v = intrinsics[:, 1:2] * local[..., 1] / z.clamp_min(1e-9) + intrinsics[:, 3:4]
-        inside = (z > 0) & (u >= 0) & (u <= 2 * intrinsics[:, 2:3]) & (v >= 0) & (v <= 2 * intrinsics[:, 3:4])
-        seen[index] = inside.any(dim=0)
+        seen[index] = _pixels(world, intrinsics, rotation, center)[3].any(dim=0)
     return seen
 
 
@@ -191,12 +186,9 @@ def cells_in_front(grid: OccupancyGrid, to_world: Callable[[Tensor], Tensor], in
         finite = torch.isfinite(world).all(dim=-1)
         world = torch.where(finite.unsqueeze(-1), world, 0.0)
         for i in range(len(k)):
-            fx, fy, cx, cy = k[i]
-            local = (world - center[i]) @ rotation[i]
-            z = local[:, 2]
-            u = fx * local[:, 0] / z.clamp_min(1e-9) + cx
-            v = fy * local[:, 1] / z.clamp_min(1e-9) + cy
-            ok = finite & (z > 0) & (u >= 0) & (u <= 2 * cx) & (v >= 0) & (v <= 2 * cy)
+            cx, cy = k[i, 2], k[i, 3]
+            z, u, v, inside = (x[0] for x in _pixels(world, k[i:i + 1], rotation[i:i + 1], center[i:i + 1]))
+            ok = finite & inside
             u, v = torch.where(ok, u, 0.0), torch.where(ok, v, 0.0)
             where = torch.stack([u / cx - 1.0, v / cy - 1.0], dim=-1).reshape(1, 1, -1, 2)
             limit = torch.nn.functional.grid_sample(maps[i:i + 1], where, mode="bilinear", padding_mode="border",
@@ -208,6 +200,18 @@ def cells_in_front(grid: OccupancyGrid, to_world: Callable[[Tensor], Tensor], in
             narrow = ((_spread(u.reshape(shape)) <= 4 * cx / cols) & (_spread(v.reshape(shape)) <= 4 * cy / rows))
             free[start:stop] |= whole & nearer & narrow
     return free.reshape(-1)
+
+
+def _pixels(world: Tensor, intrinsics: Tensor, rotation: Tensor, center: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """World points (M, 3) in pinhole cameras (intrinsics (I, 4), rotations (I, 3, 3), centres (I, 3), OpenCV):
+    depths z, pixels u, v, and whether each lies in front of the camera inside its image [0, 2 cx] x [0, 2 cy];
+    each (I, M)."""
+    local = (world.unsqueeze(0) - center.unsqueeze(1)) @ rotation  # (I, M, 3) in each camera's frame
+    z = local[..., 2]
+    u = intrinsics[:, 0:1] * local[..., 0] / z.clamp_min(1e-9) + intrinsics[:, 2:3]
+    v = intrinsics[:, 1:2] * local[..., 1] / z.clamp_min(1e-9) + intrinsics[:, 3:4]
+    inside = (z > 0) & (u >= 0) & (u <= 2 * intrinsics[:, 2:3]) & (v >= 0) & (v <= 2 * intrinsics[:, 3:4])
+    return z, u, v, inside
 
 
 def _over_corners(lattice: Tensor, reduce: Callable[..., Tensor]) -> Tensor:
