@@ -34,8 +34,8 @@ def main() -> None:
         name, _, rest = spec.partition(":")
         values = json.loads(rest) if rest else {}
         params = dataclasses.replace(SfmParams(), **values)
-        points, info = triangulate_known_poses(pipe.artifact("images"), cameras, records, run, params, ctx)
-        print(json.dumps({"variant": name, **{k: info.get(k) for k in ("matcher", "points", "mean_reprojection_error_px", "mean_track_length", "seconds")}}), flush=True)
+        _, info = triangulate_known_poses(pipe.artifact("images"), cameras, records, run, params, ctx)
+        print(json.dumps({"variant": name, **{k: info.get(k) for k in ("matcher", "points", "mean_reprojection_error_px", "mean_track_length", "bundle_adjustment", "seconds")}}), flush=True)
 
 
 if __name__ == "__main__":

@@ -195,6 +195,10 @@ def test_temple_par_file_gets_triangulated_points_and_its_tight_box(tmp_path):
     assert sfm["method"] == "imported middlebury" and sfm["points_from"] == "triangulated"
     assert sfm["triangulation"]["status"] == "ok" and sfm["triangulation"]["matcher"] == "exhaustive"
     assert sfm["points"] == sfm["triangulation"]["points"] > 1000
+    # the lab's calibration reprojects within SIFT's noise: bundle adjustment's is not kept
+    assert sfm["triangulation"]["bundle_adjustment"]["kept"] is False
+    (camera,) = CameraSet.load(outcomes[1].path / "model").cameras.values()
+    assert camera.model == "PINHOLE" and np.allclose(camera.params, (1520.4, 1525.9, 302.32, 246.87))
     assert sfm["triangulation"]["max_pose_change"] < 1e-9  # the poses were held fixed
     assert sfm["triangulation_fallback"] is None
     # COLMAP's database and log stay in a scratch folder: the result is the same on every run
@@ -235,6 +239,12 @@ def test_llff_poses_get_triangulated_points_and_a_box_the_size_of_the_object(tmp
     s = auto[1].summary
     assert s["points_from"] == "triangulated" and s["triangulation"]["max_pose_change"] < 1e-9
     assert s["points"] > 1000 and s["triangulation"]["mean_reprojection_error_px"] < 2.0
+    # the file's pinhole left out the lens: adjusted, the points reproject well over a fifth closer, through a
+    # radial camera whose k1 bends the photos' corners inwards (barrel distortion)
+    adjusted = s["triangulation"]["bundle_adjustment"]
+    assert adjusted["kept"] and adjusted["after_px"] < 0.7 * adjusted["before_px"]
+    (camera,) = CameraSet.load(auto[1].path / "model").cameras.values()
+    assert camera.model == "SIMPLE_RADIAL" and -0.05 < camera.params[3] < -0.005
     near_far = to_bounds(cup, tmp_path / "run", ingest=ingest, sfm={"triangulate": "false"})
     sizes = {}
     for name, outcomes in (("points", auto), ("pose_file", near_far)):
