@@ -72,8 +72,8 @@ class SfmParams:
         default="auto",
         metadata={"help": "imported poses with triangulated points: refine the poses, focal lengths and lens distortion "
                           "with the points by bundle adjustment; auto keeps the result where the given ones reproject "
-                          "beyond 0.5 px and the adjusted ones at least a fifth closer (the cup's LLFF poses: 1.29 -> "
-                          "0.61 px, its held-out views +0.7-0.9 dB; docs/benchmarks.md)"},
+                          "beyond 0.5 px and the adjusted ones at least a fifth closer (the cup's LLFF poses: 1.33 -> "
+                          "0.66 px, its held-out views +1.9 dB; docs/benchmarks.md)"},
     )
 
     def __post_init__(self) -> None:
@@ -145,7 +145,7 @@ class SfmStage(Stage):
     """Camera poses + sparse points: COLMAP SfM through pycolmap, or the capture's own pose files."""
 
     name = "sfm"
-    version = 7  # 7: sfm.bundle_adjust; 6: sfm.triangulate_max_size; 5: LLFF poses triangulated too; 4: known poses matched with their nearest cameras; 3: triangulated points
+    version = 7  # 7: sfm.bundle_adjust, and all pairs matched for it; 6: sfm.triangulate_max_size; 5: LLFF poses triangulated too; 4: known poses matched with their nearest cameras; 3: triangulated points
     Params = SfmParams
     Summary = SfmSummary
     presets = {

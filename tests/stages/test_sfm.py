@@ -339,8 +339,12 @@ def test_triangulation_matcher_choice():
     params = SfmParams()  # 10 nearest cameras
     assert choose_triangulation_matcher(records(20), params) == (
         "exhaustive", "20 photos <= 2 x sfm.spatial_neighbors 10")
-    assert choose_triangulation_matcher(records(77), params) == (
+    assert choose_triangulation_matcher(records(77), params) == (  # bundle adjustment to follow: all pairs
+        "exhaustive", "77 photos <= sfm.exhaustive_max 100: all pairs, which tie the poses together for bundle adjustment")
+    assert choose_triangulation_matcher(records(77), SfmParams(bundle_adjust="off")) == (
         "spatial", "77 known poses: each photo with its 10 nearest cameras")
+    assert choose_triangulation_matcher(records(101), params) == (
+        "spatial", "101 known poses: each photo with its 10 nearest cameras")
     video = [PhotoRecord(f"{i:04d}.jpg") for i in range(300)]
     assert choose_triangulation_matcher(video, params)[0] == "spatial"  # the poses say more than the frame order
     assert choose_triangulation_matcher(records(40), SfmParams(matcher="spatial", spatial_neighbors=5)) == (
