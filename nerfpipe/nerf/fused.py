@@ -1,7 +1,7 @@
 """Rendering without gradients in one native loop a ray (``nerfpipe.nerf.native.render_marched``; and training's
-visibility pass, ``reached_marched``), for the models it
-knows: a dense grid field (``GridField`` itself, not a subclass with other corners) marched through an occupancy
-grid (``MarchingSampler``) in a contracted or box ray space, with no fine field. That is the default model of
+visibility pass, ``reached_marched``), for the models it knows: a dense or hashed grid field (``GridField`` or
+``HashGridField``, not a field with corners of its own) marched through an occupancy grid (``MarchingSampler``) in a
+contracted or box ray space, with no fine field. That is the default model of
 every capture on a CPU; any other model, or a machine without the native library, renders through
 ``RadianceModel.render`` (the sampler, the field and ``volume_render``), which computes the same quantities and
 which the kernel is tested against.
@@ -19,7 +19,7 @@ import torch
 from torch import Tensor, nn
 
 from nerfpipe.nerf import native
-from nerfpipe.nerf.fields.grid import GridField
+from nerfpipe.nerf.fields.grid import GridField, natively_cornered
 from nerfpipe.nerf.samplers.march import march_frame
 from nerfpipe.nerf.samplers.marching import MarchingSampler
 from nerfpipe.nerf.render.volume import RaySamples
@@ -45,7 +45,8 @@ def _layers(*nets: nn.Sequential) -> tuple[tuple[Tensor, Tensor], ...] | None:
 def marched_grid(model: Any) -> native.MarchedGrid | None:
     """``model`` (a ``RadianceModel``) as the native kernel renders it, or None where it is made of other parts."""
     field, sampler, space = model.coarse, model.sampler, model.ray_space
-    if type(field) is not GridField or model.fine is not None or type(sampler) is not MarchingSampler:
+    if (not isinstance(field, GridField) or not natively_cornered(field) or type(field).combine is not GridField.combine
+            or model.fine is not None or type(sampler) is not MarchingSampler):
         return None
     frame = march_frame(space)  # None for a space the native loops do not know (NDC)
     if frame is None:
@@ -59,7 +60,7 @@ def marched_grid(model: Any) -> native.MarchedGrid | None:
         contracted=contracted, center=center, half=half, step=grid.diagonal / config.steps,
         most=sampler.candidates_per_ray(), early_stop=config.early_stop, occupied=grid.occupied,
         occupancy_box=(tuple(grid.lo.tolist()), tuple(grid.hi.tolist())), table=field.table,
-        resolutions=field.resolutions, offsets=field.offsets, box=field.box(), layers=layers,
+        resolutions=field.resolutions, offsets=field.offsets, sizes=field.sizes, box=field.box(), layers=layers,
         dir_freqs=field.config.dir_freqs, view_dependent=field.config.view_dependence)
 
 

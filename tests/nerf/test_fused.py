@@ -12,9 +12,10 @@ import torch
 
 from nerfpipe.nerf import model as model_module
 from nerfpipe.nerf import native
-from nerfpipe.nerf.fields.configs import GridConfig, HashConfig
+from nerfpipe.nerf.fields.configs import GridConfig, HashConfig, PlanesConfig
 from nerfpipe.nerf.fields.grid import GridField
 from nerfpipe.nerf.fields.hash import HashGridField
+from nerfpipe.nerf.fields.planes import PlaneField
 from nerfpipe.nerf.fused import marched_grid
 from nerfpipe.nerf.model import RadianceModel
 from nerfpipe.nerf.samplers.configs import MarchingConfig
@@ -29,12 +30,14 @@ UNIT = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
 
 
 def build(contracted: bool, seed: int = 0, early_stop: float = 1e-4, background=None, **config) -> RadianceModel:
-    """A dense grid field with features and MLP weights drawn at random (densities of about 0.1 to 100), half of an
-    occupancy grid's cells occupied, over [-2, 2]^3 contracted or the unit box."""
+    """A dense grid field (hashed with ``log2_table`` in ``config``) with features and MLP weights drawn at random
+    (densities of about 0.1 to 100), half of an occupancy grid's cells occupied, over [-2, 2]^3 contracted or the
+    unit box."""
     torch.manual_seed(seed)
     box = ((-2.0,) * 3, (2.0,) * 3) if contracted else UNIT
-    field = GridField(*box, GridConfig(**{"levels": 2, "min_resolution": 8, "max_resolution": 16, "hidden": 32,
-                                          **config}))
+    settings = {"levels": 2, "min_resolution": 8, "max_resolution": 16, "hidden": 32, **config}
+    field = (HashGridField(*box, HashConfig(**settings)) if "log2_table" in settings
+             else GridField(*box, GridConfig(**settings)))
     with torch.no_grad():
         field.table.normal_(0.0, 1.0)
         field.density_net[2].bias[0] += 1.0 if contracted else 2.5  # the box's rays are shorter
@@ -69,7 +72,8 @@ def both(model: RadianceModel, batch: RayBatch, monkeypatch) -> tuple[dict, dict
 
 @pytest.mark.parametrize("contracted", [True, False])
 @pytest.mark.parametrize("config", [{}, {"hidden": 64, "dir_freqs": 2}, {"hidden": 24, "features": 3},
-                                    {"view_dependence": False, "levels": 3, "max_resolution": 32}])
+                                    {"view_dependence": False, "levels": 3, "max_resolution": 32},
+                                    {"levels": 3, "max_resolution": 64, "log2_table": 12}])  # 16 and 64 hashed
 def test_the_kernel_renders_what_torch_renders(contracted, config, monkeypatch) -> None:
     """Ray by ray, the same samples and the same results to float rounding; a step that lies on a cell's face to
     within rounding may fall on the other side of it here than in torch's march (whose sums may be fused or not,
@@ -151,9 +155,8 @@ def test_two_threads_give_one_thread_s_bits() -> None:
 def test_what_the_kernel_does_not_know_is_left_to_torch() -> None:
     model = build(True)
     assert marched_grid(model) is not None
-    hashed = HashGridField((-2.0,) * 3, (2.0,) * 3, HashConfig(levels=2, min_resolution=8, max_resolution=32,
-                                                              log2_table=10))
-    assert marched_grid(RadianceModel(hashed, None, model.sampler, model.ray_space, None)) is None
+    planes = PlaneField((-2.0,) * 3, (2.0,) * 3, PlanesConfig(levels=2, min_resolution=8, max_resolution=32))
+    assert marched_grid(RadianceModel(planes, None, model.sampler, model.ray_space, None)) is None
     assert marched_grid(RadianceModel(model.coarse, model.coarse, model.sampler, model.ray_space, None)) is None
     batch = rays(True, n=8)
     origins = batch.origins.clone()

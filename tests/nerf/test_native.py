@@ -207,13 +207,22 @@ def edge_points(g: torch.Generator) -> torch.Tensor:
 
 
 @needs_compiler
-def test_the_grid_kernels_are_torch_s_corners_and_sums(fresh) -> None:
+@pytest.mark.parametrize("hashed", [False, True])
+def test_the_grid_kernels_are_torch_s_corners_and_sums(fresh, hashed) -> None:
     """The native gather: torch's features to float rounding and the same inside flags, for points in, on and around
-    the box and at infinities; its scatter: torch's table gradient, computed from the same points."""
+    the box and at infinities; its scatter: torch's table gradient, computed from the same points. Hashed: levels of
+    16 and 32 cells (4913 and 35937 vertices) in tables of 2^12 rows by Instant-NGP's hash, the first level dense."""
+    from nerfpipe.nerf.fields.configs import HashConfig
     from nerfpipe.nerf.fields.grid import native_features
+    from nerfpipe.nerf.fields.hash import HashGridField
 
     torch.manual_seed(0)
-    field = GridField((-1.0, -2.0, -0.5), (1.0, 2.0, 1.5), GridConfig(levels=3, min_resolution=8, max_resolution=32))
+    box = ((-1.0, -2.0, -0.5), (1.0, 2.0, 1.5))
+    field = (HashGridField(*box, HashConfig(levels=3, min_resolution=8, max_resolution=32, log2_table=12)) if hashed
+             else GridField(*box, GridConfig(levels=3, min_resolution=8, max_resolution=32)))
+    assert field.sizes.tolist() == ([729, 4096, 4096] if hashed else [729, 4913, 35937])
+    with torch.no_grad():
+        field.table.normal_()  # rows that differ, so that a wrong row shows
     x = edge_points(torch.Generator().manual_seed(0))
     features, inside = native_features(field, x)
     expected, expected_inside = torch_features(field, x)
@@ -245,12 +254,13 @@ def test_the_grid_gather_by_hand(fresh) -> None:
 
 @needs_compiler
 def test_the_grid_kernels_serve_only_where_they_compute_the_same(fresh, monkeypatch) -> None:
-    """The dense grid field goes through the native gather; a hashed field (whose corners differ), points that take a
-    gradient (camera refinement) and NaN points go through torch's operators, NaN failing as torch's does; a scatter
-    that cannot run leaves the gradient to ``index_add_``, the same gradient."""
+    """The dense and the hashed grid fields go through the native gather; planes (corners of their own), points that
+    take a gradient (camera refinement) and NaN points go through torch's operators, NaN failing as torch's does; a
+    scatter that cannot run leaves the gradient to the field's own corners and ``index_add_``, the same gradient."""
     from nerfpipe.nerf.fields import grid
-    from nerfpipe.nerf.fields.configs import HashConfig
+    from nerfpipe.nerf.fields.configs import HashConfig, PlanesConfig
     from nerfpipe.nerf.fields.hash import HashGridField
+    from nerfpipe.nerf.fields.planes import PlaneField
 
     served = []
     gather = native.grid_gather
@@ -261,19 +271,26 @@ def test_the_grid_kernels_serve_only_where_they_compute_the_same(fresh, monkeypa
     x = torch.rand(300, 3) * 2 - 1
     field.encode(x)
     assert served == [300]
-    HashGridField(*box, HashConfig(levels=2, min_resolution=4, max_resolution=64, log2_table=10)).encode(x[:10])
+    hashed = HashGridField(*box, HashConfig(levels=2, min_resolution=4, max_resolution=64, log2_table=10))
+    hashed.encode(x[:10])
+    PlaneField(*box, PlanesConfig(levels=2, min_resolution=4, max_resolution=16)).encode(x[:7])  # corners of its own
     field.encode(x[:20].requires_grad_())
-    assert served == [300]
+    assert served == [300, 10]
     nan = x[:5].clone()
     nan[2, 1] = float("nan")
     with pytest.raises(RuntimeError):
         field.encode(nan)
-    assert served == [300, 5]  # asked, refused, then torch's operators
-    features = grid.native_features(field, x)[0]
-    gradient, = torch.autograd.grad(features.sum(), field.table)
-    monkeypatch.setattr(native, "grid_scatter", lambda *a: False)
-    fallback, = torch.autograd.grad(grid.native_features(field, x)[0].sum(), field.table)
-    torch.testing.assert_close(fallback, gradient, atol=1e-5, rtol=1e-5)
+    assert served == [300, 10, 5]  # asked, refused, then torch's operators
+    for each in (field, hashed):  # a scatter that cannot run: the field's own corners and index_add_, the same
+        with torch.no_grad():
+            each.table.normal_()
+        features = grid.native_features(each, x)[0]
+        gradient, = torch.autograd.grad((features * features.detach()).sum(), each.table)
+        with monkeypatch.context() as patch:
+            patch.setattr(native, "grid_scatter", lambda *a: False)
+            features = grid.native_features(each, x)[0]
+            fallback, = torch.autograd.grad((features * features.detach()).sum(), each.table)
+        torch.testing.assert_close(fallback, gradient, atol=1e-5, rtol=1e-5)
 
 
 @needs_compiler
@@ -283,6 +300,12 @@ def test_levels_that_overrun_the_table_are_refused(fresh) -> None:
         native.grid_gather(table, torch.zeros(1, 3), torch.zeros(3), torch.ones(3), torch.tensor([4]), torch.tensor([0]))
     assert native.grid_gather(table.double(), torch.zeros(1, 3), torch.zeros(3), torch.ones(3), torch.tensor([1]),
                               torch.tensor([0])) is None
+    # hashed levels: fewer rows than vertices, a power of two, within the table
+    args = (torch.zeros(1, 3), torch.zeros(3), torch.ones(3), torch.tensor([4]), torch.tensor([0]))
+    assert native.grid_gather(table, *args, torch.tensor([64])) is not None
+    for rows in (96, 126, 128, 0):  # not a power of two; more than the 125 vertices; past the table; none
+        with pytest.raises(ValueError, match="do not fit a table of 100 rows"):
+            native.grid_gather(table, *args, torch.tensor([rows]))
 
 
 @needs_compiler

@@ -20,6 +20,8 @@ a scatter-add of rows (``_Trilinear``: the native ``scatter_bags`` on the CPU, e
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -84,35 +86,42 @@ class _NativeGrid(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, table: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: Tensor,  # (V, F), (M, 3)
-                offsets: Tensor) -> tuple[Tensor, Tensor]:  # -> (M, L, F), (M,)
-        fused = native.grid_gather(table, x, lo, hi, resolutions, offsets)
+                offsets: Tensor, sizes: Tensor, corners: Any) -> tuple[Tensor, Tensor]:  # -> (M, L, F), (M,)
+        fused = native.grid_gather(table, x, lo, hi, resolutions, offsets, sizes)
         if fused is None:
             raise _Refused
-        ctx.save_for_backward(x, lo, hi, resolutions, offsets)
-        ctx.rows = table.shape[0]
+        ctx.save_for_backward(x, lo, hi, resolutions, offsets, sizes)
+        ctx.rows, ctx.corners = table.shape[0], corners
         ctx.mark_non_differentiable(fused[1])
         return fused
 
     @staticmethod
     def backward(ctx, grad: Tensor, _inside: Tensor | None):  # (M, L, F)
-        x, lo, hi, resolutions, offsets = ctx.saved_tensors
+        x, lo, hi, resolutions, offsets, sizes = ctx.saved_tensors
         table_grad = torch.zeros((ctx.rows, grad.shape[-1]), dtype=grad.dtype, device=grad.device)
-        if not native.grid_scatter(table_grad, x, lo, hi, resolutions, offsets, grad):
-            index, weights = trilinear_corners((x - lo) / (hi - lo), resolutions, offsets)  # (L, 8, M)
+        if not native.grid_scatter(table_grad, x, lo, hi, resolutions, offsets, grad, sizes):
+            index, weights = ctx.corners((x - lo) / (hi - lo))  # (L, 8, M): the field's own corners
             add_corners_(table_grad, index.permute(2, 0, 1).reshape(-1, 8), weights.permute(2, 0, 1).reshape(-1, 8),
                          grad.reshape(-1, grad.shape[-1]))  # point-major, as grad is
-        return table_grad, None, None, None, None, None
+        return table_grad, None, None, None, None, None, None, None
+
+
+def natively_cornered(field: Any) -> bool:
+    """Whether the native kernels make ``field``'s corners: a field class says so by naming its own ``corners`` in
+    ``native_corners`` (the dense grid's, and the hash grid's, whose levels the kernels hash where their tables have
+    fewer rows than vertices); a subclass that makes them otherwise (planes) inherits a name that is not its own."""
+    return getattr(type(field), "native_corners", None) is type(field).corners
 
 
 def native_features(field: "GridField", x: Tensor) -> tuple[Tensor, Tensor] | None:
     """``field``'s features (M, L, F) of points x (M, 3) and whether each is inside its box, by the native kernels;
-    None where they do not serve: a field that makes its corners otherwise (hash, planes), points that train,
+    None where they do not serve: a field that makes its corners otherwise (planes), points that train,
     inside ``torch.compile`` (whose own fused kernel serves), no native library, inputs it refuses."""
-    if (type(field).corners is not GridField.corners or x.requires_grad or torch.compiler.is_compiling()
-            or native.library() is None):
+    if not natively_cornered(field) or x.requires_grad or torch.compiler.is_compiling() or native.library() is None:
         return None
     try:
-        return _NativeGrid.apply(field.table, x, field.lo, field.hi, field.resolutions, field.offsets)
+        return _NativeGrid.apply(field.table, x, field.lo, field.hi, field.resolutions, field.offsets, field.sizes,
+                                 field.corners)
     except _Refused:
         return None
 
@@ -237,6 +246,8 @@ class GridField(nn.Module):
     def corners(self, u: Tensor) -> tuple[Tensor, Tensor]:
         """Rows and weights of the trilinear corners of (M, 3) box coordinates u on every level (L, 8, M)."""
         return trilinear_corners(u, self.resolutions, self.offsets)
+
+    native_corners = corners  # the native kernels make these corners (``natively_cornered``)
 
     def _density(self, x: Tensor) -> tuple[Tensor, Tensor]:
         features, inside = self.encode(x)

@@ -45,3 +45,5 @@ class HashGridField(GridField):
 
     def corners(self, u: Tensor) -> tuple[Tensor, Tensor]:
         return hashed_corners(u, self.resolutions, self.offsets, self.sizes)
+
+    native_corners = corners  # the native kernels hash these levels as Eq. 4 does (``grid.natively_cornered``)

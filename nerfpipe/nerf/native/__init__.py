@@ -111,8 +111,8 @@ def library() -> ctypes.CDLL | None:
     lib.nerfpipe_contracted_steps.argtypes = [p, p, p, p, p, i64, i64, p, p]
     lib.nerfpipe_contracted_steps.restype = i64
     lib.nerfpipe_openmp.restype = i64
-    lib.nerfpipe_grid_gather.argtypes = [p, i64, i64, p, i64, p, p, p, p, i64, p, p, i64]
-    lib.nerfpipe_grid_scatter.argtypes = [p, i64, i64, p, i64, p, p, p, p, i64, p, i64]
+    lib.nerfpipe_grid_gather.argtypes = [p, i64, i64, p, i64, p, p, p, p, p, i64, p, p, i64]
+    lib.nerfpipe_grid_scatter.argtypes = [p, i64, i64, p, i64, p, p, p, p, p, i64, p, i64]
     for kernel in (lib.nerfpipe_grid_gather, lib.nerfpipe_grid_scatter):
         kernel.restype = i64
     lib.nerfpipe_render_marched.argtypes = [ctypes.POINTER(_MarchedGrid), p, p, p, p, p, i64, p, p, p, p, i64]
@@ -163,62 +163,73 @@ def contracted_steps(x0: Tensor, dx: Tensor, base: Tensor, near: Tensor, far: Te
     return None if longest < 0 else edges[:, :longest + 1]
 
 
-def _grid_inputs(table: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: Tensor,
-                 offsets: Tensor) -> tuple | None:
+def level_sizes(resolutions: Tensor, sizes: Tensor | None) -> Tensor:
+    """Each level's rows as the kernels take them: ``sizes`` (fewer than a level's (r + 1)^3 vertices where it is
+    hashed, ``nerfpipe.nerf.fields.hash``), or every level dense where None."""
+    return ((resolutions.to(torch.int64) + 1) ** 3 if sizes is None else sizes.to(torch.int64)).contiguous()
+
+
+def _grid_inputs(table: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: Tensor, offsets: Tensor,
+                 sizes: Tensor | None) -> tuple | None:
     """The grid kernels' inputs made contiguous, or None where they cannot run (no library, not float32 on the CPU,
-    x not (M, 3), levels and offsets of different lengths)."""
+    x not (M, 3), levels, offsets and sizes of different lengths)."""
     lib = library()
-    if (lib is None or x.dim() != 2 or x.shape[1] != 3 or not table.is_contiguous() or len(resolutions) != len(offsets)
-            or any(t.device.type != "cpu" for t in (table, x, lo, hi, resolutions, offsets))
+    sizes = level_sizes(resolutions, sizes)
+    if (lib is None or x.dim() != 2 or x.shape[1] != 3 or not table.is_contiguous()
+            or not len(resolutions) == len(offsets) == len(sizes)
+            or any(t.device.type != "cpu" for t in (table, x, lo, hi, resolutions, offsets, sizes))
             or any(t.dtype != torch.float32 for t in (table, x, lo, hi))):
         return None
     return (lib, x.contiguous(), lo.contiguous(), hi.contiguous(), resolutions.to(torch.int64).contiguous(),
-            offsets.to(torch.int64).contiguous())
+            offsets.to(torch.int64).contiguous(), sizes)
 
 
-def _grid_result(code: int, table: Tensor, resolutions: Tensor, offsets: Tensor) -> bool:
+def _grid_result(code: int, table: Tensor, resolutions: Tensor, offsets: Tensor, sizes: Tensor) -> bool:
     """Whether a grid kernel ran (0), refused a NaN (-1); raises ValueError where the levels overrun the table (-2,
     checked by the kernel itself: no work in Python on every call)."""
     if code == -2:
-        raise ValueError(f"grid kernels: levels of {resolutions.tolist()} cells at rows {offsets.tolist()} do not fit "
-                         f"a table of {table.shape[0]} rows")
+        raise ValueError(f"grid kernels: levels of {resolutions.tolist()} cells, {sizes.tolist()} rows at rows "
+                         f"{offsets.tolist()} do not fit a table of {table.shape[0]} rows (a hashed level's rows: a "
+                         "power of two below its vertices)")
     return code == 0
 
 
-def grid_gather(table: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: Tensor,
-                offsets: Tensor) -> tuple[Tensor, Tensor] | None:
+def grid_gather(table: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: Tensor, offsets: Tensor,
+                sizes: Tensor | None = None) -> tuple[Tensor, Tensor] | None:
     """A grid field's features (M, L, F) of points x (M, 3) and whether each lies in the box [lo, hi] (M,), from its
-    (V, F) ``table`` whose level l, of ``resolutions[l]`` cells a side, starts at row ``offsets[l]``: the trilinear
-    corners and their weighted sum of ``nerfpipe.nerf.fields.grid`` in one pass. None where the kernel cannot run
-    (see ``_grid_inputs``) or a coordinate is NaN (torch's operators then say what they say)."""
-    inputs = _grid_inputs(table, x, lo, hi, resolutions, offsets)
+    (V, F) ``table`` whose level l, of ``resolutions[l]`` cells a side, starts at row ``offsets[l]`` and holds
+    ``sizes[l]`` rows (hashed where fewer than its vertices; None: every level dense): the trilinear corners and
+    their weighted sum of ``nerfpipe.nerf.fields.grid`` (and ``hash``) in one pass. None where the kernel cannot
+    run (see ``_grid_inputs``) or a coordinate is NaN (torch's operators then say what they say)."""
+    inputs = _grid_inputs(table, x, lo, hi, resolutions, offsets, sizes)
     if inputs is None:
         return None
-    lib, x, lo, hi, resolutions, offsets = inputs
+    lib, x, lo, hi, resolutions, offsets, sizes = inputs
     out = torch.empty(len(x), len(resolutions), table.shape[1])
     inside = torch.empty(len(x), dtype=torch.bool)
     code = lib.nerfpipe_grid_gather(table.data_ptr(), table.shape[0], table.shape[1], x.data_ptr(), len(x),
                                     lo.data_ptr(), hi.data_ptr(), resolutions.data_ptr(), offsets.data_ptr(),
-                                    len(resolutions), out.data_ptr(), inside.data_ptr(), torch.get_num_threads())
-    return (out, inside) if _grid_result(code, table, resolutions, offsets) else None
+                                    sizes.data_ptr(), len(resolutions), out.data_ptr(), inside.data_ptr(),
+                                    torch.get_num_threads())
+    return (out, inside) if _grid_result(code, table, resolutions, offsets, sizes) else None
 
 
 def grid_scatter(table_grad: Tensor, x: Tensor, lo: Tensor, hi: Tensor, resolutions: Tensor, offsets: Tensor,
-                 grad: Tensor) -> bool:
+                 grad: Tensor, sizes: Tensor | None = None) -> bool:
     """``grid_gather``'s backward: adds each point's weighted (M, L, F) ``grad`` into the rows of its corners in
     ``table_grad`` (V, F). False, ``table_grad`` untouched, where the kernel cannot run."""
-    inputs = _grid_inputs(table_grad, x, lo, hi, resolutions, offsets)
+    inputs = _grid_inputs(table_grad, x, lo, hi, resolutions, offsets, sizes)
     if inputs is None or grad.dtype != torch.float32 or grad.device.type != "cpu":
         return False
-    lib, x, lo, hi, resolutions, offsets = inputs
+    lib, x, lo, hi, resolutions, offsets, sizes = inputs
     if grad.shape != (len(x), len(resolutions), table_grad.shape[1]):
         raise ValueError(f"grid_scatter: grad {tuple(grad.shape)} is not (points, levels, features) = "
                          f"({len(x)}, {len(resolutions)}, {table_grad.shape[1]})")
     grad = grad.contiguous()
     code = lib.nerfpipe_grid_scatter(table_grad.data_ptr(), table_grad.shape[0], table_grad.shape[1], x.data_ptr(),
                                      len(x), lo.data_ptr(), hi.data_ptr(), resolutions.data_ptr(), offsets.data_ptr(),
-                                     len(resolutions), grad.data_ptr(), torch.get_num_threads())
-    return _grid_result(code, table_grad, resolutions, offsets)
+                                     sizes.data_ptr(), len(resolutions), grad.data_ptr(), torch.get_num_threads())
+    return _grid_result(code, table_grad, resolutions, offsets, sizes)
 
 
 _f3 = ctypes.c_float * 3
@@ -232,6 +243,7 @@ class _MarchedGrid(ctypes.Structure):
                 ("occupancy_resolution", ctypes.c_int64), ("occupancy_lo", _f3), ("occupancy_hi", _f3),
                 ("table", ctypes.c_void_p), ("rows", ctypes.c_int64), ("features", ctypes.c_int64),
                 ("levels", ctypes.c_int64), ("resolutions", ctypes.c_void_p), ("offsets", ctypes.c_void_p),
+                ("sizes", ctypes.c_void_p),
                 ("lo", _f3), ("hi", _f3), ("hidden", ctypes.c_int64), ("geo", ctypes.c_int64),
                 ("dir_freqs", ctypes.c_int64), ("view_dependent", ctypes.c_int64),
                 *((name, ctypes.c_void_p) for name in ("w1", "b1", "w2", "b2", "w3", "b3", "w4", "b4", "w5", "b5"))]
@@ -244,7 +256,8 @@ class MarchedGrid:
     contracted: the ray space contracts what lies beyond ``center`` +- ``half`` (its scene box; else the field is in
     world coordinates); step, most: the march's step in field units and the most steps a ray takes; early_stop: the
     transmittance at which a ray stops (0: never); occupied (r^3,) bool over the box ``occupancy_box``; table (V, F),
-    resolutions and offsets (L,) of the field's levels over ``box``; layers: the density MLP's two and the colour MLP's
+    resolutions, offsets and sizes (L,) of the field's levels over ``box`` (a level hashed where its rows are fewer
+    than its vertices); layers: the density MLP's two and the colour MLP's
     three (weight (out, in), bias (out,)) pairs, float32; dir_freqs, view_dependent: what the colour MLP reads beside
     the density MLP's other outputs (``nerfpipe.nerf.fields.grid.GridField``)."""
 
@@ -259,6 +272,7 @@ class MarchedGrid:
     table: Tensor
     resolutions: Tensor
     offsets: Tensor
+    sizes: Tensor
     box: tuple[tuple[float, ...], tuple[float, ...]]
     layers: tuple[tuple[Tensor, Tensor], ...]
     dir_freqs: int
@@ -283,6 +297,7 @@ def _marched_struct(grid: MarchedGrid, rays: tuple[Tensor, ...]) -> tuple[ctypes
     occupied = _occupancy_bytes(grid.occupied)
     table = grid.table.detach().contiguous()
     resolutions, offsets = (t.to(torch.int64).contiguous() for t in (grid.resolutions, grid.offsets))
+    sizes = level_sizes(resolutions, grid.sizes)
     # (in, out), but the colour's last layer (3, in): render.c's products
     kept = [t.detach().t().contiguous() if t.dim() == 2 and i < 8 else t.detach().contiguous()
             for i, t in enumerate(weights)]
@@ -292,12 +307,12 @@ def _marched_struct(grid: MarchedGrid, rays: tuple[Tensor, ...]) -> tuple[ctypes
         -math.log(grid.early_stop) if grid.early_stop > 0 else math.inf, occupied.data_ptr(),
         round(occupied.numel() ** (1 / 3)), _f3(*grid.occupancy_box[0]), _f3(*grid.occupancy_box[1]),
         table.data_ptr(), table.shape[0], table.shape[1], len(resolutions), resolutions.data_ptr(), offsets.data_ptr(),
-        _f3(*grid.box[0]), _f3(*grid.box[1]), hidden, geo, grid.dir_freqs, int(grid.view_dependent),
+        sizes.data_ptr(), _f3(*grid.box[0]), _f3(*grid.box[1]), hidden, geo, grid.dir_freqs, int(grid.view_dependent),
         *(t.data_ptr() for t in kept))
     if struct.occupancy_resolution ** 3 != occupied.numel() or features_in != len(resolutions) * table.shape[1]:
         raise ValueError(f"the native renderer: an occupancy grid of {occupied.numel()} cells or a density MLP of "
                          f"{features_in} inputs does not fit {len(resolutions)} levels of {table.shape[1]} features")
-    return lib, struct, [occupied, table, resolutions, offsets, *kept]
+    return lib, struct, [occupied, table, resolutions, offsets, sizes, *kept]
 
 
 def render_marched(grid: MarchedGrid, origins: Tensor, directions: Tensor, viewdirs: Tensor, near: Tensor,
@@ -318,7 +333,7 @@ def render_marched(grid: MarchedGrid, origins: Tensor, directions: Tensor, viewd
     code = lib.nerfpipe_render_marched(ctypes.byref(struct), origins.data_ptr(), directions.data_ptr(),
                                        viewdirs.data_ptr(), near.data_ptr(), far.data_ptr(), n, rgb.data_ptr(),
                                        depth.data_ptr(), acc.data_ptr(), counts.data_ptr(), torch.get_num_threads())
-    return None if _grid_result(code, _alive[1], _alive[2], _alive[3]) is False else (rgb, depth, acc, counts)
+    return None if _grid_result(code, *_alive[1:5]) is False else (rgb, depth, acc, counts)
 
 
 def reached_marched(grid: MarchedGrid, origins: Tensor, directions: Tensor, ray: Tensor, t: Tensor, starts: Tensor,
@@ -338,7 +353,7 @@ def reached_marched(grid: MarchedGrid, origins: Tensor, directions: Tensor, ray:
     code = lib.nerfpipe_reached_marched(ctypes.byref(struct), origins.data_ptr(), directions.data_ptr(), len(origins),
                                         ray.data_ptr(), t.data_ptr(), starts.data_ptr(), ends.data_ptr(), len(ray),
                                         keep.data_ptr(), torch.get_num_threads())
-    return None if _grid_result(code, _alive[1], _alive[2], _alive[3]) is False else keep
+    return None if _grid_result(code, *_alive[1:5]) is False else keep
 
 
 def march_marched(contracted: bool, center: tuple[float, ...], half: tuple[float, ...], step: float, most: int,

@@ -114,15 +114,16 @@ static int no_nan(const float *x, int64_t m) {
  * are under way together before the first is summed; writes the points' inside flags if ``inside`` is given. */
 #define BLOCK 16
 static void block_corners(const float *x, int64_t count, const float *lo, const float *hi, const int64_t *resolutions,
-                          const int64_t *offsets, int64_t levels, const float *table, int64_t features, int64_t *rows,
-                          float *weights, uint8_t *inside, int64_t first_row, int64_t end_row) {
+                          const int64_t *offsets, const int64_t *sizes, int64_t levels, const float *table,
+                          int64_t features, int64_t *rows, float *weights, uint8_t *inside, int64_t first_row,
+                          int64_t end_row) {
     float u[3];
     for (int64_t q = 0; q < count; ++q) {
         const int in = box_coordinates(x + 3 * q, lo, hi, u);
         if (inside) inside[q] = (uint8_t)in;
         for (int64_t l = 0; l < levels; ++l) {
             int64_t *r = rows + (q * levels + l) * 8;
-            grid_corners(u, resolutions[l], offsets[l], r, weights + (q * levels + l) * 8);
+            grid_corners(u, resolutions[l], offsets[l], sizes[l], r, weights + (q * levels + l) * 8);
             for (int c = 0; c < 8; c += 2) {
                 if (r[c] >= first_row && r[c] < end_row) __builtin_prefetch(table + r[c] * features);
             }
@@ -160,15 +161,6 @@ static inline void add_corners(float *restrict table, int64_t features, const in
     }
 }
 
-/* Whether every level's vertices, (r + 1)^3 rows from its offset, lie within a table of ``rows`` rows. */
-static int levels_fit(const int64_t *resolutions, const int64_t *offsets, int64_t levels, int64_t rows) {
-    for (int64_t l = 0; l < levels; ++l) {
-        const int64_t n = resolutions[l] + 1;
-        if (resolutions[l] < 1 || offsets[l] < 0 || offsets[l] > rows - n * n * n) return 0;
-    }
-    return 1;
-}
-
 /* nerfpipe_grid_gather, a grid field's features (nerfpipe.nerf.fields.grid.GridField.encode) in one pass: for each of
  * m points x (m, 3) and each of the levels, the sum over its 8 corners of weight x the table's row (features floats),
  * into out (m, levels, features); inside (m,) says whether the point lies in the box [lo, hi]. torch computes the
@@ -177,9 +169,9 @@ static int levels_fit(const int64_t *resolutions, const int64_t *offsets, int64_
  * is NaN, -2 if the levels overrun the table (of ``rows`` rows). */
 int64_t nerfpipe_grid_gather(const float *table, int64_t rows, int64_t features, const float *x, int64_t m,
                              const float *lo, const float *hi, const int64_t *resolutions, const int64_t *offsets,
-                             int64_t levels, float *out, uint8_t *inside, int64_t threads) {
+                             const int64_t *sizes, int64_t levels, float *out, uint8_t *inside, int64_t threads) {
     (void)threads;  /* without OpenMP: one thread */
-    if (!levels_fit(resolutions, offsets, levels, rows)) return -2;
+    if (!levels_fit(resolutions, offsets, sizes, levels, rows)) return -2;
     if (!no_nan(x, m)) return -1;
     const int64_t blocks = (m + BLOCK - 1) / BLOCK;
 #ifdef _OPENMP
@@ -196,8 +188,8 @@ int64_t nerfpipe_grid_gather(const float *table, int64_t rows, int64_t features,
         float weights[BLOCK * levels * 8];
         for (int64_t b = first; b < last; ++b) {
             const int64_t start = b * BLOCK, count = m - start < BLOCK ? m - start : BLOCK;
-            block_corners(x + 3 * start, count, lo, hi, resolutions, offsets, levels, table, features, rows, weights,
-                          inside + start, 0, INT64_MAX);
+            block_corners(x + 3 * start, count, lo, hi, resolutions, offsets, sizes, levels, table, features, rows,
+                          weights, inside + start, 0, INT64_MAX);
             switch (features) {  /* the feature loop unrolled for the common widths */
             case 2: sum_corners(table, 2, rows, weights, count * levels, out + start * levels * 2); break;
             case 4: sum_corners(table, 4, rows, weights, count * levels, out + start * levels * 4); break;
@@ -212,13 +204,12 @@ int64_t nerfpipe_grid_gather(const float *table, int64_t rows, int64_t features,
 /* The first row of the share ``t`` of ``n`` threads of a scatter over the levels: the levels laid end to end, each
  * one unit long (every point adds 8 corners on each, however many rows it has), cut into n equal lengths, a cut
  * within a level falling at the same fraction of its rows. */
-static int64_t share_start(int64_t t, int64_t n, const int64_t *resolutions, const int64_t *offsets, int64_t levels) {
+static int64_t share_start(int64_t t, int64_t n, const int64_t *offsets, const int64_t *sizes, int64_t levels) {
     if (t >= n) return INT64_MAX;
     const int64_t whole = levels * t / n;  /* levels before the cut; the cut's fraction of the next: */
     const int64_t part = levels * t % n;
     if (whole >= levels) return INT64_MAX;
-    const int64_t n_side = resolutions[whole] + 1, rows = n_side * n_side * n_side;
-    return offsets[whole] + rows * part / n;
+    return offsets[whole] + sizes[whole] * part / n;
 }
 
 /* nerfpipe_grid_scatter, its backward pass: table_grad[row] += weight x grad (m, levels, features) over every point,
@@ -228,9 +219,9 @@ static int64_t share_start(int64_t t, int64_t n, const int64_t *resolutions, con
  * coordinate is NaN, -2 if the levels overrun the table. */
 int64_t nerfpipe_grid_scatter(float *table_grad, int64_t rows, int64_t features, const float *x, int64_t m,
                               const float *lo, const float *hi, const int64_t *resolutions, const int64_t *offsets,
-                              int64_t levels, const float *grad, int64_t threads) {
+                              const int64_t *sizes, int64_t levels, const float *grad, int64_t threads) {
     (void)threads;
-    if (!levels_fit(resolutions, offsets, levels, rows)) return -2;
+    if (!levels_fit(resolutions, offsets, sizes, levels, rows)) return -2;
     if (!no_nan(x, m)) return -1;
 #ifdef _OPENMP
 #pragma omp parallel num_threads(m >= 8192 && threads > 1 ? (int)threads : 1)
@@ -241,14 +232,14 @@ int64_t nerfpipe_grid_scatter(float *table_grad, int64_t rows, int64_t features,
         t = omp_get_thread_num();
         n = omp_get_num_threads();
 #endif
-        const int64_t first_row = t == 0 ? 0 : share_start(t, n, resolutions, offsets, levels);
-        const int64_t end_row = t == n - 1 ? INT64_MAX : share_start(t + 1, n, resolutions, offsets, levels);
+        const int64_t first_row = t == 0 ? 0 : share_start(t, n, offsets, sizes, levels);
+        const int64_t end_row = t == n - 1 ? INT64_MAX : share_start(t + 1, n, offsets, sizes, levels);
         int64_t rows[BLOCK * levels * 8];
         float weights[BLOCK * levels * 8];
         for (int64_t start = 0; start < m; start += BLOCK) {
             const int64_t count = m - start < BLOCK ? m - start : BLOCK;
-            block_corners(x + 3 * start, count, lo, hi, resolutions, offsets, levels, table_grad, features, rows,
-                          weights, NULL, first_row, end_row);
+            block_corners(x + 3 * start, count, lo, hi, resolutions, offsets, sizes, levels, table_grad, features,
+                          rows, weights, NULL, first_row, end_row);
             const float *g = grad + start * levels * features;
             switch (features) {
             case 2: add_corners(table_grad, 2, rows, weights, count * levels, g, first_row, end_row); break;

@@ -58,7 +58,7 @@ typedef struct {
     float occupancy_lo[3], occupancy_hi[3];
     const float *table;          /* (rows, features): every level's vertices */
     int64_t rows, features, levels;
-    const int64_t *resolutions, *offsets;
+    const int64_t *resolutions, *offsets, *sizes;  /* sizes: each level's rows, fewer than its vertices where hashed */
     float lo[3], hi[3];          /* the field's box */
     int64_t hidden, geo, dir_freqs, view_dependent;
     /* the MLPs' weights and biases: density (features levels -> hidden -> 1 + geo), colour (geo [+ the direction's
@@ -347,7 +347,7 @@ static inline __attribute__((always_inline)) void block_densities(const MarchedG
             inside[q] = 0;
         }
         for (int64_t l = 0; l < m->levels; ++l) {
-            grid_corners(u, m->resolutions[l], m->offsets[l], corner_rows[q] + 8 * l, corner_weights[q] + 8 * l);
+            grid_corners(u, m->resolutions[l], m->offsets[l], m->sizes[l], corner_rows[q] + 8 * l, corner_weights[q] + 8 * l);
             for (int k = 0; k < 8; k += 2) __builtin_prefetch(m->table + corner_rows[q][8 * l + k] * m->features);
         }
     }
@@ -419,10 +419,7 @@ static int64_t render_ray(const MarchedGrid *m, const float *o, const float *d, 
  * table. */
 static int64_t check_marched(const MarchedGrid *m, const float *origins, const float *directions,
                              const float *viewdirs, const float *near, const float *far, int64_t n) {
-    for (int64_t l = 0; l < m->levels; ++l) {
-        const int64_t side = m->resolutions[l] + 1;
-        if (m->resolutions[l] < 1 || m->offsets[l] < 0 || m->offsets[l] > m->rows - side * side * side) return -2;
-    }
+    if (!levels_fit(m->resolutions, m->offsets, m->sizes, m->levels, m->rows)) return -2;
     if (m->hidden < 1 || m->hidden > MAX_WIDTH || m->geo < 0 || m->geo + 1 > MAX_WIDTH || m->levels > 32
         || m->levels * m->features > MAX_INPUTS || m->dir_freqs < 0 || m->dir_freqs > 16 || m->occupancy_resolution < 1)
         return -1;
