@@ -695,8 +695,8 @@ def test_camera_refinement_is_the_identity_at_first_with_finite_gradients_throug
 @pytest.mark.parametrize("value", [0.0, 1e-8, 1e4, -1e4])
 @pytest.mark.parametrize("kind", ["grid", "hash"])
 def test_the_native_kernels_keep_a_grid_field_finite_in_contracted_space(mode: str, value: float, kind: str) -> None:
-    """The native C kernels (``nerfpipe.nerf.native``: the dense grid's gather and scatter, the hashed grid's table
-    gradient, the contracted march's steps) at the edges: a grid field whose table holds one extreme value everywhere
+    """The native C kernels (``nerfpipe.nerf.native``: the dense and the hashed grid's gather and scatter, the
+    contracted march's steps) at the edges: a grid field whose table holds one extreme value everywhere
     (densities of exp(+-1e4) clamp at the field's cap or vanish), rays from outside the box to far bounds up to 1e6.
     The field's kernels and the steps' run (counted); the steps are torch's loop's to float rounding, finite and
     within [near, far]; the composite is sane and the table's gradient finite. (The same features and gradients
@@ -712,7 +712,7 @@ def test_the_native_kernels_keep_a_grid_field_finite_in_contracted_space(mode: s
 
     if native.library() is None:
         pytest.skip("no native kernels on this machine (no C compiler, or NERFPIPE_COMPILE=off)")
-    field_kernels = ("grid_gather", "grid_scatter") if kind == "grid" else ("scatter_bags",)
+    field_kernels = ("grid_gather", "grid_scatter")
     calls = dict.fromkeys((*field_kernels, "contracted_steps"), 0)
 
     def counted(name):
@@ -758,15 +758,17 @@ def test_the_native_kernels_keep_a_grid_field_finite_in_contracted_space(mode: s
 
 @pytest.mark.parametrize("value", [0.0, 1e-8, 1e4, -1e4])
 @pytest.mark.parametrize("contracted", [True, False])
-def test_rendering_in_one_loop_a_ray_stays_finite_at_the_edges(value: float, contracted: bool) -> None:
+@pytest.mark.parametrize("kind", ["grid", "hash"])
+def test_rendering_in_one_loop_a_ray_stays_finite_at_the_edges(value: float, contracted: bool, kind: str) -> None:
     """The native renderer (``nerfpipe.nerf.fused``, render.c) at the edges: a table of one extreme value everywhere
     (densities clamp at the field's cap or vanish, the colour MLP's sums of 1e4s), rays from outside the box to far
     bounds up to 1e6. It runs (not torch's path), and what it gives keeps the bounds every composite keeps: opacity
     and colour in [0, 1], depth within [near, far], every value finite. (Torch's results to float rounding:
     tests/nerf/test_fused.py.)"""
     from nerfpipe.nerf import native
-    from nerfpipe.nerf.fields.configs import GridConfig
+    from nerfpipe.nerf.fields.configs import GridConfig, HashConfig
     from nerfpipe.nerf.fields.grid import GridField
+    from nerfpipe.nerf.fields.hash import HashGridField
     from nerfpipe.nerf.fused import marched_grid
     from nerfpipe.nerf.samplers.configs import MarchingConfig
     from nerfpipe.nerf.samplers.occupancy import OccupancyGrid
@@ -781,7 +783,8 @@ def test_rendering_in_one_loop_a_ray_stays_finite_at_the_edges(value: float, con
         space, lo, hi = ContractedSpace(unit), (-2.0,) * 3, (2.0,) * 3
     else:
         rays, space, lo, hi = box, BoxSpace(unit), (-1.0,) * 3, (1.0,) * 3
-    field = GridField(lo, hi, GridConfig(levels=2, min_resolution=8, max_resolution=16))
+    field = (GridField(lo, hi, GridConfig(levels=2, min_resolution=8, max_resolution=16)) if kind == "grid" else
+             HashGridField(lo, hi, HashConfig(levels=2, min_resolution=8, max_resolution=64, log2_table=10)))
     with torch.no_grad():
         field.table.fill_(value)
     model = _marching(field, OccupancyGrid(lo, hi, 8), MarchingConfig(steps=64, early_stop=1e-4), space)

@@ -20,7 +20,7 @@ import numpy as np
 import pycolmap
 
 from nerfpipe.artifacts import PhotoRecord
-from nerfpipe.geometry.cameras import Camera, CameraSet, Points
+from nerfpipe.geometry.cameras import Camera, CameraSet, Points, invert_pose
 from nerfpipe.pipeline.stage import StageContext
 from nerfpipe.poses.colmap.log import colmap_log
 from nerfpipe.poses.colmap.matching import choose_matcher, match_features
@@ -136,11 +136,11 @@ def adjust_in_rounds(model: Any, triangulate: Callable[[Any, int], Any],
     photos' corners beyond the triangulator's reach (the cup's, 7 px), so the first round sees their centres
     only. Returns the last model and the mean reprojection error before the first round and after the last."""
     before = None
-    for round in range(rounds):
+    for index in range(rounds):
         first, after = bundle_adjust(model)
         before = first if before is None else before
-        if round < rounds - 1:
-            model = triangulate(model, round)
+        if index < rounds - 1:
+            model = triangulate(model, index)
     return model, before, after
 
 
@@ -151,8 +151,8 @@ def adjusted_cameras(model: Any, cameras: CameraSet) -> CameraSet:
                                     tuple(float(v) for v in camera.params))
                   for camera_id, camera in model.cameras.items()}
     by_name = {image.name: image for image in model.images.values()}
-    frames = [replace(frame, c2w=np.linalg.inv(np.vstack([np.asarray(by_name[frame.name].cam_from_world().matrix()),
-                                                          [0.0, 0.0, 0.0, 1.0]])))
+    frames = [replace(frame, c2w=invert_pose(np.vstack([np.asarray(by_name[frame.name].cam_from_world().matrix()),
+                                                        [0.0, 0.0, 0.0, 1.0]])))
               for frame in cameras.frames]
     return replace(cameras, cameras=intrinsics, frames=frames, points=triangulated_points(model, cameras))
 
@@ -255,9 +255,9 @@ def triangulate_in(
                  count, info["seconds"], info["mean_reprojection_error_px"], info["mean_track_length"])
     result = replace(cameras, points=points)
     if params.bundle_adjust != "off":
-        def again(adjusted: Any, round: int) -> Any:
-            (colmap_dir / f"adjusted{round}").mkdir()
-            return pycolmap.triangulate_points(adjusted, database, image_dir, colmap_dir / f"adjusted{round}",
+        def again(adjusted: Any, index: int) -> Any:
+            (colmap_dir / f"adjusted{index}").mkdir()
+            return pycolmap.triangulate_points(adjusted, database, image_dir, colmap_dir / f"adjusted{index}",
                                                options=options)
 
         try:
