@@ -43,11 +43,18 @@ static inline void grid_corners(const float *u, int64_t resolution, int64_t offs
         w[a][0] = 1.0f - f;
         w[a][1] = f;
     }
-    const int hashed = size < n * n * n;
+    if (size < n * n * n) {  /* hashed: its own loop, so that the dense one stays as tight as it was */
+        for (int c = 0; c < 8; ++c) {
+            const int dx = c >> 2, dy = (c >> 1) & 1, dz = c & 1;
+            rows[c] = offset + hashed_row(i[0] + dx, i[1] + dy, i[2] + dz, size);
+            weights[c] = (w[0][dx] * w[1][dy]) * w[2][dz];
+        }
+        return;
+    }
     const int64_t base = (i[0] * n + i[1]) * n + i[2] + offset;
     for (int c = 0; c < 8; ++c) {
         const int dx = c >> 2, dy = (c >> 1) & 1, dz = c & 1;
-        rows[c] = hashed ? offset + hashed_row(i[0] + dx, i[1] + dy, i[2] + dz, size) : base + (dx * n + dy) * n + dz;
+        rows[c] = base + (dx * n + dy) * n + dz;
         weights[c] = (w[0][dx] * w[1][dy]) * w[2][dz];
     }
 }
